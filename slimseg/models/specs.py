@@ -1,0 +1,136 @@
+"""Model specs: frozen dataclasses loaded from ``configs/models/*.yaml`` with strict checking."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+FAMILIES = ("yolov8", "darknet-yolov3")
+TASKS = ("segment", "detect")
+HEAD_KINDS = ("decoupled", "shared-rep", "yolov3")
+
+
+class SpecError(ValueError):
+    """A model spec is malformed; the message names the file and field."""
+
+
+@dataclass(frozen=True)
+class ScaleSpec:
+    """YOLOv8 compound scale: repeats ×depth, channels ×width capped at max_channels."""
+
+    depth: float
+    width: float
+    max_channels: int = 1024
+
+
+@dataclass(frozen=True)
+class HeadSpec:
+    """Detection head. ``hidden`` and ``proto_channels`` are reference (width 1.0) channels."""
+
+    kind: str = "decoupled"
+    reg_max: int = 16
+    num_masks: int = 32
+    proto_channels: int = 256
+    hidden: int = 256
+    share_repconv: bool = True
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything needed to build a network; stored with its hash in checkpoints and exports."""
+
+    name: str
+    family: str
+    task: str
+    num_classes: int = 80
+    scale: ScaleSpec | None = None
+    neck: str = "c2f"
+    head: HeadSpec = field(default_factory=HeadSpec)
+    anchors: tuple[tuple[tuple[int, int], ...], ...] | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("family", self.family, FAMILIES),
+            ("task", self.task, TASKS),
+            ("head.kind", self.head.kind, HEAD_KINDS),
+        )
+        for name, value, valid in checks:
+            if value not in valid:
+                raise SpecError(f"{self.name}: {name}={value!r} is not one of {list(valid)}")
+        if self.num_classes < 1:
+            raise SpecError(f"{self.name}: num_classes must be >= 1, got {self.num_classes}")
+        if self.family == "yolov8" and self.scale is None:
+            raise SpecError(f"{self.name}: yolov8 specs need a 'scale' section")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (tuples become lists)."""
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+    @property
+    def hash(self) -> str:
+        """First 12 hex digits of the SHA-256 of the canonical JSON of the spec."""
+        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+    def with_classes(self, num_classes: int | None) -> ModelSpec:
+        """Copy with another class count (None keeps the spec's)."""
+        if num_classes is None or num_classes == self.num_classes:
+            return self
+        return dataclasses.replace(self, num_classes=num_classes)
+
+
+def _convert(value: Any, hint: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _convert(value, inner[0], where)
+    if dataclasses.is_dataclass(hint):
+        return spec_from_mapping(hint, value, where)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise SpecError(f"{where}: expected a list, got {value!r}")
+        item = args[0]
+        return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
+    if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if hint in (int, str, bool) and type(value) is not hint:
+        raise SpecError(f"{where}: expected {hint.__name__}, got {value!r}")
+    return value
+
+
+def spec_from_mapping(cls: type, data: Any, where: str) -> Any:
+    """Build dataclass ``cls`` from a mapping; unknown or missing fields raise SpecError."""
+    if not isinstance(data, dict):
+        raise SpecError(f"{where}: expected a mapping for {cls.__name__}, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        raise SpecError(f"{where}: unknown field(s) {unknown}; valid fields: {names}")
+    kwargs = {k: _convert(v, hints[k], f"{where}.{k}") for k, v in data.items()}
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise SpecError(f"{where}: {exc}") from None
+
+
+def load_spec(path: str | Path) -> ModelSpec:
+    """Read one model spec YAML file."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise SpecError(f"{path}: cannot read model spec: {exc}") from None
+    return spec_from_mapping(ModelSpec, data, str(path))

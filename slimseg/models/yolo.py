@@ -1,0 +1,114 @@
+"""YOLOv8 detector / instance segmenter composed from backbone, neck and head."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from slimseg.models.backbones.csp_darknet import CSPDarknet
+from slimseg.models.heads.decode import (
+    DistributionFocalDecode,
+    anchor_points,
+    distances_to_xywh,
+)
+from slimseg.models.heads.decoupled import DecoupledDetect
+from slimseg.models.heads.masks import MaskCoefficients, Proto
+from slimseg.models.heads.shared_rep import SharedRepDetect
+from slimseg.models.necks.pan import PAN
+from slimseg.models.scaling import Scaler
+from slimseg.models.specs import ModelSpec
+
+STRIDES = (8, 16, 32)
+
+
+class RawOutputs(NamedTuple):
+    """Training-mode outputs, what the loss consumes.
+
+    ``feats``: per level ``[B, 4·reg_max + nc, H_i, W_i]`` (box logits, then class logits);
+    ``mask_coeffs``: ``[B, nm, A]`` raw coefficients (None for detect); ``proto``:
+    ``[B, nm, H/4, W/4]`` (None for detect).
+    """
+
+    feats: list[torch.Tensor]
+    mask_coeffs: torch.Tensor | None
+    proto: torch.Tensor | None
+
+
+class YOLO(nn.Module):
+    """YOLOv8 family network built from a ``ModelSpec``.
+
+    Eval forward on ``[B, 3, H, W]`` (H, W multiples of 32) returns the deployment layout:
+    segment → ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/4, W/4])``; detect →
+    ``pred [B, 4 + nc, A]``. ``pred`` rows: cx, cy, w, h in input pixels, nc sigmoid class
+    scores, nm raw mask coefficients; ``A = Σ (H/s)(W/s)`` over strides 8, 16, 32.
+    Training forward returns ``RawOutputs``.
+    """
+
+    def __init__(self, spec: ModelSpec, deploy: bool = False) -> None:
+        super().__init__()
+        assert spec.scale is not None
+        self.spec = spec
+        self.strides = STRIDES
+        self.num_classes = spec.num_classes
+        self.reg_max = spec.head.reg_max
+        scaler = Scaler(spec.scale.depth, spec.scale.width, spec.scale.max_channels)
+        self.backbone = CSPDarknet(scaler, deploy=deploy)
+        self.neck = PAN(self.backbone.out_channels, scaler, kind=spec.neck, deploy=deploy)
+        chans = self.neck.out_channels
+        head = spec.head
+        if head.kind == "decoupled":
+            self.detect: nn.Module = DecoupledDetect(chans, spec.num_classes, head.reg_max, deploy)
+        elif head.kind == "shared-rep":
+            self.detect = SharedRepDetect(
+                chans,
+                spec.num_classes,
+                scaler.channels(head.hidden),
+                share_repconv=head.share_repconv,
+                reg_max=head.reg_max,
+                deploy=deploy,
+            )
+        else:
+            raise ValueError(f"{spec.name}: head kind {head.kind!r} is not a YOLOv8 head")
+        self.segment = spec.task == "segment"
+        if self.segment:
+            self.mask_coeffs = MaskCoefficients(chans, head.num_masks, deploy=deploy)
+            self.proto = Proto(
+                chans[0], scaler.channels(head.proto_channels), head.num_masks, deploy
+            )
+        self.dfl = DistributionFocalDecode(head.reg_max)
+        self.detect.init_biases(self.strides)
+
+    def forward_raw(self, images: torch.Tensor) -> RawOutputs:
+        """``images [B, 3, H, W]`` → ``RawOutputs`` (used by training and by ``forward``)."""
+        feats = list(self.neck(self.backbone(images)))
+        if self.segment:
+            return RawOutputs(self.detect(feats), self.mask_coeffs(feats), self.proto(feats[0]))
+        return RawOutputs(self.detect(feats), None, None)
+
+    def decode(self, raw: RawOutputs) -> torch.Tensor:
+        """Per-level logits → ``[B, 4 + nc (+ nm), A]`` deployment rows (see class doc)."""
+        b = raw.feats[0].shape[0]
+        sizes = [(f.shape[2], f.shape[3]) for f in raw.feats]
+        flat = torch.cat([f.reshape(b, f.shape[1], -1) for f in raw.feats], dim=2)
+        box_logits, cls_logits = flat.split((4 * self.reg_max, self.num_classes), dim=1)
+        points, stride = anchor_points(sizes, self.strides, flat)
+        xywh = distances_to_xywh(self.dfl(box_logits), points) * stride.transpose(0, 1)
+        rows = [xywh, cls_logits.sigmoid()]
+        if raw.mask_coeffs is not None:
+            rows.append(raw.mask_coeffs)
+        return torch.cat(rows, dim=1)
+
+    def forward(
+        self, images: torch.Tensor
+    ) -> RawOutputs | torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        raw = self.forward_raw(images)
+        if self.training:
+            return raw
+        pred = self.decode(raw)
+        return (pred, raw.proto) if self.segment else pred
+
+    def dead_conv_params(self) -> int:
+        """Parameters the original code defines but never uses (the slim-neck's ``res`` conv)."""
+        return self.neck.dead_conv_params()
