@@ -46,18 +46,18 @@ def _seen_dtype(major: int, minor: int) -> np.dtype:
     return _I32
 
 
-def _conv_tensors(conv: ConvBNAct | nn.Conv2d) -> list[torch.Tensor]:
+def _conv_tensors(conv: ConvBNAct | nn.Conv2d, where: str = "") -> list[torch.Tensor]:
     """Tensors of one conv in file order: BN ``[β, γ, mean, var]`` or ``[bias]``, then weight."""
     if isinstance(conv, ConvBNAct):
         if not isinstance(conv.bn, nn.BatchNorm2d):
             raise DarknetWeightsError(
-                "model is fused (BatchNorm folded): darknet .weights need BatchNorm statistics; "
-                "use an unfused model (deploy=False) and call fuse_model() afterwards"
+                f"{where}model is fused (BatchNorm folded) but darknet .weights hold BatchNorm "
+                "statistics; use an unfused model (deploy=False) and call fuse_model() afterwards"
             )
         bn = conv.bn
         return [bn.bias, bn.weight, bn.running_mean, bn.running_var, conv.conv.weight]
     if conv.bias is None:
-        raise DarknetWeightsError(f"linear conv {conv} has no bias; darknet expects one")
+        raise DarknetWeightsError(f"{where}linear conv {conv} has no bias; darknet expects one")
     return [conv.bias, conv.weight]
 
 
@@ -124,7 +124,7 @@ def load_darknet_weights(model: Darknet19YOLOv3, path: str | Path) -> int:
     data = path.read_bytes()
     _, _, offset = _parse_header(data, path)
     convs = model.darknet_convs()
-    layout = [_conv_tensors(c) for c in convs]
+    layout = [_conv_tensors(c, f"{path}: ") for c in convs]
     payload = len(data) - offset
     if payload == 0:
         raise DarknetWeightsError(
@@ -148,7 +148,7 @@ def load_darknet_weights(model: Darknet19YOLOv3, path: str | Path) -> int:
                 f"{path}: data ends inside {_describe(i, convs[i])}: needs {need * 4} bytes, "
                 f"{(n_floats - pos) * 4} left after {i} complete convs"
                 f"{_nc_hint(model, n_floats)}; use a .weights file written for this network "
-                f"(num_classes={model.num_classes}, {model.num_anchors} anchors/level) or re-save it"
+                f"(num_classes={model.num_classes}, {model.num_anchors} anchors/level)"
             )
         pos += need
         n_load = i + 1
@@ -201,7 +201,7 @@ def save_darknet_weights(
         np.array([seen], seen_dt).tobytes(),
     ]
     for conv in convs[:n]:
-        for t in _conv_tensors(conv):
+        for t in _conv_tensors(conv, f"{path}: "):
             chunks.append(t.detach().to("cpu", torch.float32).contiguous().numpy().astype(_F32))
 
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -185,7 +185,9 @@ class Darknet19YOLOv3(nn.Module):
         Objectness starts near 8 objects per image spread over the level's cells; class
         logits near probability 0.6 / nc. Box logits stay 0 (σ = 0.5, exp = 1).
         """
-        for head, stride in zip((self.head_p3, self.head_p4, self.head_p5), self.strides):
+        for head, stride in zip(
+            (self.head_p3, self.head_p4, self.head_p5), self.strides, strict=True
+        ):
             bias = head.pred.bias.view(self.num_anchors, self.num_outputs)
             bias[:, :4] = 0.0
             bias[:, 4] = math.log(8.0 / (image_size / stride) ** 2)

@@ -39,7 +39,7 @@ def get_spec(name: str | Path, num_classes: int | None = None) -> ModelSpec:
     else:
         specs = _specs()
         if name not in specs:
-            raise KeyError(f"unknown model {name!r}; valid: {', '.join(sorted(specs))}")
+            raise SpecError(f"unknown model {name!r}; valid: {', '.join(sorted(specs))}")
         spec = specs[str(name)]
     return spec.with_classes(num_classes)
 

@@ -13,12 +13,14 @@ from typing import Any
 
 import yaml
 
+from slimseg.errors import SlimsegError
+
 FAMILIES = ("yolov8", "darknet-yolov3")
 TASKS = ("segment", "detect")
 HEAD_KINDS = ("decoupled", "shared-rep", "yolov3")
 
 
-class SpecError(ValueError):
+class SpecError(SlimsegError, ValueError):
     """A model spec is malformed; the message names the file and field."""
 
 
@@ -123,6 +125,8 @@ def spec_from_mapping(cls: type, data: Any, where: str) -> Any:
     try:
         return cls(**kwargs)
     except TypeError as exc:
+        raise SpecError(f"{where}: {exc}") from None
+    except SpecError as exc:
         raise SpecError(f"{where}: {exc}") from None
 
 

@@ -1,0 +1,33 @@
+# Front door. `make demo` and `make test` create .venv on first use (pinned dependencies).
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint format reference bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+demo: $(STAMP)  ## the main job on the embedded default (no download)
+	$(BIN)/slimseg info --model all --nc 20
+
+test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+reference: $(STAMP)  ## regenerate tests/reference/complexity.json; review the diff like code
+	$(BIN)/python tools/gen_complexity_reference.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache

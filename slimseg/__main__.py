@@ -1,0 +1,5 @@
+import sys
+
+from slimseg.cli.main import main
+
+sys.exit(main())

@@ -1,0 +1,5 @@
+"""Exceptions whose message is meant for the user: the CLI prints them on one line."""
+
+
+class SlimsegError(Exception):
+    """Base class: bad input a user can fix (the message says how)."""
