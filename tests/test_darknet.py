@@ -47,6 +47,12 @@ def randomize(model: nn.Module, seed: int) -> nn.Module:
     return model
 
 
+def meta_model(num_classes: int, deploy: bool = False) -> Darknet19YOLOv3:
+    """A weightless model for loads that must fail before any tensor is touched."""
+    with torch.device("meta"):
+        return Darknet19YOLOv3(num_classes=num_classes, deploy=deploy)
+
+
 @pytest.fixture(scope="module")
 def model() -> Darknet19YOLOv3:
     """Shared nc=1 model in eval mode; tests must not modify it (copy first)."""
@@ -97,13 +103,10 @@ def test_conv_order_matches_cfg(model: Darknet19YOLOv3) -> None:
     assert convs[26].conv.in_channels == 256 + 512  # concat [upsampled, s16 tap]
     assert convs[34].conv.in_channels == 128 + 256  # concat [upsampled, s8 tap]
     widths = [c.conv.out_channels for c in convs[:N_BACKBONE_CONVS]]
-    assert widths == [32, 64, 128, 64, 128, 256, 128, 256] + [512, 256] * 2 + [512] + [
-        1024,
-        512,
-        1024,
-        512,
-        1024,
-    ]
+    # darknet19.cfg convs 0, 2, 4-6, 8-10 | 12-16 | 18-22
+    assert widths == [32, 64, 128, 64, 128, 256, 128, 256, 512, 256, 512, 256, 512] + [
+        1024, 512, 1024, 512, 1024
+    ]  # fmt: skip
     assert all(isinstance(c.act, nn.LeakyReLU) and c.act.negative_slope == 0.1 for c in convs[:24])
 
 
@@ -125,6 +128,7 @@ def test_eval_shape_416(model: Darknet19YOLOv3) -> None:
 
 def test_eval_shape_non_square(model: Darknet19YOLOv3) -> None:
     with torch.no_grad():
+        assert model(torch.rand(1, 3, 320, 416)).shape == (1, 6, 3 * (40 * 52 + 20 * 26 + 10 * 13))
         y = model(torch.rand(2, 3, 96, 128))
     cells = sum((96 // s) * (128 // s) for s in (8, 16, 32))
     assert y.shape == (2, 6, 3 * cells)
@@ -243,13 +247,13 @@ def test_trailing_garbage(model: Darknet19YOLOv3, weights_file: Path, tmp_path: 
     path = tmp_path / "extra.weights"
     path.write_bytes(weights_file.read_bytes() + np.zeros(3, "<f4").tobytes())
     with pytest.raises(DarknetWeightsError, match="12 trailing bytes") as err:
-        load_darknet_weights(Darknet19YOLOv3(num_classes=1), path)
+        load_darknet_weights(meta_model(1), path)
     assert str(path) in str(err.value)
 
 
 def test_wrong_num_classes_hint(model: Darknet19YOLOv3, weights_file: Path) -> None:
     with pytest.raises(DarknetWeightsError, match="num_classes=1") as err:
-        load_darknet_weights(Darknet19YOLOv3(num_classes=2), weights_file)
+        load_darknet_weights(meta_model(2), weights_file)
     assert str(weights_file) in str(err.value)
 
 
@@ -257,16 +261,16 @@ def test_short_header(tmp_path: Path) -> None:
     path = tmp_path / "short.weights"
     path.write_bytes(np.array([0, 2], "<i4").tobytes())
     with pytest.raises(DarknetWeightsError, match="too short") as err:
-        load_darknet_weights(Darknet19YOLOv3(num_classes=1), path)
+        load_darknet_weights(meta_model(1), path)
     assert str(path) in str(err.value)
     path.write_bytes(np.array([0, 2, 0, 0], "<i4").tobytes())  # 0.2 needs a uint64 seen
     with pytest.raises(DarknetWeightsError, match="needs 20 bytes"):
-        load_darknet_weights(Darknet19YOLOv3(num_classes=1), path)
+        load_darknet_weights(meta_model(1), path)
 
 
 def test_fused_model_rejected(fused: Darknet19YOLOv3, weights_file: Path, tmp_path: Path) -> None:
     with pytest.raises(DarknetWeightsError, match="fused"):
-        load_darknet_weights(Darknet19YOLOv3(num_classes=1, deploy=True), weights_file)
+        load_darknet_weights(meta_model(1, deploy=True), weights_file)
     with pytest.raises(DarknetWeightsError, match="fused"):
         save_darknet_weights(fused, tmp_path / "f.weights")
     assert not list(tmp_path.iterdir())

@@ -17,7 +17,7 @@ COMMANDS = (info,)
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slimseg",
-        description="Build, train, ablate, fuse and export lightweight segmenters for dynamic SLAM.",
+        description="Build, train, ablate, fuse and export segmenters for dynamic SLAM.",
     )
     parser.add_argument("--version", action="version", version=f"slimseg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)

@@ -147,8 +147,9 @@ def load_darknet_weights(model: Darknet19YOLOv3, path: str | Path) -> int:
             raise DarknetWeightsError(
                 f"{path}: data ends inside {_describe(i, convs[i])}: needs {need * 4} bytes, "
                 f"{(n_floats - pos) * 4} left after {i} complete convs"
-                f"{_nc_hint(model, n_floats)}; use a .weights file written for this network "
-                f"(num_classes={model.num_classes}, {model.num_anchors} anchors/level)"
+                f"{_nc_hint(model, n_floats)}; the file is truncated or was written for another "
+                f"network: use one for this model (num_classes={model.num_classes}, "
+                f"{model.num_anchors} anchors/level)"
             )
         pos += need
         n_load = i + 1

@@ -18,6 +18,7 @@ from slimseg.errors import SlimsegError
 FAMILIES = ("yolov8", "darknet-yolov3")
 TASKS = ("segment", "detect")
 HEAD_KINDS = ("decoupled", "shared-rep", "yolov3")
+NECKS = ("c2f", "slim")
 
 
 class SpecError(SlimsegError, ValueError):
@@ -64,6 +65,7 @@ class ModelSpec:
             ("family", self.family, FAMILIES),
             ("task", self.task, TASKS),
             ("head.kind", self.head.kind, HEAD_KINDS),
+            ("neck", self.neck, NECKS),
         )
         for name, value, valid in checks:
             if value not in valid:
@@ -105,7 +107,9 @@ def _convert(value: Any, hint: Any, where: str) -> Any:
             raise SpecError(f"{where}: expected a list, got {value!r}")
         item = args[0]
         return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
-    if hint is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+    if hint is float:
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise SpecError(f"{where}: expected a number, got {value!r}")
         return float(value)
     if hint in (int, str, bool) and type(value) is not hint:
         raise SpecError(f"{where}: expected {hint.__name__}, got {value!r}")

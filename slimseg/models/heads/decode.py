@@ -46,7 +46,7 @@ class DistributionFocalDecode(nn.Module):
 
 
 def distances_to_xywh(dist: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """``dist [B, 4, A]`` (left, top, right, bottom) around ``points [A, 2]`` → ``[B, 4, A]`` xywh."""
+    """``dist [B, 4, A]`` (left, top, right, bottom) from ``points [A, 2]`` → xywh ``[B, 4, A]``."""
     lt, rb = dist.split((2, 2), dim=1)
     pts = points.transpose(0, 1).unsqueeze(0)
     x1y1, x2y2 = pts - lt, pts + rb

@@ -9,8 +9,8 @@ from slimseg.layers.conv import ConvBNAct
 from slimseg.layers.csp import C2f
 from slimseg.layers.gsconv import GSConv, VoVGSCSP
 from slimseg.models.scaling import Scaler
+from slimseg.models.specs import NECKS
 
-NECK_KINDS = ("c2f", "slim")
 
 
 class PAN(nn.Module):
@@ -30,8 +30,8 @@ class PAN(nn.Module):
         deploy: bool = False,
     ) -> None:
         super().__init__()
-        if kind not in NECK_KINDS:
-            raise ValueError(f"unknown neck {kind!r}; valid: {list(NECK_KINDS)}")
+        if kind not in NECKS:
+            raise ValueError(f"unknown neck {kind!r}; valid: {list(NECKS)}")
         self.kind = kind
         c3_in, c4_in, c5_in = in_channels
         c256, c512, c1024 = (scaler.channels(c) for c in (256, 512, 1024))

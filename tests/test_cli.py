@@ -1,0 +1,57 @@
+"""The `slimseg` entry point as a user runs it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from slimseg.cli.main import main
+
+
+def test_info_single_model_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", "--model", "yolov8n-seg", "--nc", "20", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["model"] == "yolov8n-seg"
+    assert data["params"] == 3_267_516 and data["fused_params"] == 3_261_964
+    assert data["gflops"] == pytest.approx(11.362, abs=5e-4)
+    assert sum(data["components"].values()) == data["params"]
+
+
+def test_info_fused_build(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", "--model", "yolov8s-seg-gs-rep", "--nc", "20", "--fused", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["params"] == data["fused_params"] == 9_073_255
+
+
+def test_info_table_for_one_model(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", "--model", "yolov8s-seg-gs", "--nc", "20"]) == 0
+    out = capsys.readouterr().out
+    assert "10,015,948" in out and "10,938,700" in out and "neck" in out
+
+
+@pytest.mark.slow
+def test_info_all_compares_with_paper(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info", "--model", "all", "--nc", "20"]) == 0
+    out = capsys.readouterr().out
+    assert "Table II" in out
+    for name in ("yolov8s-seg-gs-rep", "darknet19-yolov3", "yolov8n"):
+        assert name in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["info", "--model", "yolov8q"], "unknown model 'yolov8q'; valid:"),
+        (["info", "--model", "yolov8n-seg", "--imgsz", "100"], "not a multiple of 32"),
+    ],
+)
+def test_errors_are_one_line_and_nonzero(argv: list[str], needle: str) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "slimseg", *argv], capture_output=True, text=True, check=False
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0] and "Traceback" not in proc.stderr
