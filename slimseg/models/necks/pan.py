@@ -12,7 +12,6 @@ from slimseg.models.scaling import Scaler
 from slimseg.models.specs import NECKS
 
 
-
 class PAN(nn.Module):
     """Top-down then bottom-up feature pyramid over P3, P4, P5.
 

@@ -1,0 +1,52 @@
+"""Batching: samples → the tensors the YOLOv8-seg loss consumes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from slimseg.data.sample import Sample
+
+
+def downsample_masks(masks: np.ndarray, ratio: int) -> np.ndarray:
+    """``uint8 [N, H, W]`` → ``uint8 [N, H/r, W/r]``: 1 where ≥ half of the r×r block is set."""
+    n, h, w = masks.shape
+    if ratio == 1:
+        return masks
+    blocks = masks.reshape(n, h // ratio, ratio, w // ratio, ratio).astype(np.float32)
+    return (blocks.mean(axis=(2, 4)) >= 0.5).astype(np.uint8)
+
+
+def make_collate(mask_ratio: int = 4) -> Callable[[list[Sample]], dict]:
+    """Collate function producing a batch dict.
+
+    ``images``: ``float32 [B, 3, H, W]`` in [0, 1] (RGB); ``targets``: ``float32 [M, 6]`` rows
+    ``(batch_index, class, x1, y1, x2, y2)`` in input pixels; ``masks``: ``uint8
+    [M, H/r, W/r]`` aligned with ``targets``; plus ``image_ids``, ``paths``, ``meta``.
+    """
+
+    def collate(samples: list[Sample]) -> dict:
+        images = torch.from_numpy(np.stack([s.image for s in samples])).permute(0, 3, 1, 2)
+        rows, masks = [], []
+        for i, s in enumerate(samples):
+            n = s.num_instances
+            if n == 0:
+                continue
+            idx = np.full((n, 1), i, np.float32)
+            rows.append(np.concatenate([idx, s.classes[:, None].astype(np.float32), s.boxes], 1))
+            masks.append(downsample_masks(s.masks, mask_ratio))
+        h, w = samples[0].image.shape[:2]
+        return {
+            "images": images.float().div_(255.0),
+            "targets": torch.from_numpy(np.concatenate(rows)) if rows else torch.zeros(0, 6),
+            "masks": torch.from_numpy(np.concatenate(masks))
+            if masks
+            else torch.zeros(0, h // mask_ratio, w // mask_ratio, dtype=torch.uint8),
+            "image_ids": [s.image_id for s in samples],
+            "paths": [s.path for s in samples],
+            "meta": [s.meta for s in samples],
+        }
+
+    return collate

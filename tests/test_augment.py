@@ -1,0 +1,114 @@
+"""Augmentation keeps boxes and masks consistent; the letterbox rule is exact."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slimseg.data.augment import AugmentConfig, masks_to_boxes
+from slimseg.data.collate import downsample_masks, make_collate
+from slimseg.data.dataset import YoloDataset
+from slimseg.data.letterbox import boxes_to_frame, letterbox_image, letterbox_params
+from slimseg.data.sample import Sample
+
+
+def _random_sample(rng: np.random.Generator, h: int, w: int, index: int) -> Sample:
+    """Random rectangles and discs as disjoint visible masks."""
+    n = int(rng.integers(1, 6))
+    label = np.zeros((h, w), np.int32)
+    yy, xx = np.mgrid[:h, :w]
+    for k in range(1, n + 1):
+        cx, cy = rng.integers(0, w), rng.integers(0, h)
+        r = rng.integers(4, max(5, min(h, w) // 3))
+        shape = (
+            (xx - cx) ** 2 + (yy - cy) ** 2 < r**2
+            if k % 2
+            else ((abs(xx - cx) < r) & (abs(yy - cy) < r // 2))
+        )
+        label[shape] = k
+    masks = np.stack([(label == k).astype(np.uint8) for k in range(1, n + 1)])
+    keep = masks.reshape(n, -1).sum(1) > 0
+    masks = masks[keep]
+    image = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+    classes = rng.integers(0, 4, len(masks)).astype(np.int64)
+    return Sample(image, masks_to_boxes(masks), classes, masks, image_id=index, path=f"{index}.png")
+
+
+@pytest.fixture
+def base() -> list[Sample]:
+    rng = np.random.default_rng(1)
+    return [
+        _random_sample(rng, int(rng.integers(60, 140)), int(rng.integers(60, 140)), i)
+        for i in range(12)
+    ]
+
+
+@pytest.mark.parametrize(
+    "h,w,out,expect",
+    [
+        (480, 640, 320, (0.5, 320, 240, 0, 40)),
+        (100, 150, 160, (160 / 150, 160, 107, 0, 26)),
+        (33, 17, 64, (64 / 33, 33, 64, 15, 0)),
+    ],
+)
+def test_letterbox_rule(h: int, w: int, out: int, expect: tuple) -> None:
+    p = letterbox_params(h, w, out)
+    assert (p.scale, p.new_w, p.new_h, p.left, p.top) == pytest.approx(expect)
+    img = letterbox_image(np.zeros((h, w, 3), np.uint8), p)
+    assert img.shape == (out, out, 3)
+    assert (img[: p.top] == 114).all() and (img[p.top + p.new_h :] == 114).all()
+
+
+def test_boxes_round_trip_through_letterbox() -> None:
+    p = letterbox_params(480, 640, 320)
+    frame = np.array([[10, 20, 300, 400]], np.float32)
+    net = frame * p.scale + np.array([p.left, p.top, p.left, p.top])
+    np.testing.assert_allclose(boxes_to_frame(net, p, 480, 640), frame, atol=1e-4)
+
+
+@pytest.mark.parametrize("mosaic", [0.0, 1.0])
+def test_augmented_boxes_enclose_masks_within_1px(base: list[Sample], mosaic: float) -> None:
+    ds = YoloDataset(base, 128, AugmentConfig(mosaic=mosaic), seed=3)
+    total = 0
+    for i in range(len(ds)):
+        s = ds[i]
+        assert s.image.shape == (128, 128, 3) and s.masks.shape[1:] == (128, 128)
+        assert len(s.boxes) == len(s.classes) == len(s.masks)
+        np.testing.assert_allclose(s.boxes, masks_to_boxes(s.masks), atol=1)
+        assert (s.masks.sum(axis=(1, 2)) >= 4).all()
+        total += len(s.masks)
+    assert total > 0
+
+
+def test_augmentation_is_seeded(base: list[Sample]) -> None:
+    a = YoloDataset(base, 96, AugmentConfig(), seed=7)
+    b = YoloDataset(base, 96, AugmentConfig(), seed=7)
+    for i in range(4):
+        assert np.array_equal(a[i].image, b[i].image)
+        assert np.array_equal(a[i].masks, b[i].masks)
+
+
+def test_validation_is_letterbox_only(base: list[Sample]) -> None:
+    ds = YoloDataset(base, 160)
+    s, src = ds[0], base[0]
+    p = s.meta["letterbox"]
+    assert s.meta["orig_shape"] == src.image.shape[:2]
+    assert s.num_instances == src.num_instances
+    frame_boxes = boxes_to_frame(s.boxes, p, *src.image.shape[:2])
+    np.testing.assert_allclose(frame_boxes, src.boxes, atol=1.5 / p.scale + 1)
+
+
+def test_collate_layout(base: list[Sample]) -> None:
+    ds = YoloDataset(base, 128, AugmentConfig(mosaic=0.0), seed=0)
+    batch = make_collate(4)([ds[i] for i in range(3)])
+    m = batch["targets"].shape[0]
+    assert batch["images"].shape == (3, 3, 128, 128) and batch["images"].max() <= 1
+    assert batch["targets"].shape == (m, 6) and batch["masks"].shape == (m, 32, 32)
+    assert set(batch["targets"][:, 0].int().tolist()) <= {0, 1, 2}
+
+
+def test_downsample_masks_is_block_majority() -> None:
+    m = np.zeros((1, 8, 8), np.uint8)
+    m[0, :4, :2] = 1  # half of the top-left 4x4 block
+    m[0, 4:, 4:] = 1
+    assert downsample_masks(m, 4)[0].tolist() == [[1, 0], [0, 1]]
