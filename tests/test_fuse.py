@@ -103,3 +103,12 @@ def test_fuse_leaves_original_untouched() -> None:
     after = model.state_dict()
     assert before.keys() == after.keys()
     assert all(torch.equal(before[k], after[k]) for k in before)
+
+
+@pytest.mark.parametrize("name", ["yolov8n-seg-gs-rep", "darknet19-yolov3"])
+def test_model_fuse_method_returns_new_fused_model(name: str) -> None:
+    model = build_model(name, num_classes=2)
+    fused = model.fuse()
+    assert fused is not model and not fused.training
+    assert any(isinstance(m, nn.BatchNorm2d) for m in model.modules())
+    assert not any(isinstance(m, nn.BatchNorm2d) for m in fused.modules())

@@ -22,6 +22,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from slimseg.layers.conv import ConvBNAct
+from slimseg.layers.fuse import fuse_model
 
 # (w, h) in input pixels, one tuple per level, ordered stride 8, 16, 32 (yolov3.cfg masks
 # 0,1,2 | 3,4,5 | 6,7,8).
@@ -192,6 +193,10 @@ class Darknet19YOLOv3(nn.Module):
             bias[:, :4] = 0.0
             bias[:, 4] = math.log(8.0 / (image_size / stride) ** 2)
             bias[:, 5:] = math.log(0.6 / max(self.num_classes - 0.99, 0.01))
+
+    def fuse(self) -> Darknet19YOLOv3:
+        """A fused copy (BatchNorm folded into the convs) in eval mode; ``self`` is untouched."""
+        return fuse_model(self)
 
     def darknet_convs(self) -> list[ConvBNAct | nn.Conv2d]:
         """All 41 convolutions in darknet cfg order (the order of a ``.weights`` file).

@@ -7,6 +7,7 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
+from slimseg.layers.fuse import fuse_model
 from slimseg.models.backbones.csp_darknet import CSPDarknet
 from slimseg.models.heads.decode import (
     DistributionFocalDecode,
@@ -108,6 +109,10 @@ class YOLO(nn.Module):
             return raw
         pred = self.decode(raw)
         return (pred, raw.proto) if self.segment else pred
+
+    def fuse(self) -> YOLO:
+        """A fused copy (Conv+BN folded, RepConv merged) in eval mode; ``self`` is untouched."""
+        return fuse_model(self)
 
     def dead_conv_params(self) -> int:
         """Parameters the original code defines but never uses (the slim-neck's ``res`` conv)."""

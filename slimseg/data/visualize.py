@@ -1,0 +1,69 @@
+"""Drawing samples: masks, boxes and labels over images, tiled into a grid PNG."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slimseg.data.sample import Sample
+
+
+def class_color(index: int) -> tuple[int, int, int]:
+    """A fixed, well-separated RGB colour per class index (golden-angle hues)."""
+    hue = int((index * 137.508) % 180)
+    hsv = np.uint8([[[hue, 200, 255]]])
+    r, g, b = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0]
+    return int(r), int(g), int(b)
+
+
+def draw_sample(
+    sample: Sample, names: Sequence[str] | None = None, alpha: float = 0.45
+) -> np.ndarray:
+    """RGB ``uint8 [H, W, 3]`` with each instance's mask tinted, its box and class drawn."""
+    canvas = sample.image.copy()
+    for mask, box, cls in zip(sample.masks, sample.boxes, sample.classes, strict=True):
+        color = np.array(class_color(int(cls)), np.float32)
+        sel = mask.astype(bool)
+        canvas[sel] = (canvas[sel] * (1 - alpha) + color * alpha).astype(np.uint8)
+    for box, cls in zip(sample.boxes, sample.classes, strict=True):
+        color = class_color(int(cls))
+        x1, y1, x2, y2 = (int(round(v)) for v in box)
+        cv2.rectangle(canvas, (x1, y1), (x2 - 1, y2 - 1), color, 1)
+        label = names[int(cls)] if names and int(cls) < len(names) else str(int(cls))
+        cv2.putText(
+            canvas,
+            label,
+            (x1 + 1, max(y1 - 2, 8)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.3,
+            color,
+            1,
+            cv2.LINE_AA,
+        )
+    return canvas
+
+
+def tile(images: Sequence[np.ndarray], columns: int, gap: int = 2) -> np.ndarray:
+    """Tile equally sized RGB images into a grid with a white gap."""
+    h, w = images[0].shape[:2]
+    rows = (len(images) + columns - 1) // columns
+    grid = np.full((rows * (h + gap) - gap, columns * (w + gap) - gap, 3), 255, np.uint8)
+    for i, img in enumerate(images):
+        r, c = divmod(i, columns)
+        grid[r * (h + gap) : r * (h + gap) + h, c * (w + gap) : c * (w + gap) + w] = img
+    return grid
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> Path:
+    """Write an RGB image atomically (temp file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    if not cv2.imwrite(str(tmp), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write {path}")
+    os.replace(tmp, path)
+    return path
