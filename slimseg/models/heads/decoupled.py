@@ -7,7 +7,7 @@ import math
 import torch
 from torch import nn
 
-from slimseg.layers.conv import ConvBNAct
+from slimseg.models.heads.branch import conv_branch
 
 
 def class_bias_prior(num_classes: int, stride: int, imgsz: int = 640) -> float:
@@ -33,22 +33,8 @@ class DecoupledDetect(nn.Module):
         super().__init__()
         c_box = max(16, in_channels[0] // 4, 4 * reg_max)
         c_cls = max(in_channels[0], min(num_classes, 100))
-        self.box = nn.ModuleList(
-            nn.Sequential(
-                ConvBNAct(c, c_box, 3, deploy=deploy),
-                ConvBNAct(c_box, c_box, 3, deploy=deploy),
-                nn.Conv2d(c_box, 4 * reg_max, 1),
-            )
-            for c in in_channels
-        )
-        self.cls = nn.ModuleList(
-            nn.Sequential(
-                ConvBNAct(c, c_cls, 3, deploy=deploy),
-                ConvBNAct(c_cls, c_cls, 3, deploy=deploy),
-                nn.Conv2d(c_cls, num_classes, 1),
-            )
-            for c in in_channels
-        )
+        self.box = nn.ModuleList(conv_branch(c, c_box, 4 * reg_max, deploy) for c in in_channels)
+        self.cls = nn.ModuleList(conv_branch(c, c_cls, num_classes, deploy) for c in in_channels)
         self.num_classes = num_classes
 
     def forward(self, feats: list[torch.Tensor]) -> list[torch.Tensor]:

@@ -6,6 +6,7 @@ import torch
 from torch import nn
 
 from slimseg.layers.conv import ConvBNAct
+from slimseg.models.heads.branch import conv_branch
 
 
 class Proto(nn.Module):
@@ -34,14 +35,7 @@ class MaskCoefficients(nn.Module):
     def __init__(self, in_channels: tuple[int, ...], num_masks: int, deploy: bool = False) -> None:
         super().__init__()
         width = max(in_channels[0] // 4, num_masks)
-        self.branches = nn.ModuleList(
-            nn.Sequential(
-                ConvBNAct(c, width, 3, deploy=deploy),
-                ConvBNAct(width, width, 3, deploy=deploy),
-                nn.Conv2d(width, num_masks, 1),
-            )
-            for c in in_channels
-        )
+        self.branches = nn.ModuleList(conv_branch(c, width, num_masks, deploy) for c in in_channels)
         self.num_masks = num_masks
 
     def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
