@@ -25,13 +25,13 @@ def draw_sample(
 ) -> np.ndarray:
     """RGB ``uint8 [H, W, 3]`` with each instance's mask tinted, its box and class drawn."""
     canvas = sample.image.copy()
-    for mask, box, cls in zip(sample.masks, sample.boxes, sample.classes, strict=True):
+    for mask, cls in zip(sample.masks, sample.classes, strict=True):
         color = np.array(class_color(int(cls)), np.float32)
         sel = mask.astype(bool)
         canvas[sel] = (canvas[sel] * (1 - alpha) + color * alpha).astype(np.uint8)
     for box, cls in zip(sample.boxes, sample.classes, strict=True):
         color = class_color(int(cls))
-        x1, y1, x2, y2 = (int(round(v)) for v in box)
+        x1, y1, x2, y2 = (round(float(v)) for v in box)
         cv2.rectangle(canvas, (x1, y1), (x2 - 1, y2 - 1), color, 1)
         label = names[int(cls)] if names and int(cls) < len(names) else str(int(cls))
         cv2.putText(
