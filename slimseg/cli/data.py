@@ -1,0 +1,20 @@
+"""``slimseg data <action>``: build, convert, check and look at datasets."""
+
+from __future__ import annotations
+
+import argparse
+
+from slimseg.cli import data_coco, data_show, data_synth
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "data",
+        help="datasets: synth, coco-subset, voc2coco, check, show",
+        description="Build the embedded synthetic dataset, cut the COCO-20 subset, convert VOC, "
+        "check a dataset for bad input, or draw augmented samples.",
+    )
+    actions = p.add_subparsers(dest="action", metavar="<action>", required=True)
+    data_synth.add_parser(actions)
+    data_coco.add_parsers(actions)
+    data_show.add_parser(actions)

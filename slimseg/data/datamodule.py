@@ -1,0 +1,77 @@
+"""Lightning DataModule: dataset config → seeded train/val loaders of loss-ready batches."""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, get_worker_info
+
+from slimseg.data.augment import AugmentConfig
+from slimseg.data.coco import CocoDataset
+from slimseg.data.collate import make_collate
+from slimseg.data.config import DataConfig
+from slimseg.data.dataset import YoloDataset
+
+
+def _seed_worker(_worker_id: int) -> None:
+    """Each worker re-seeds its augmentation from torch's per-worker, per-epoch seed."""
+    info = get_worker_info()
+    if info is not None and isinstance(info.dataset, YoloDataset):
+        info.dataset.reseed(torch.initial_seed() % 2**32)
+
+
+class SegDataModule(L.LightningDataModule):
+    """Train/val loaders for a dataset config (see ``slimseg.data.config``).
+
+    Batches are dicts from ``slimseg.data.collate.make_collate``. Workers are re-created every
+    epoch (not persistent) so the trainer's ``mosaic_enabled`` switch reaches them.
+    """
+
+    def __init__(
+        self,
+        data: DataConfig,
+        imgsz: int = 320,
+        batch_size: int = 8,
+        workers: int = 2,
+        augment: AugmentConfig | None = None,
+        seed: int = 0,
+        mask_ratio: int = 4,
+    ) -> None:
+        super().__init__()
+        self.data = data
+        self.imgsz, self.batch_size, self.workers = imgsz, batch_size, workers
+        self.augment = augment or AugmentConfig()
+        self.seed, self.mask_ratio = seed, mask_ratio
+        self.train_set: YoloDataset | None = None
+        self.val_set: YoloDataset | None = None
+
+    def _base(self, split: str) -> CocoDataset:
+        return CocoDataset.from_config(self.data, split)
+
+    def setup(self, stage: str | None = None) -> None:
+        if stage in (None, "fit") and self.train_set is None:
+            self.train_set = YoloDataset(
+                self._base("train"), self.imgsz, self.augment, self.seed
+            )
+        if self.val_set is None:
+            self.val_set = YoloDataset(self._base("val"), self.imgsz)
+
+    def _loader(self, dataset: YoloDataset, shuffle: bool) -> DataLoader:
+        return DataLoader(
+            dataset,
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.workers,
+            collate_fn=make_collate(self.mask_ratio),
+            pin_memory=torch.cuda.is_available(),
+            worker_init_fn=_seed_worker,
+            generator=torch.Generator().manual_seed(self.seed),
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        assert self.train_set is not None, "call setup('fit') first"
+        return self._loader(self.train_set, shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        assert self.val_set is not None, "call setup() first"
+        return self._loader(self.val_set, shuffle=False)

@@ -1,0 +1,63 @@
+"""Embedded procedural RGB-D dataset: instance segmentation images and TUM-style sequences.
+
+No download: ``generate_dataset(out, train, val, imgsz, seed)`` renders everything from a seed
+(byte-identical for the same arguments) and returns the path of ``data.yaml``. Modules:
+
+- :mod:`.categories`: ``CATEGORIES`` (COCO names, ids, mobility priors);
+- :mod:`.painter`, :mod:`.shapes`: per-category shape samplers and renderers;
+- :mod:`.texture`, :mod:`.camera`: procedural room (wall, floor, clutter) seen by a pinhole;
+- :mod:`.scene`: one frame (layered instances, depth, sensor effects), ``render_image``;
+- :mod:`.sequence`: TUM RGB-D sequences with dynamic masks and static backgrounds;
+- :mod:`.coco_writer`, :mod:`.files`, :mod:`.generate`: COCO json, atomic writes, data.yaml.
+"""
+
+from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES, Category
+from slimseg.data.synth.coco_writer import MIN_AREA, encode_mask, frame_annotations
+from slimseg.data.synth.generate import SynthReport, generate, generate_dataset
+from slimseg.data.synth.scene import (
+    DEPTH_SCALE,
+    STREAM_TRAIN,
+    STREAM_VAL,
+    Frame,
+    Placement,
+    compose,
+    frame_rng,
+    render_image,
+)
+from slimseg.data.synth.sequence import (
+    SequenceFrame,
+    build_world,
+    render_sequence_frame,
+    timestamp,
+    write_sequence,
+)
+from slimseg.data.synth.shapes import Style, sample_style, walking_pose
+
+__all__ = [
+    "CATEGORIES",
+    "DEPTH_SCALE",
+    "MIN_AREA",
+    "MOBILITY",
+    "NAMES",
+    "STREAM_TRAIN",
+    "STREAM_VAL",
+    "Category",
+    "Frame",
+    "Placement",
+    "SequenceFrame",
+    "Style",
+    "SynthReport",
+    "build_world",
+    "compose",
+    "encode_mask",
+    "frame_annotations",
+    "frame_rng",
+    "generate",
+    "generate_dataset",
+    "render_image",
+    "render_sequence_frame",
+    "sample_style",
+    "timestamp",
+    "walking_pose",
+    "write_sequence",
+]

@@ -1,0 +1,196 @@
+"""Write the whole embedded dataset: image-mode train/val splits, TUM sequences, data.yaml."""
+
+from __future__ import annotations
+
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+
+from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES
+from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
+from slimseg.data.synth.files import write_png, write_text
+from slimseg.data.synth.scene import STREAM_TRAIN, STREAM_VAL, render_image
+from slimseg.data.synth.sequence import write_sequence
+from slimseg.errors import SlimsegError
+
+_OWNED = ("train", "val", "sequences", "data.yaml")  # what --overwrite may delete
+
+
+@dataclass
+class SynthReport:
+    """What :func:`generate` wrote: images per split, image-mode instances per class,
+    sequence counts, wall time and the data.yaml path."""
+
+    data_yaml: Path
+    images: dict[str, int] = field(default_factory=dict)
+    instances: dict[str, int] = field(default_factory=dict)
+    sequences: int = 0
+    frames: int = 0
+    sequence_instances: int = 0
+    seconds: float = 0.0
+
+    def summary(self) -> str:
+        """One line for the terminal."""
+        imgs = " + ".join(f"{n} {s}" for s, n in self.images.items())
+        per_class = ", ".join(f"{name} {self.instances.get(name, 0)}" for name in NAMES)
+        seq = (
+            f", {self.sequences} sequences x {self.frames} frames "
+            f"({self.sequence_instances} instances)"
+            if self.sequences
+            else ""
+        )
+        return (
+            f"synth: {imgs} images{seq}; instances: {per_class}; "
+            f"{self.seconds:.1f} s; data: {self.data_yaml}"
+        )
+
+
+def _check(
+    out: Path,
+    train: int,
+    val: int,
+    imgsz: int,
+    sequences: int,
+    frames: int,
+    seq_size: tuple[int, int],
+    overwrite: bool,
+) -> None:
+    if train < 1 or val < 1:
+        raise SlimsegError(f"--train {train} / --val {val}: both splits need at least 1 image")
+    if imgsz < 64 or imgsz % 32:
+        raise SlimsegError(f"--imgsz {imgsz} must be a multiple of 32 and at least 64")
+    if sequences < 0:
+        raise SlimsegError(f"--sequences {sequences} must be 0 or more")
+    if sequences and frames < 1:
+        raise SlimsegError(f"--frames {frames} must be at least 1")
+    if min(seq_size) < 64:
+        raise SlimsegError(f"--seq-size {seq_size[0]} {seq_size[1]}: both must be at least 64")
+    if out.exists() and not out.is_dir():
+        raise SlimsegError(f"--out {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise SlimsegError(f"--out {out} is not empty (pass --overwrite to replace the dataset)")
+
+
+def generate(
+    out: Path,
+    train: int,
+    val: int,
+    imgsz: int,
+    seed: int,
+    sequences: int = 0,
+    frames: int = 60,
+    *,
+    seq_size: tuple[int, int] = (640, 480),
+    overwrite: bool = False,
+    progress: bool = True,
+) -> SynthReport:
+    """Render and write the dataset into ``out``; returns a :class:`SynthReport`.
+
+    Layout: ``out/{train,val}/{images,depth}/NNNNNN.png`` (RGB PNG; uint16 TUM depth),
+    ``out/{train,val}/annotations.json`` (COCO, RLE), ``out/sequences/seq_KKK/`` (TUM layout,
+    see :mod:`slimseg.data.synth.sequence`) and ``out/data.yaml``, written last. Every file is
+    written atomically. ``overwrite`` first deletes only what this function writes
+    (``train/``, ``val/``, ``sequences/``, ``data.yaml``). Raises ``SlimsegError`` on bad input.
+    """
+    out = Path(out)
+    _check(out, train, val, imgsz, sequences, frames, seq_size, overwrite)
+    start = time.perf_counter()
+    if overwrite and out.is_dir():
+        for name in _OWNED:
+            p = out / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            elif p.exists():
+                p.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    report = SynthReport(data_yaml=out / "data.yaml", sequences=sequences, frames=frames)
+    total = train + val + sequences * frames
+    with tqdm(total=total, desc="synth", unit="img", disable=not progress) as bar:
+        for split, n, stream in (("train", train, STREAM_TRAIN), ("val", val, STREAM_VAL)):
+            _write_split(out / split, n, imgsz, seed, stream, report, bar)
+            report.images[split] = n
+        for s in range(sequences):
+            counts = write_sequence(
+                out / "sequences" / f"seq_{s:03d}", seed, s, frames, seq_size, bar.update
+            )
+            report.sequence_instances += counts["instances"]
+    _write_data_yaml(out, seed, imgsz, sequences)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _write_split(
+    root: Path, n: int, imgsz: int, seed: int, stream: int, report: SynthReport, bar: tqdm
+) -> None:
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    (root / "depth").mkdir(parents=True, exist_ok=True)
+    coco = CocoBuilder(f"slimseg synthetic {root.name} split (seed {seed}, {imgsz} px)")
+    for i in range(n):
+        frame = render_image(seed, i, imgsz, stream)
+        name = f"{i:06d}.png"
+        write_png(root / "images" / name, frame.rgb)
+        write_png(root / "depth" / name, frame.depth)
+        image = {"id": i + 1, "file_name": name, "width": imgsz, "height": imgsz}
+        anns = frame_annotations(frame, i + 1)
+        coco.add(image | {"depth_file": name}, anns)
+        for a in anns:
+            cat = CATEGORIES[a["category_id"] - 1].name
+            report.instances[cat] = report.instances.get(cat, 0) + 1
+        bar.update()
+    coco.write(root / "annotations.json")
+
+
+def _yaml_list(values: list) -> str:
+    return "[" + ", ".join(str(v) for v in values) + "]"
+
+
+def _write_data_yaml(out: Path, seed: int, imgsz: int, sequences: int) -> None:
+    lines = [
+        f"# slimseg synthetic dataset (seed {seed}, {imgsz} px); regenerate with",
+        f"# slimseg data synth --out <dir> --imgsz {imgsz} --seed {seed}",
+        "path: .",
+    ]
+    for split in ("train", "val"):
+        lines.append(
+            f"{split}: {{images: {split}/images, annotations: {split}/annotations.json, "
+            f"depth: {split}/depth}}"
+        )
+    lines.append("names: " + _yaml_list([f"'{n}'" if " " in n else n for n in NAMES]))
+    lines.append("mobility: " + _yaml_list(list(MOBILITY)))
+    if sequences:
+        lines.append(
+            "sequences: " + _yaml_list([f"sequences/seq_{s:03d}" for s in range(sequences)])
+        )
+    write_text(out / "data.yaml", "\n".join(lines) + "\n")
+
+
+def generate_dataset(
+    out: Path,
+    train: int,
+    val: int,
+    imgsz: int,
+    seed: int,
+    sequences: int = 0,
+    frames: int = 60,
+    *,
+    seq_size: tuple[int, int] = (640, 480),
+    overwrite: bool = False,
+    progress: bool = True,
+) -> Path:
+    """:func:`generate`, returning just the path of the written ``data.yaml``."""
+    report = generate(
+        out,
+        train,
+        val,
+        imgsz,
+        seed,
+        sequences,
+        frames,
+        seq_size=seq_size,
+        overwrite=overwrite,
+        progress=progress,
+    )
+    return report.data_yaml
