@@ -50,9 +50,7 @@ class SegDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and self.train_set is None:
-            self.train_set = YoloDataset(
-                self._base("train"), self.imgsz, self.augment, self.seed
-            )
+            self.train_set = YoloDataset(self._base("train"), self.imgsz, self.augment, self.seed)
         if self.val_set is None:
             self.val_set = YoloDataset(self._base("val"), self.imgsz)
 
