@@ -53,6 +53,7 @@ def _check(
     train: int,
     val: int,
     imgsz: int,
+    seed: int,
     sequences: int,
     frames: int,
     seq_size: tuple[int, int],
@@ -60,6 +61,8 @@ def _check(
 ) -> None:
     if train < 1 or val < 1:
         raise SlimsegError(f"--train {train} / --val {val}: both splits need at least 1 image")
+    if seed < 0:
+        raise SlimsegError(f"--seed {seed} must be 0 or more")
     if imgsz < 64 or imgsz % 32:
         raise SlimsegError(f"--imgsz {imgsz} must be a multiple of 32 and at least 64")
     if sequences < 0:
@@ -96,7 +99,7 @@ def generate(
     (``train/``, ``val/``, ``sequences/``, ``data.yaml``). Raises ``SlimsegError`` on bad input.
     """
     out = Path(out)
-    _check(out, train, val, imgsz, sequences, frames, seq_size, overwrite)
+    _check(out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite)
     start = time.perf_counter()
     if overwrite and out.is_dir():
         for name in _OWNED:

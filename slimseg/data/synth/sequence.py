@@ -303,14 +303,14 @@ def write_sequence(
         vals = (p.x, p.y, p.z, *q)
         gt_lines.append(ts + "".join(f" {v:.6f}" for v in vals) + "\n")
         image = {
-            "id": i,
+            "id": i + 1,
             "file_name": f"rgb/{ts}.png",
             "width": k.width,
             "height": k.height,
             "timestamp": float(ts),
             "depth_file": f"depth/{tsd}.png",
         }
-        anns = frame_annotations(sf.frame, i, extra=True)
+        anns = frame_annotations(sf.frame, i + 1, extra=True)
         coco.add(image, anns)
         for a in anns:
             cat = CATEGORIES[a["category_id"] - 1].name
