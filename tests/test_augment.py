@@ -112,3 +112,22 @@ def test_downsample_masks_is_block_majority() -> None:
     m[0, :4, :2] = 1  # half of the top-left 4x4 block
     m[0, 4:, 4:] = 1
     assert downsample_masks(m, 4)[0].tolist() == [[1, 0], [0, 1]]
+
+
+def test_shipped_augment_yaml_is_the_recipe() -> None:
+    from pathlib import Path
+
+    from slimseg.data.augment import load_augment_config
+
+    path = Path(__file__).parents[1] / "configs" / "data" / "augment.yaml"
+    assert load_augment_config(path) == AugmentConfig()
+
+
+def test_bad_augment_field_is_named(tmp_path) -> None:
+    from slimseg.data.augment import load_augment_config
+    from slimseg.errors import SlimsegError
+
+    path = tmp_path / "aug.yaml"
+    path.write_text("mosaic: 1.0\nflipud: 0.5\n")
+    with pytest.raises(SlimsegError, match="flipud"):
+        load_augment_config(path)
