@@ -19,12 +19,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "The same arguments give byte-identical files.",
     )
     p.add_argument("--out", type=Path, required=True, help="output folder (created)")
-    p.add_argument("--train", type=int, default=512, help="training images")
-    p.add_argument("--val", type=int, default=128, help="validation images")
-    p.add_argument("--imgsz", type=int, default=320, help="image size (square, multiple of 32)")
-    p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--sequences", type=int, default=0, help="TUM-style RGB-D sequences")
-    p.add_argument("--frames", type=int, default=60, help="frames per sequence (30 Hz)")
+    p.add_argument("--train", type=int, default=512, help="training images (default 512)")
+    p.add_argument("--val", type=int, default=128, help="validation images (default 128)")
+    p.add_argument(
+        "--imgsz", type=int, default=320, help="image size, square, multiple of 32 (default 320)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--sequences", type=int, default=0, help="TUM-style RGB-D sequences (default 0)")
+    p.add_argument(
+        "--frames", type=int, default=60, help="frames per sequence at 30 Hz (default 60)"
+    )
     p.add_argument(
         "--seq-size",
         type=int,
@@ -44,6 +48,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Generate the dataset described by ``args``; print a one-line summary. Bad arguments
+    raise ``SlimsegError``."""
     from slimseg.data.synth import generate
 
     report = generate(

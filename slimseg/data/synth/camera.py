@@ -59,6 +59,7 @@ class Pose:
         return (0.0, float(np.sin(self.yaw / 2)), 0.0, float(np.cos(self.yaw / 2)))
 
     def position(self) -> np.ndarray:
+        """``float64 [3]`` camera centre in the world."""
         return np.array([self.x, self.y, self.z])
 
 

@@ -68,6 +68,7 @@ class CocoBuilder:
             self.annotations.append({"id": len(self.annotations) + 1, **ann})
 
     def to_dict(self) -> dict:
+        """The COCO json object (``info``, ``images``, ``annotations``, ``categories``)."""
         return {
             "info": self.info,
             "images": self.images,
@@ -76,4 +77,5 @@ class CocoBuilder:
         }
 
     def write(self, path: Path) -> None:
+        """Write the json atomically to ``path``."""
         write_json(path, self.to_dict())

@@ -28,6 +28,7 @@ def write_bytes(path: Path, data: bytes) -> None:
 
 
 def write_text(path: Path, text: str) -> None:
+    """UTF-8 text, atomically."""
     write_bytes(path, text.encode("utf-8"))
 
 
@@ -43,8 +44,10 @@ def write_png(path: Path, image: np.ndarray) -> None:
 
 
 def write_json(path: Path, obj: object) -> None:
+    """Compact json, atomically."""
     write_text(path, json.dumps(obj, separators=(",", ":")))
 
 
 def write_yaml(path: Path, obj: object) -> None:
+    """YAML (keys in insertion order), atomically."""
     write_text(path, yaml.safe_dump(obj, sort_keys=False, default_flow_style=None))

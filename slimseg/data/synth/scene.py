@@ -48,6 +48,7 @@ class Placement:
 
     @property
     def category_id(self) -> int:
+        """1-based COCO category id."""
         return BY_NAME[self.style.category].id
 
 
@@ -138,6 +139,7 @@ class SensorNoise:
 
 
 def sample_noise(rng: np.random.Generator, sensor: Sensor, h: int, w: int) -> SensorNoise:
+    """Noise fields and ``sensor.holes`` elliptic depth holes for an ``h x w`` frame."""
     holes = np.zeros((h, w), np.uint8)
     for _ in range(sensor.holes):
         c = (int(rng.integers(w)), int(rng.integers(h)))

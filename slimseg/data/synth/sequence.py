@@ -60,8 +60,10 @@ def timestamp(frame: int, offset_us: int = 0) -> str:
 class Thing:
     """An upright object standing at world ``(x, bottom, z)``, ``height`` metres tall.
 
-    Static things keep their pose; a walker moves along x at ``speed`` m/s (and ``vz`` in
-    depth), is at ``x`` at time ``t_mid`` and swings its limbs with ``cadence`` strides/s.
+    Static things keep their pose. A walker paces back and forth along x over ``span`` metres
+    centred on ``x`` (turning at the ends, so any sequence length keeps it coming back),
+    at ``speed`` m/s, starting ``offset`` metres into its loop; its depth sways by ``sway``
+    metres and it swings its limbs with ``cadence`` strides per second.
     """
 
     style: Style
@@ -72,8 +74,9 @@ class Thing:
     track_id: int
     moving: bool = False
     speed: float = 0.0
-    vz: float = 0.0
-    t_mid: float = 0.0
+    span: float = 0.0
+    offset: float = 0.0
+    sway: float = 0.0
     cadence: float = 0.0
     phase: float = 0.0
     amplitude: float = 0.0
@@ -82,10 +85,12 @@ class Thing:
         """Style (pose) and bottom-centre world point at time ``t`` seconds."""
         if not self.moving:
             return self.style, np.array([self.x, self.bottom, self.z])
-        dt = t - self.t_mid
-        pos = np.array([self.x + self.speed * dt, self.bottom, self.z + self.vz * dt])
+        s = (self.speed * t + self.offset) % (2 * self.span)
+        heading = 1.0 if s < self.span else -1.0
+        x = self.x - self.span / 2 + (s if s < self.span else 2 * self.span - s)
+        z = self.z + self.sway * np.sin(2 * np.pi * t / 7.0 + self.phase)
         pose = walking_pose(self.phase + 2 * np.pi * self.cadence * t, self.amplitude)
-        return self.style.with_params(**pose), pos
+        return self.style.with_params(flip=heading, **pose), np.array([x, self.bottom, z])
 
 
 @dataclass
@@ -135,7 +140,8 @@ def build_world(seed: int, index: int, frames: int, width: int = 640, height: in
         "z": (rng.uniform(0.01, 0.08), rng.uniform(0.05, 0.2), rng.uniform(0, 2 * np.pi)),
         "yaw": (rng.uniform(0.01, 0.06), rng.uniform(0.05, 0.2), rng.uniform(0, 2 * np.pi)),
     }
-    drift = (float(rng.uniform(-0.12, 0.12)), float(rng.uniform(-0.05, 0.05)))
+    slow = min(1.0, 4.0 / duration)  # total drift stays below ~0.5 m in long sequences
+    drift = (float(rng.uniform(-0.12, 0.12) * slow), float(rng.uniform(-0.05, 0.05) * slow))
     floor_y = float(rng.uniform(0.8, 1.3))  # camera height above the floor
     wall_z = float(rng.uniform(4.8, 6.5))
     half_fov = k.cx / k.fx
@@ -150,7 +156,7 @@ def build_world(seed: int, index: int, frames: int, width: int = 640, height: in
         z = float(rng.uniform(1.8, wall_z - 0.6))
         bottom = floor_y
         if name == "tv" and rng.random() < 0.5:  # wall-mounted
-            z, bottom = wall_z - 0.03, floor_y - float(rng.uniform(0.9, 1.4))
+            z, bottom = wall_z - 0.1, floor_y - float(rng.uniform(0.9, 1.4))
         if name == "person":
             style = style.with_params(
                 profile=0.0, tilt=0.0, arm_l1=-0.15, arm_l2=-0.1, arm_r1=0.15, arm_r2=0.1
@@ -158,24 +164,27 @@ def build_world(seed: int, index: int, frames: int, width: int = 640, height: in
         x = float(z * half_fov * rng.uniform(-0.9, 0.9))
         things.append(Thing(style, x, z, bottom, float(rng.uniform(lo, hi)), track_id=j))
     for j in range(int(rng.integers(1, 4))):
-        z = float(rng.uniform(1.9, min(3.6, wall_z - 0.6)))
-        speed = float(rng.uniform(0.5, 1.2) * rng.choice([-1.0, 1.0]))
-        style = sample_style("person", rng)
-        style = style.with_params(flip=float(np.sign(speed)), tilt=float(rng.normal(0, 0.03)))
+        z = float(rng.uniform(1.9, min(3.6, wall_z - 0.8)))
+        speed = float(rng.uniform(0.5, 1.2))
+        span = 2 * (z * half_fov + 0.5)  # from just outside the left edge to outside the right
+        # in the central part of the view, heading either way, halfway through the sequence
+        s_mid = span * (rng.uniform(0.25, 0.75) + float(rng.integers(2)))
+        style = sample_style("person", rng).with_params(tilt=float(rng.normal(0, 0.03)))
         lo, hi = BY_NAME["person"].height_m
         things.append(
             Thing(
                 style,
-                x=float(z * half_fov * rng.uniform(-0.6, 0.6)),
+                x=0.0,
                 z=z,
                 bottom=floor_y,
                 height=float(rng.uniform(lo, hi)),
                 track_id=n_static + j,
                 moving=True,
                 speed=speed,
-                vz=float(rng.uniform(-0.15, 0.15)),
-                t_mid=float(rng.uniform(0.2, 0.8) * duration),
-                cadence=abs(speed) / float(rng.uniform(1.1, 1.5)),
+                span=span,
+                offset=(s_mid - speed * duration / 2) % (2 * span),
+                sway=float(rng.uniform(0.0, 0.3)),
+                cadence=speed / float(rng.uniform(1.1, 1.5)),
                 phase=float(rng.uniform(0, 2 * np.pi)),
                 amplitude=float(rng.uniform(0.35, 0.5)),
             )

@@ -53,6 +53,7 @@ class _Local:
         return self((x, y))[0]
 
     def s(self, length: float) -> float:
+        """A local length -> pixels."""
         return length * self.size
 
 
