@@ -15,12 +15,11 @@ from typing import Any
 import albumentations as A
 import cv2
 import numpy as np
-import yaml
 
 from slimseg.data.letterbox import PAD_VALUE, letterbox_image, letterbox_mask, letterbox_params
 from slimseg.data.sample import Sample
-from slimseg.errors import SlimsegError
 from slimseg.models.specs import spec_from_mapping
+from slimseg.utils.yaml_io import read_yaml
 
 
 @dataclass(frozen=True)
@@ -42,10 +41,7 @@ def load_augment_config(path: str | Path | None) -> AugmentConfig:
     """Read an augmentation YAML (None → defaults)."""
     if path is None:
         return AugmentConfig()
-    try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise SlimsegError(f"{path}: cannot read augmentation config: {exc}") from None
+    data = read_yaml(path, "augmentation config") or {}
     return spec_from_mapping(AugmentConfig, data, str(path))
 
 

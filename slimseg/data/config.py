@@ -31,9 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from slimseg.errors import SlimsegError
+from slimseg.utils.yaml_io import read_yaml
 
 _TOP_KEYS = {"path", "train", "val", "names", "mobility"}
 _SPLIT_KEYS = {"images", "annotations", "depth"}
@@ -135,12 +134,7 @@ def _prior(v: Any, src: Path, field: str) -> float:
 def load_data_config(path: str | Path) -> DataConfig:
     """Load and validate a dataset yaml (schema in the module docstring)."""
     src = Path(path).expanduser().resolve()
-    if not src.is_file():
-        raise SlimsegError(f"{src}: data config not found")
-    try:
-        raw = yaml.safe_load(src.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise SlimsegError(f"{src}: not a readable YAML file ({exc})") from None
+    raw = read_yaml(src, "data config")
     if not isinstance(raw, Mapping):
         raise SlimsegError(
             f"{src}: expected a mapping with 'train'/'val' (see slimseg.data.config)"

@@ -27,9 +27,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from slimseg.errors import SlimsegError
+from slimseg.utils.yaml_io import read_yaml
 
 
 @dataclass(frozen=True)
@@ -68,12 +67,7 @@ class SubsetStats:
 def load_class_list(path: str | Path) -> list[ClassSpec]:
     """Read a classes file (``classes: [{name, coco_id, mobility}, ...]``)."""
     path = Path(path)
-    if not path.is_file():
-        raise SlimsegError(f"{path}: classes file not found")
-    try:
-        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise SlimsegError(f"{path}: not a readable YAML file ({exc})") from None
+    raw = read_yaml(path, "classes file")
     items = raw.get("classes") if isinstance(raw, dict) else None
     if not isinstance(items, list) or not items:
         raise SlimsegError(f"{path}: expected 'classes: [{{name, coco_id, mobility}}, ...]'")

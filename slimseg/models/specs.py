@@ -11,9 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from slimseg.errors import SlimsegError
+from slimseg.utils.yaml_io import read_yaml
 
 FAMILIES = ("yolov8", "darknet-yolov3")
 TASKS = ("segment", "detect")
@@ -136,9 +135,8 @@ def spec_from_mapping(cls: type, data: Any, where: str) -> Any:
 
 def load_spec(path: str | Path) -> ModelSpec:
     """Read one model spec YAML file."""
-    path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise SpecError(f"{path}: cannot read model spec: {exc}") from None
+        data = read_yaml(path, "model spec")
+    except SlimsegError as exc:
+        raise SpecError(str(exc)) from None
     return spec_from_mapping(ModelSpec, data, str(path))
