@@ -11,13 +11,13 @@ import torch
 from slimseg.cli.main import main
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
-from slimseg.data.synth import generate_dataset
+from slimseg.data.synth import generate
 
 
 @pytest.fixture(scope="module")
 def synth_yaml(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("synth") / "ds"
-    return generate_dataset(out, train=12, val=4, imgsz=128, seed=5)
+    return generate(out, train=12, val=4, imgsz=128, seed=5).data_yaml
 
 
 @pytest.mark.parametrize("workers", [0, 2])

@@ -19,7 +19,7 @@ from slimseg.data.synth import (
     MIN_AREA,
     build_world,
     frame_annotations,
-    generate_dataset,
+    generate,
     render_image,
     render_sequence_frame,
     write_sequence,
@@ -42,9 +42,7 @@ def _files(root: Path) -> dict[str, bytes]:
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("synth") / "ds"
-    generate_dataset(
-        out, 6, 3, IMGSZ, seed=3, sequences=1, frames=3, seq_size=(128, 96), progress=False
-    )
+    generate(out, 6, 3, IMGSZ, seed=3, sequences=1, frames=3, seq_size=(128, 96), progress=False)
     return out
 
 
@@ -71,14 +69,12 @@ def test_layout_and_data_yaml(dataset: Path) -> None:
 
 def test_deterministic_per_seed(dataset: Path, tmp_path: Path) -> None:
     again = tmp_path / "again"
-    generate_dataset(
-        again, 6, 3, IMGSZ, seed=3, sequences=1, frames=3, seq_size=(128, 96), progress=False
-    )
+    generate(again, 6, 3, IMGSZ, seed=3, sequences=1, frames=3, seq_size=(128, 96), progress=False)
     a, b = _files(dataset), _files(again)
     assert a.keys() == b.keys()
     assert all(a[k] == b[k] for k in a), [k for k in a if a[k] != b[k]][:5]
     other = tmp_path / "other"
-    generate_dataset(other, 6, 3, IMGSZ, seed=4, progress=False)
+    generate(other, 6, 3, IMGSZ, seed=4, progress=False)
     c = _files(other)
     assert c["train/annotations.json"] != a["train/annotations.json"]
     assert all(c[f"train/images/{i:06d}.png"] != a[f"train/images/{i:06d}.png"] for i in range(6))

@@ -153,6 +153,17 @@ def _imdecode(path: Path, flags: int) -> np.ndarray | None:
     return cv2.imdecode(buf, flags)
 
 
+def _read_unchanged(path: Path, what: str, missing: str, unreadable: str) -> np.ndarray:
+    """Decode ``path`` as stored (any depth/channels); ImageProblem of kind ``missing`` or
+    ``unreadable`` with the same messages for images and depth maps."""
+    if not path.is_file():
+        raise ImageProblem(missing, f"{path}: {what} file not found")
+    array = _imdecode(path, cv2.IMREAD_UNCHANGED)
+    if array is None:
+        raise ImageProblem(unreadable, f"{path}: corrupt or unreadable {what} file")
+    return array
+
+
 def read_image_rgb8(path: str | Path) -> tuple[np.ndarray, list[str]]:
     """Read an image file as ``uint8 [H, W, 3]`` RGB.
 
@@ -160,11 +171,7 @@ def read_image_rgb8(path: str | Path) -> tuple[np.ndarray, list[str]]:
     ``16bit_image``). Raises :class:`ImageProblem` (``missing_image`` / ``unreadable_image``).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ImageProblem("missing_image", f"{path}: image file not found")
-    img = _imdecode(path, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ImageProblem("unreadable_image", f"{path}: corrupt or unreadable image file")
+    img = _read_unchanged(path, "image", "missing_image", "unreadable_image")
     notes: list[str] = []
     if img.dtype == np.uint16:
         img = np.round(img.astype(np.float32) / 257.0).astype(np.uint8)
@@ -192,11 +199,7 @@ def read_image_rgb8(path: str | Path) -> tuple[np.ndarray, list[str]]:
 def read_depth(path: str | Path, height: int, width: int) -> np.ndarray:
     """Read a depth map as ``uint16 [H, W]``; raises :class:`ImageProblem` on any mismatch."""
     path = Path(path)
-    if not path.is_file():
-        raise ImageProblem("missing_depth", f"{path}: depth file not found")
-    depth = _imdecode(path, cv2.IMREAD_UNCHANGED)
-    if depth is None:
-        raise ImageProblem("bad_depth", f"{path}: corrupt or unreadable depth file")
+    depth = _read_unchanged(path, "depth", "missing_depth", "bad_depth")
     if depth.dtype != np.uint16 or depth.ndim != 2 or depth.shape != (height, width):
         raise ImageProblem(
             "bad_depth",

@@ -52,8 +52,7 @@ def build_from_spec(spec: ModelSpec, fused: bool = False) -> nn.Module:
         return YOLO(spec, deploy=fused)
     from slimseg.models.darknet_yolov3 import Darknet19YOLOv3
 
-    anchors = spec.anchors if spec.anchors is not None else None
-    kwargs = {"anchors": anchors} if anchors is not None else {}
+    kwargs = {"anchors": spec.anchors} if spec.anchors is not None else {}
     model = Darknet19YOLOv3(num_classes=spec.num_classes, deploy=fused, **kwargs)
     model.spec = spec
     return model

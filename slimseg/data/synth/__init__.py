@@ -1,7 +1,7 @@
 """Embedded procedural RGB-D dataset: instance segmentation images and TUM-style sequences.
 
-No download: ``generate_dataset(out, train, val, imgsz, seed)`` renders everything from a seed
-(byte-identical for the same arguments) and returns the path of ``data.yaml``. Modules:
+No download: ``generate(out, train, val, imgsz, seed)`` renders everything from a seed
+(byte-identical for the same arguments); its report names the written ``data.yaml``. Modules:
 
 - :mod:`.categories`: ``CATEGORIES`` (COCO names, ids, mobility priors);
 - :mod:`.painter`, :mod:`.shapes`: per-category shape samplers and renderers;
@@ -13,7 +13,7 @@ No download: ``generate_dataset(out, train, val, imgsz, seed)`` renders everythi
 
 from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES, Category
 from slimseg.data.synth.coco_writer import MIN_AREA, encode_mask, frame_annotations
-from slimseg.data.synth.generate import SynthReport, generate, generate_dataset
+from slimseg.data.synth.generate import SynthReport, generate
 from slimseg.data.synth.scene import (
     DEPTH_SCALE,
     STREAM_TRAIN,
@@ -53,7 +53,6 @@ __all__ = [
     "frame_annotations",
     "frame_rng",
     "generate",
-    "generate_dataset",
     "render_image",
     "render_sequence_frame",
     "sample_style",

@@ -168,32 +168,3 @@ def _write_data_yaml(out: Path, seed: int, imgsz: int, sequences: int) -> None:
             "sequences: " + _yaml_list([f"sequences/seq_{s:03d}" for s in range(sequences)])
         )
     write_text(out / "data.yaml", "\n".join(lines) + "\n")
-
-
-def generate_dataset(
-    out: Path,
-    train: int,
-    val: int,
-    imgsz: int,
-    seed: int,
-    sequences: int = 0,
-    frames: int = 60,
-    *,
-    seq_size: tuple[int, int] = (640, 480),
-    overwrite: bool = False,
-    progress: bool = True,
-) -> Path:
-    """:func:`generate`, returning just the path of the written ``data.yaml``."""
-    report = generate(
-        out,
-        train,
-        val,
-        imgsz,
-        seed,
-        sequences,
-        frames,
-        seq_size=seq_size,
-        overwrite=overwrite,
-        progress=progress,
-    )
-    return report.data_yaml
