@@ -27,7 +27,6 @@ class AugmentConfig:
     """Training augmentation (YOLOv8 recipe defaults). Validation always = letterbox only."""
 
     mosaic: float = 1.0  # probability of a 4-image mosaic
-    close_mosaic: int = 10  # last epochs trained without mosaic (used by the trainer)
     hsv_h: float = 0.015  # hue gain (fraction of the hue circle)
     hsv_s: float = 0.7  # saturation gain
     hsv_v: float = 0.4  # value gain

@@ -1,0 +1,71 @@
+"""``slimseg train``: train a zoo variant on a dataset config (CPU, one GPU, DDP)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from slimseg.data.augment import load_augment_config
+from slimseg.engine.config import load_train_config
+from slimseg.eval.coco_eval import format_metrics_table
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train a model (Lightning: CPU, GPU, multi-GPU / multi-node DDP)",
+        description="Train a zoo variant on a COCO-format dataset config. Writes "
+        "OUT/weights/{last,best}.pt (EMA weights), OUT/checkpoints/last.ckpt (for --resume), "
+        "OUT/results.csv and TensorBoard logs in OUT/tb.",
+    )
+    p.add_argument("--model", required=True, help="variant name (slimseg info) or spec YAML")
+    p.add_argument("--data", required=True, help="dataset config YAML")
+    p.add_argument("--config", default=None, help="recipe YAML (configs/train/*.yaml)")
+    p.add_argument("--augment", default=None, help="augmentation YAML (configs/data/augment.yaml)")
+    p.add_argument("--imgsz", type=int, default=None)
+    p.add_argument("--epochs", type=int, default=None)
+    p.add_argument("--batch", type=int, default=None)
+    p.add_argument("--lr0", type=float, default=None)
+    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--out", default=None, help="run folder (default runs/<model>)")
+    p.add_argument("--resume", action="store_true", help="continue OUT from checkpoints/last.ckpt")
+    p.add_argument("--weights", default=None, help="initial weights (.pt or .ckpt); shapes matched")
+    p.add_argument("--accelerator", default="auto", help="cpu | gpu | auto")
+    p.add_argument("--devices", default="auto", help="number of devices, e.g. 2 (DDP)")
+    p.add_argument("--num-nodes", type=int, default=1)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from slimseg.engine.train import train
+
+    cfg = load_train_config(args.config).override(
+        imgsz=args.imgsz,
+        epochs=args.epochs,
+        batch=args.batch,
+        lr0=args.lr0,
+        workers=args.workers,
+        seed=args.seed,
+    )
+    out = Path(args.out) if args.out else Path("runs") / Path(args.model).stem
+    devices = int(args.devices) if str(args.devices).isdigit() else args.devices
+    module, out = train(
+        args.model,
+        args.data,
+        cfg,
+        out,
+        resume=args.resume,
+        devices=devices,
+        num_nodes=args.num_nodes,
+        accelerator=args.accelerator,
+        weights=args.weights,
+        augment=load_augment_config(args.augment),
+        progress=not args.quiet,
+    )
+    if module.trainer.is_global_zero:
+        if module.last_metrics:
+            print(format_metrics_table(module.last_metrics, module.names))
+        print(f"run folder: {out}  (weights/best.pt, weights/last.pt, results.csv, tb/)")
+    return 0

@@ -1,0 +1,66 @@
+"""``slimseg val``: COCO box and mask mAP of a weights file on a dataset config."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from torch.utils.data import DataLoader
+
+from slimseg.data.coco import CocoDataset
+from slimseg.data.collate import make_collate
+from slimseg.data.config import load_data_config
+from slimseg.data.dataset import YoloDataset
+from slimseg.deploy.checkpoint import load_weights
+from slimseg.engine.evaluate import evaluate
+from slimseg.errors import SlimsegError
+from slimseg.eval.coco_eval import CocoEvaluator, format_metrics_table
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "val",
+        help="COCO box/mask mAP of trained weights on a dataset's val split",
+        description="Evaluate weights (.pt from slimseg train, or its .ckpt) with pycocotools.",
+    )
+    p.add_argument("--weights", required=True, help="weights/best.pt or checkpoints/last.ckpt")
+    p.add_argument("--data", required=True, help="dataset config YAML")
+    p.add_argument("--split", default="val", choices=("val", "train"))
+    p.add_argument("--imgsz", type=int, default=None, help="default: the training imgsz")
+    p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--conf", type=float, default=0.001)
+    p.add_argument("--iou", type=float, default=0.7)
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    model, info = load_weights(args.weights, fused=True)
+    data_cfg = load_data_config(args.data)
+    if len(data_cfg.names) != model.num_classes:
+        raise SlimsegError(
+            f"{args.data}: {len(data_cfg.names)} classes but {args.weights} predicts "
+            f"{model.num_classes}; evaluate on the dataset it was trained for"
+        )
+    imgsz = args.imgsz or int(info.train_config.get("imgsz", 640))
+    base = CocoDataset.from_config(data_cfg, args.split)
+    loader = DataLoader(
+        YoloDataset(base, imgsz),
+        batch_size=args.batch,
+        num_workers=args.workers,
+        collate_fn=make_collate(),
+    )
+    types = ("bbox", "segm") if model.spec.task == "segment" else ("bbox",)
+    evaluator = CocoEvaluator.from_dataset(base, types)
+    result = evaluate(
+        model, loader, evaluator, conf=args.conf, iou=args.iou, progress=not args.json
+    )
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{info.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px)")
+        print(format_metrics_table(result, data_cfg.names))
+        speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
+        print(f"speed per image: {speed}")
+    return 0

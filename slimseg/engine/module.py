@@ -1,0 +1,187 @@
+"""A thin LightningModule around any zoo model: loss, optimizer groups, warmup, EMA, COCO val."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import lightning as L
+import torch
+import torch.distributed as dist
+from torch import nn
+
+from slimseg.engine.config import TrainConfig
+from slimseg.engine.criterion import build_criterion
+from slimseg.engine.ema import ModelEMA
+from slimseg.engine.evaluate import detect_batch
+from slimseg.engine.schedule import lr_factor, warmup_values
+from slimseg.errors import SlimsegError
+from slimseg.eval.coco_eval import CocoEvaluator
+from slimseg.models.registry import build_from_spec
+from slimseg.models.specs import ModelSpec, spec_from_mapping
+
+
+class NonFiniteLossError(SlimsegError):
+    """The loss became NaN/inf; training stops and the last good checkpoint is kept."""
+
+
+def parameter_groups(model: nn.Module, weight_decay: float) -> list[dict]:
+    """Three groups: conv/linear weights (decayed), norm weights and biases (not decayed)."""
+    decay, norm, bias = [], [], []
+    for module in model.modules():
+        for name, p in module.named_parameters(recurse=False):
+            if not p.requires_grad:
+                continue
+            if name == "bias":
+                bias.append(p)
+            elif isinstance(module, (nn.BatchNorm2d, nn.GroupNorm, nn.LayerNorm)) or p.ndim < 2:
+                norm.append(p)
+            else:
+                decay.append(p)
+    return [
+        {"params": decay, "weight_decay": weight_decay, "group": "weights"},
+        {"params": norm, "weight_decay": 0.0, "group": "norm"},
+        {"params": bias, "weight_decay": 0.0, "group": "bias"},
+    ]
+
+
+class DetectorModule(L.LightningModule):
+    """Trains ``build_from_spec(spec)``; validates (and checkpoints) its EMA weights.
+
+    ``spec`` and ``train`` are plain dicts (so checkpoints hold them as hyper-parameters);
+    ``names``/``mobility`` describe the classes.
+    """
+
+    def __init__(
+        self,
+        spec: dict,
+        train: dict,
+        names: list[str],
+        mobility: list[float] | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.spec: ModelSpec = spec_from_mapping(ModelSpec, spec, "spec")
+        self.cfg: TrainConfig = spec_from_mapping(TrainConfig, train, "train")
+        self.names, self.mobility = list(names), list(mobility or [])
+        self.model = build_from_spec(self.spec)
+        self.criterion = build_criterion(self.model)
+        self.ema = ModelEMA(self.model, self.cfg.ema_decay) if self.cfg.ema else None
+        self.evaluator: CocoEvaluator | None = None
+        self._val_results: list[tuple[list[int], list[Any]]] = []
+        self.last_metrics: dict = {}
+
+    # ------------------------------------------------------------------ training
+    def forward(self, images: torch.Tensor) -> Any:
+        return self.model(images)
+
+    def transfer_batch_to_device(self, batch: dict, device: torch.device, idx: int) -> dict:
+        """Move the tensors; ``meta`` (letterbox geometry, paths) stays on the host."""
+        return {k: v.to(device) if torch.is_tensor(v) else v for k, v in batch.items()}
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        groups = parameter_groups(self.model, self.cfg.weight_decay)
+        if self.cfg.optimizer == "sgd":
+            return torch.optim.SGD(
+                groups, lr=self.cfg.lr0, momentum=self.cfg.momentum, nesterov=True
+            )
+        return torch.optim.AdamW(groups, lr=self.cfg.lr0, betas=(self.cfg.momentum, 0.999))
+
+    def on_fit_start(self) -> None:
+        if self.ema is not None:
+            self.ema.module.to(self.device)
+
+    def on_train_epoch_start(self) -> None:
+        dm = self.trainer.datamodule
+        if dm is not None and getattr(dm, "train_set", None) is not None:
+            closing = self.current_epoch >= self.cfg.epochs - self.cfg.close_mosaic
+            dm.train_set.mosaic_enabled = dm.train_set.mosaic_enabled and not closing
+
+    def on_train_batch_start(self, batch: dict, batch_idx: int) -> None:
+        nb = max(self.trainer.num_training_batches, 1)
+        step = self.global_step
+        warmup = max(round(self.cfg.warmup_epochs * nb), 100) if self.cfg.warmup_epochs else 0
+        target = self.cfg.lr0 * lr_factor(self.current_epoch + batch_idx / nb, self.cfg)
+        for group in self.trainer.optimizers[0].param_groups:
+            lr, momentum = warmup_values(step, warmup, target, group["group"] == "bias", self.cfg)
+            group["lr"] = lr
+            if momentum is not None:
+                if "betas" in group:
+                    group["betas"] = (momentum, group["betas"][1])
+                else:
+                    group["momentum"] = momentum
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        loss, terms = self.criterion(self.model(batch["images"]), batch)
+        if not torch.isfinite(loss):
+            raise NonFiniteLossError(
+                f"loss became {loss.item()} at epoch {self.current_epoch} step {self.global_step} "
+                f"({', '.join(f'{k}={v.item():.4g}' for k, v in terms.items())}); the last good "
+                "checkpoint is kept: lower lr0, raise warmup_epochs, or run 'slimseg data check'"
+            )
+        bs = batch["images"].shape[0]
+        self.log("train/loss", loss / bs, prog_bar=True, batch_size=bs)
+        for k, v in terms.items():
+            self.log(f"train/{k}", v, prog_bar=k in ("box", "seg", "cls"), batch_size=bs)
+        self.log("lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=bs)
+        return loss
+
+    def on_train_batch_end(self, outputs: Any, batch: dict, batch_idx: int) -> None:
+        if self.ema is not None:
+            self.ema.update(self.model)
+
+    # ---------------------------------------------------------------- validation
+    @property
+    def eval_model(self) -> nn.Module:
+        """The weights validated, checkpointed and exported: EMA when enabled."""
+        return self.ema.module if self.ema is not None else self.model
+
+    def on_validation_epoch_start(self) -> None:
+        self._val_results = []
+        if self.evaluator is None:
+            base = self.trainer.datamodule.val_set.base
+            types = ("bbox", "segm") if self.spec.task == "segment" else ("bbox",)
+            self.evaluator = CocoEvaluator.from_dataset(base, types)
+
+    def validation_step(self, batch: dict, batch_idx: int) -> None:
+        model = self.eval_model
+        model.eval()
+        frames = detect_batch(model, batch, self.cfg.conf, self.cfg.iou, self.cfg.max_det)
+        self._val_results.append((list(batch["image_ids"]), frames))
+
+    def on_validation_epoch_end(self) -> None:
+        results = self._val_results
+        if dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1:
+            gathered: list[Any] = [None] * dist.get_world_size()
+            dist.all_gather_object(gathered, results)
+            results = [r for part in gathered for r in part]
+        assert self.evaluator is not None
+        self.evaluator.reset()
+        seen: set[int] = set()
+        for ids, frames in results:  # DistributedSampler may repeat images to even out ranks
+            keep = [i for i, img in enumerate(ids) if img not in seen]
+            seen.update(ids)
+            self.evaluator.update([ids[i] for i in keep], [frames[i] for i in keep])
+        metrics = self.evaluator.summarize()
+        self.last_metrics = metrics
+        box, mask = metrics["box"], metrics.get("mask")
+        self.log("val/box_map50_95", box["map50_95"], prog_bar=True, sync_dist=False)
+        self.log("val/box_map50", box["map50"], sync_dist=False)
+        if mask:
+            self.log("val/mask_map50_95", mask["map50_95"], prog_bar=True, sync_dist=False)
+            self.log("val/mask_map50", mask["map50"], sync_dist=False)
+        fitness = 0.1 * box["map50"] + 0.9 * box["map50_95"]
+        if mask:
+            fitness = 0.5 * fitness + 0.5 * (0.1 * mask["map50"] + 0.9 * mask["map50_95"])
+        self.log("val/fitness", fitness if math.isfinite(fitness) else 0.0, sync_dist=False)
+
+    # --------------------------------------------------------------- checkpoints
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.ema is not None:
+            checkpoint["ema"] = self.ema.state_dict()
+        checkpoint["metrics"] = self.last_metrics
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        if self.ema is not None and "ema" in checkpoint:
+            self.ema.load_state_dict(checkpoint["ema"])
+        self.last_metrics = checkpoint.get("metrics", {})

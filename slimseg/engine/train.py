@@ -1,0 +1,170 @@
+"""``slimseg train`` as a library call: data config + variant + recipe → a trained run folder.
+
+Run folder layout::
+
+    OUT/weights/last.pt, best.pt   EMA weights + spec + names + mobility (slimseg-weights/1)
+    OUT/checkpoints/last.ckpt      Lightning state for --resume
+    OUT/tb/                        TensorBoard logs
+    OUT/results.csv                one row per validation: epoch, losses, mAPs
+    OUT/args.yaml                  model, data, recipe of the run
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from pathlib import Path
+
+import lightning as L
+import torch
+import yaml
+from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
+from lightning.pytorch.loggers import TensorBoardLogger
+
+from slimseg.data.augment import AugmentConfig
+from slimseg.data.config import load_data_config
+from slimseg.data.datamodule import SegDataModule
+from slimseg.deploy.checkpoint import WeightsInfo, load_weights, save_weights
+from slimseg.engine.config import TrainConfig
+from slimseg.engine.module import DetectorModule
+from slimseg.errors import SlimsegError
+from slimseg.models.registry import get_spec
+
+
+class RunWriter(L.Callback):
+    """After each validation (rank 0): ``weights/last.pt``, ``best.pt`` and ``results.csv``."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.best = -1.0
+
+    def on_validation_end(self, trainer: L.Trainer, module: DetectorModule) -> None:
+        if not trainer.is_global_zero or trainer.sanity_checking:
+            return
+        metrics = trainer.callback_metrics
+        fitness = float(metrics.get("val/fitness", 0.0))
+        info = WeightsInfo(
+            spec=module.spec,
+            names=module.names,
+            mobility=module.mobility,
+            epoch=trainer.current_epoch,
+            metrics=module.last_metrics,
+            train_config=dataclasses.asdict(module.cfg),
+        )
+        save_weights(self.out / "weights" / "last.pt", module.eval_model, info)
+        if fitness > self.best:
+            self.best = fitness
+            save_weights(self.out / "weights" / "best.pt", module.eval_model, info)
+        row = {"epoch": trainer.current_epoch}
+        row |= {k: round(float(v), 6) for k, v in metrics.items() if "/" in k}
+        path = self.out / "results.csv"
+        new = not path.exists()
+        with path.open("a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(row))
+            if new:
+                writer.writeheader()
+            writer.writerow(row)
+
+    def state_dict(self) -> dict:
+        return {"best": self.best}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.best = float(state.get("best", -1.0))
+
+
+def next_run_dir(base: Path) -> Path:
+    """``base`` if free (or empty), else ``base-2``, ``base-3``, ..."""
+    if not base.exists() or not any(base.iterdir()):
+        return base
+    k = 2
+    while (candidate := base.with_name(f"{base.name}-{k}")).exists():
+        k += 1
+    return candidate
+
+
+def transfer_weights(module: DetectorModule, path: str | Path) -> int:
+    """Copy every tensor of ``path`` whose name and shape match; returns how many."""
+    source, _ = load_weights(path)
+    own = module.model.state_dict()
+    matched = {k: v for k, v in source.state_dict().items() if k in own and own[k].shape == v.shape}
+    if not matched:
+        raise SlimsegError(f"{path}: no tensor matches {module.spec.name}; wrong --weights?")
+    module.model.load_state_dict(matched, strict=False)
+    if module.ema is not None:
+        module.ema.module.load_state_dict(module.model.state_dict())
+    return len(matched)
+
+
+def train(
+    model: str,
+    data: str | Path,
+    cfg: TrainConfig,
+    out: Path,
+    resume: bool = False,
+    devices: int | str = "auto",
+    num_nodes: int = 1,
+    accelerator: str = "auto",
+    weights: str | None = None,
+    augment: AugmentConfig | None = None,
+    progress: bool = True,
+) -> tuple[DetectorModule, Path]:
+    """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder."""
+    data_cfg = load_data_config(data)
+    spec = get_spec(model, len(data_cfg.names))
+    last_ckpt = out / "checkpoints" / "last.ckpt"
+    if resume and not last_ckpt.is_file():
+        raise SlimsegError(f"{last_ckpt}: nothing to resume (no checkpoint in {out})")
+    if not resume:
+        out = next_run_dir(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    L.seed_everything(cfg.seed, workers=True, verbose=False)
+    module = DetectorModule(
+        spec.to_dict(), dataclasses.asdict(cfg), list(data_cfg.names), list(data_cfg.mobility)
+    )
+    if weights and not resume:
+        n = transfer_weights(module, weights)
+        print(f"initialised {n} tensors from {weights}")
+    dm = SegDataModule(
+        data_cfg, cfg.imgsz, cfg.batch, cfg.workers, augment or AugmentConfig(), cfg.seed
+    )
+    (out / "args.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "model": model,
+                "data": str(data),
+                "spec": spec.to_dict(),
+                "train": dataclasses.asdict(cfg),
+            },
+            sort_keys=False,
+        )
+    )
+    use_gpu = accelerator in ("gpu", "cuda") or (
+        accelerator == "auto" and torch.cuda.is_available()
+    )
+    multi = num_nodes > 1 or (devices not in ("auto", 1, "1"))
+    trainer = L.Trainer(
+        max_epochs=cfg.epochs,
+        accelerator=accelerator,
+        devices=devices,
+        num_nodes=num_nodes,
+        strategy="ddp" if multi else "auto",
+        precision="16-mixed" if (cfg.amp and use_gpu) else "32-true",
+        gradient_clip_val=cfg.grad_clip or None,
+        sync_batchnorm=cfg.sync_bn and multi,
+        logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),
+        callbacks=[
+            ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, save_top_k=0),
+            RunWriter(out),
+            *([TQDMProgressBar(refresh_rate=1)] if progress else []),
+        ],
+        check_val_every_n_epoch=cfg.val_every,
+        num_sanity_val_steps=0,
+        log_every_n_steps=5,
+        enable_progress_bar=progress,
+        enable_model_summary=False,
+        default_root_dir=str(out),
+    )
+    trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if resume else None)
+    return module, out

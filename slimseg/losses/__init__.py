@@ -1,0 +1,1 @@
+"""Training losses: the darknet-style YOLOv3 loss (``slimseg.losses.yolov3``)."""
