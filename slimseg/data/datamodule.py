@@ -66,6 +66,10 @@ class SegDataModule(L.LightningDataModule):
             generator=torch.Generator().manual_seed(self.seed),
         )
 
+    def transfer_batch_to_device(self, batch: dict, device: torch.device, idx: int) -> dict:
+        """Move the tensors; ``meta`` (letterbox geometry, paths) stays on the host."""
+        return {k: v.to(device) if torch.is_tensor(v) else v for k, v in batch.items()}
+
     def train_dataloader(self) -> DataLoader:
         assert self.train_set is not None, "call setup('fit') first"
         return self._loader(self.train_set, shuffle=True)

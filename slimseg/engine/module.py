@@ -75,10 +75,6 @@ class DetectorModule(L.LightningModule):
     def forward(self, images: torch.Tensor) -> Any:
         return self.model(images)
 
-    def transfer_batch_to_device(self, batch: dict, device: torch.device, idx: int) -> dict:
-        """Move the tensors; ``meta`` (letterbox geometry, paths) stays on the host."""
-        return {k: v.to(device) if torch.is_tensor(v) else v for k, v in batch.items()}
-
     def configure_optimizers(self) -> torch.optim.Optimizer:
         groups = parameter_groups(self.model, self.cfg.weight_decay)
         if self.cfg.optimizer == "sgd":
@@ -120,9 +116,9 @@ class DetectorModule(L.LightningModule):
                 "checkpoint is kept: lower lr0, raise warmup_epochs, or run 'slimseg data check'"
             )
         bs = batch["images"].shape[0]
-        self.log("train/loss", loss / bs, prog_bar=True, batch_size=bs)
+        self.log("loss", loss / bs, prog_bar=True, on_epoch=False, logger=False, batch_size=bs)
         for k, v in terms.items():
-            self.log(f"train/{k}", v, prog_bar=k in ("box", "seg", "cls"), batch_size=bs)
+            self.log(f"train/{k}", v, on_step=False, on_epoch=True, batch_size=bs)
         self.log("lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=bs)
         return loss
 

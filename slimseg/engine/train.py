@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import warnings
 from pathlib import Path
 
 import lightning as L
@@ -29,6 +30,13 @@ from slimseg.engine.config import TrainConfig
 from slimseg.engine.module import DetectorModule
 from slimseg.errors import SlimsegError
 from slimseg.models.registry import get_spec
+
+# Lightning notices that are noise for slimseg runs (short CPU epochs, pytree deprecation).
+QUIET_WARNINGS = (
+    r".*is smaller than the logging interval.*",
+    r".*isinstance\(treespec, LeafSpec\)` is deprecated.*",
+    r".*does not have many workers which may be a bottleneck.*",
+)
 
 
 class RunWriter(L.Callback):
@@ -166,5 +174,8 @@ def train(
         enable_model_summary=False,
         default_root_dir=str(out),
     )
-    trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if resume else None)
+    with warnings.catch_warnings():
+        for message in QUIET_WARNINGS:
+            warnings.filterwarnings("ignore", message=message)
+        trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if resume else None)
     return module, out

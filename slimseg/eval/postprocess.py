@@ -79,7 +79,9 @@ def encode_rle(masks: np.ndarray) -> list[dict]:
     """``bool/uint8 [N, h, w]`` → ``N`` COCO RLE dicts (``counts`` as str, json-ready)."""
     if len(masks) == 0:
         return []
-    rles = mask_utils.encode(np.asfortranarray(np.transpose(masks, (1, 2, 0)).astype(np.uint8)))
+    # [N, w, h] C order is [h, w, N] Fortran order: one transpose copy per mask.
+    fortran = np.ascontiguousarray(np.transpose(masks, (0, 2, 1)), dtype=np.uint8).T
+    rles = mask_utils.encode(fortran)
     for r in rles:
         r["counts"] = r["counts"].decode("ascii")
     return rles
@@ -127,18 +129,21 @@ def to_frame_detections(
             f"proto has {proto.shape[0]} channels but detections carry "
             f"{dets.coeffs.shape[1]} mask coefficients"
         )
+    # Without a resize to the frame, thresholding at input resolution gives the same masks
+    # and skips the float copies.
+    threshold = 0.5 if (p.new_h, p.new_w) == (h, w) else None
     parts: list[np.ndarray] = []
     rles: list[dict] = []
     for s in range(0, len(dets), chunk):
-        prob = assemble_masks(
+        at_input = assemble_masks(
             dets.coeffs[s : s + chunk].detach(),
             proto.detach(),
             boxes_in[s : s + chunk],
             (p.out_h, p.out_w),
-            threshold=None,
+            threshold=threshold,
             chunk=chunk,
         )
-        m = masks_to_frame(prob, p, (h, w), chunk=chunk).cpu().numpy()
+        m = masks_to_frame(at_input, p, (h, w), chunk=chunk).cpu().numpy()
         if rle:
             rles.extend(encode_rle(m))
         else:

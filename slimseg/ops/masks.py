@@ -43,19 +43,38 @@ import torch.nn.functional as F
 from slimseg.data.letterbox import LetterboxParams
 
 
-def _window(boxes: torch.Tensor, h: int, w: int, centre: bool) -> torch.Tensor:
-    """``bool [N, h, w]``: pixels inside xyxy ``boxes [N, 4]`` (pixel centre rule if
-    ``centre``, else any overlap of the pixel's unit square)."""
+def _proto_window(boxes: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    """``bool [N, h, w]``: proto pixels whose unit square overlaps xyxy ``boxes [N, 4]``
+    (given in proto pixels)."""
     cols = torch.arange(w, device=boxes.device, dtype=boxes.dtype)
     rows = torch.arange(h, device=boxes.device, dtype=boxes.dtype)
     x1, y1, x2, y2 = (boxes[:, k, None] for k in range(4))
-    if centre:
-        in_x = (cols + 0.5 >= x1) & (cols + 0.5 < x2)
-        in_y = (rows + 0.5 >= y1) & (rows + 0.5 < y2)
-    else:
-        in_x = (cols + 1 > x1) & (cols < x2)
-        in_y = (rows + 1 > y1) & (rows < y2)
+    in_x = (cols + 1 > x1) & (cols < x2)
+    in_y = (rows + 1 > y1) & (rows < y2)
     return in_y[:, :, None] & in_x[:, None, :]
+
+
+def _pixel_span(lo: torch.Tensor, hi: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """First output pixel and pixel count ``[N]`` whose centres ``x + 0.5`` lie in
+    ``[lo, hi)``, within ``0..size-1``."""
+    first = torch.ceil(lo - 0.5).clamp(0, size)
+    end = torch.ceil(hi - 0.5).clamp(0, size)
+    return first.long(), (end - first).clamp(min=0).long()
+
+
+def _bilinear_taps(
+    first: torch.Tensor, count: torch.Tensor, span: int, size_out: int, size_in: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Along one axis, for output pixels ``first + 0..span-1`` of each detection: their
+    indices ``[N, span]`` (clamped), validity (inside the box), the two source taps and the
+    weight of the second, for half-pixel-centre bilinear resizing ``size_in → size_out``."""
+    o = first[:, None] + torch.arange(span, device=first.device)
+    valid = o < (first + count)[:, None]
+    o = o.clamp(max=size_out - 1)
+    src = ((o.float() + 0.5) * (size_in / size_out) - 0.5).clamp(min=0)
+    i0 = src.floor().long().clamp(max=size_in - 1)
+    i1 = (i0 + 1).clamp(max=size_in - 1)
+    return o, valid, i0, i1, (src - i0).clamp(0, 1)
 
 
 def assemble_masks(
@@ -72,34 +91,55 @@ def assemble_masks(
     ``coeffs [N, nm]`` raw coefficients, ``proto [nm, Hp, Wp]`` prototypes of the image,
     ``boxes [N, 4]`` xyxy in input pixels, ``input_hw = (H, W)``. Returns ``bool [N, H, W]``
     (``prob > threshold``), or the cropped probabilities ``float32 [N, H, W]`` when
-    ``threshold`` is ``None``. Detections are processed ``chunk`` at a time to bound memory
-    (``chunk · H · W`` floats). ``proto_crop`` also crops at prototype resolution (off by
+    ``threshold`` is ``None``. ``proto_crop`` also crops at prototype resolution (off by
     default, see the module docstring for why and for the exact steps).
+
+    Only the pixels inside each box are interpolated (everything outside is 0 after the crop
+    anyway): detections are sorted by box size and processed ``chunk`` at a time on a grid as
+    large as the chunk's largest box, with vectorised gathers; the result equals full-frame
+    ``F.interpolate`` followed by the crop (up to float rounding).
     """
     if coeffs.ndim != 2 or proto.ndim != 3 or coeffs.shape[1] != proto.shape[0]:
         raise ValueError(
             f"expected coeffs [N, nm] and proto [nm, Hp, Wp], got {tuple(coeffs.shape)} and "
             f"{tuple(proto.shape)}"
         )
-    if boxes.shape != (coeffs.shape[0], 4):
-        raise ValueError(f"expected boxes [{coeffs.shape[0]}, 4], got {tuple(boxes.shape)}")
+    n = coeffs.shape[0]
+    if boxes.shape != (n, 4):
+        raise ValueError(f"expected boxes [{n}, 4], got {tuple(boxes.shape)}")
     h, w = input_hw
     nm, hp, wp = proto.shape
+    dtype = torch.float32 if threshold is None else torch.bool
+    out = torch.zeros(n * h * w, dtype=dtype, device=coeffs.device)
+    if n == 0:
+        return out.view(0, h, w)
     flat = proto.reshape(nm, hp * wp).float()
-    to_proto = torch.tensor([wp / w, hp / h, wp / w, hp / h], device=boxes.device)
-    out = []
-    for s in range(0, coeffs.shape[0], chunk):
-        c, b = coeffs[s : s + chunk].float(), boxes[s : s + chunk].float()
-        prob = (c @ flat).sigmoid().view(-1, hp, wp)
+    b = boxes.detach().float()
+    x0, nx = _pixel_span(b[:, 0], b[:, 2], w)
+    y0, ny = _pixel_span(b[:, 1], b[:, 3], h)
+    order = (nx * ny).argsort(descending=True)
+    to_proto = torch.tensor([wp / w, hp / h, wp / w, hp / h], device=b.device)
+    for s in range(0, n, chunk):
+        k = order[s : s + chunk]
+        m = k.numel()
+        prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
         if proto_crop:
-            prob = prob * _window(b * to_proto, hp, wp, centre=False)
-        prob = F.interpolate(prob[:, None], size=(h, w), mode="bilinear", align_corners=False)
-        prob = prob[:, 0] * _window(b, h, w, centre=True)
-        out.append(prob if threshold is None else prob > threshold)
-    if not out:
-        dtype = torch.float32 if threshold is None else torch.bool
-        return torch.zeros((0, h, w), dtype=dtype, device=coeffs.device)
-    return torch.cat(out)
+            prob = prob * _proto_window(b[k] * to_proto, hp, wp)
+        sx, sy = int(nx[k].max()), int(ny[k].max())
+        ox, vx, ix0, ix1, lx = _bilinear_taps(x0[k], nx[k], sx, w, wp)
+        oy, vy, iy0, iy1, ly = _bilinear_taps(y0[k], ny[k], sy, h, hp)
+        # x first, then y (the order of torch's and OpenCV's bilinear kernels).
+        g0 = torch.gather(prob, 2, ix0[:, None, :].expand(m, hp, sx))
+        g1 = torch.gather(prob, 2, ix1[:, None, :].expand(m, hp, sx))
+        rows = g0 * (1 - lx)[:, None, :] + g1 * lx[:, None, :]  # [m, Hp, sx]
+        g0 = torch.gather(rows, 1, iy0[:, :, None].expand(m, sy, sx))
+        g1 = torch.gather(rows, 1, iy1[:, :, None].expand(m, sy, sx))
+        local = g0 * (1 - ly)[:, :, None] + g1 * ly[:, :, None]  # [m, sy, sx]
+        inside = vy[:, :, None] & vx[:, None, :]
+        lin = (k[:, None, None] * h + oy[:, :, None]) * w + ox[:, None, :]
+        values = local[inside]
+        out[lin[inside]] = values if threshold is None else values > threshold
+    return out.view(n, h, w)
 
 
 def masks_to_frame(
@@ -122,13 +162,15 @@ def masks_to_frame(
         )
     h, w = orig_hw
     content = masks[:, p.top : p.top + p.new_h, p.left : p.left + p.new_w]
+    if (p.new_h, p.new_w) == (h, w):  # scale 1: only the padding to remove
+        if content.dtype == torch.bool and 0 <= threshold < 1:
+            return content.clone()
+        return content.float() > threshold
     out = []
     for s in range(0, content.shape[0], chunk):
-        m = content[s : s + chunk].float()
-        if (p.new_h, p.new_w) != (h, w):
-            m = F.interpolate(m[:, None], size=(h, w), mode="bilinear", align_corners=False)
-            m = m[:, 0]
-        out.append(m > threshold)
+        m = content[s : s + chunk, None].float()
+        m = F.interpolate(m, size=(h, w), mode="bilinear", align_corners=False)
+        out.append(m[:, 0] > threshold)
     if not out:
         return torch.zeros((0, h, w), dtype=torch.bool, device=masks.device)
     return torch.cat(out)
