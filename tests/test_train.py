@@ -1,0 +1,124 @@
+"""Training runs end to end: run folder, weights, val JSON, resume, NaN stop."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from slimseg.cli.main import main
+from slimseg.data.synth import generate
+from slimseg.deploy.checkpoint import load_weights
+from slimseg.engine import module as module_mod
+from slimseg.engine.config import TrainConfig
+from slimseg.engine.module import NonFiniteLossError
+from slimseg.engine.train import train
+
+TINY = TrainConfig(
+    epochs=1,
+    batch=4,
+    imgsz=96,
+    optimizer="adamw",
+    lr0=0.002,
+    warmup_epochs=0.0,
+    close_mosaic=0,
+    workers=0,
+    ema_decay=0.9,
+)
+
+
+@pytest.fixture(scope="module")
+def data_yaml(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("synth") / "ds"
+    return generate(out, 8, 4, 96, seed=2, progress=False).data_yaml
+
+
+@pytest.fixture(scope="module")
+def run_dir(data_yaml: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "run"
+    _, out = train("yolov8n-seg", data_yaml, TINY, out, accelerator="cpu", progress=False)
+    return out
+
+
+def test_run_folder_layout(run_dir: Path) -> None:
+    for rel in ("weights/best.pt", "weights/last.pt", "checkpoints/last.ckpt", "args.yaml"):
+        assert (run_dir / rel).is_file(), rel
+    rows = (run_dir / "results.csv").read_text().splitlines()
+    assert rows[0].startswith("epoch,") and "val/mask_map50_95" in rows[0] and len(rows) == 2
+    assert any((run_dir / "tb").iterdir())
+
+
+def test_weights_load_without_lightning_and_fuse(run_dir: Path) -> None:
+    model, info = load_weights(run_dir / "weights" / "last.pt")
+    assert info.spec.name == "yolov8n-seg" and len(info.names) == model.num_classes == 6
+    assert info.mobility[0] == 1.0 and "box" in info.metrics
+    fused, _ = load_weights(run_dir / "weights" / "last.pt", fused=True)
+    x = torch.rand(1, 3, 96, 96)
+    with torch.no_grad():
+        a, b = model(x)[0], fused(x)[0]
+    assert (a[:, :4] - b[:, :4]).abs().max() < 1e-3
+    ckpt_model, _ = load_weights(run_dir / "checkpoints" / "last.ckpt")
+    for k, v in model.state_dict().items():
+        torch.testing.assert_close(ckpt_model.state_dict()[k], v)
+
+
+def test_val_json_layout(run_dir: Path, data_yaml: Path, capsys: pytest.CaptureFixture) -> None:
+    argv = ["val", "--weights", str(run_dir / "weights" / "best.pt"), "--data", str(data_yaml)]
+    assert main([*argv, "--json", "--workers", "0"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result) == {"box", "mask", "per_class", "speed_ms"}
+    assert set(result["box"]) == {"map50_95", "map50"} and set(result["mask"]) == {
+        "map50_95",
+        "map50",
+    }
+    assert len(result["per_class"]) == 6
+    assert result["speed_ms"]["inference"] > 0
+
+
+def test_resume_continues_the_run(run_dir: Path, data_yaml: Path) -> None:
+    module, out = train(
+        "yolov8n-seg",
+        data_yaml,
+        TINY.override(epochs=2),
+        run_dir,
+        resume=True,
+        accelerator="cpu",
+        progress=False,
+    )
+    assert out == run_dir and module.current_epoch == 2
+    assert len((run_dir / "results.csv").read_text().splitlines()) == 3
+
+
+def test_nan_loss_stops_and_keeps_last_checkpoint(
+    data_yaml: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _, out = train("yolov8n", data_yaml, TINY, tmp_path / "r", accelerator="cpu", progress=False)
+    ckpt = out / "checkpoints" / "last.ckpt"
+    before = ckpt.read_bytes()
+
+    def poisoned(model: torch.nn.Module):
+        def criterion(outputs: object, batch: dict):
+            nan = sum(f.sum() for f in outputs.feats) * float("nan")
+            return nan, {"box": nan.detach()}
+
+        return criterion
+
+    monkeypatch.setattr(module_mod, "build_criterion", poisoned)
+    with pytest.raises(NonFiniteLossError, match="loss became nan"):
+        train(
+            "yolov8n",
+            data_yaml,
+            TINY.override(epochs=2),
+            out,
+            resume=True,
+            accelerator="cpu",
+            progress=False,
+        )
+    assert ckpt.read_bytes() == before
+
+
+def test_resume_without_checkpoint_is_a_clear_error(data_yaml: Path, tmp_path: Path) -> None:
+    argv = ["train", "--model", "yolov8n", "--data", str(data_yaml), "--out", str(tmp_path)]
+    assert main([*argv, "--resume", "--quiet"]) == 2
