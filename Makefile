@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)  ## the main job on the embedded default (no download)
-	$(BIN)/slimseg info --model all --nc 20
+	$(BIN)/slimseg demo
 
 test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included)
 	$(BIN)/python -m pytest -q
