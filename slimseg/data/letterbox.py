@@ -62,8 +62,8 @@ def letterbox_image(image: np.ndarray, p: LetterboxParams, pad: int = PAD_VALUE)
 
 
 def letterbox_mask(mask: np.ndarray, p: LetterboxParams) -> np.ndarray:
-    """``[h, w]`` mask → ``[H_in, W_in]``, nearest-neighbour, padded with 0."""
-    return _place(mask, p, cv2.INTER_NEAREST, 0)
+    """``[h, w]`` mask → ``[H_in, W_in]``, nearest pixel centre (INTER_NEAREST_EXACT), padded 0."""
+    return _place(mask, p, cv2.INTER_NEAREST_EXACT, 0)
 
 
 def _place(array: np.ndarray, p: LetterboxParams, interp: int, pad: int) -> np.ndarray:

@@ -42,7 +42,7 @@ def mosaic4(samples: list[Sample], size: int, rng: np.random.Generator) -> Sampl
         tx2, ty2 = tx1 + (wx2 - wx1), ty1 + (wy2 - wy1)
         image[wy1:wy2, wx1:wx2] = img[ty1:ty2, tx1:tx2]
         for m, c in zip(smp.masks, smp.classes, strict=True):
-            mm = cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) if r != 1 else m
+            mm = cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST_EXACT) if r != 1 else m
             crop = mm[ty1:ty2, tx1:tx2]
             if not crop.any():
                 continue

@@ -26,7 +26,7 @@ for parity with runtimes that do it: the box scaled by ``(Wp / W, Hp / H)``; pro
 
 1. take rows ``top : top + new_h`` and columns ``left : left + new_w`` (drop the padding);
 2. as float32 (``True`` → 1.0), bilinear resize ``new_h × new_w → h × w`` with half-pixel
-   centres and no antialiasing (step 3 above; skipped when the sizes are equal);
+   centres and no antialiasing (as in step 2 above; skipped when the sizes are equal);
 3. ``mask = value > 0.5``.
 
 This is the exact inverse of the image letterbox (which resizes ``h × w → new_h × new_w``),
@@ -65,16 +65,50 @@ def _pixel_span(lo: torch.Tensor, hi: torch.Tensor, size: int) -> tuple[torch.Te
 def _bilinear_taps(
     first: torch.Tensor, count: torch.Tensor, span: int, size_out: int, size_in: int
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Along one axis, for output pixels ``first + 0..span-1`` of each detection: their
-    indices ``[N, span]`` (clamped), validity (inside the box), the two source taps and the
+    """Along one axis, a window of ``span`` output pixels per detection covering its pixels
+    ``first .. first+count-1`` (``span >= count``; the window is shifted left where it would
+    leave ``0..size_out-1``, so its pixels are distinct real pixels): their indices
+    ``[N, span]``, whether each is one of the detection's pixels, the two source taps and the
     weight of the second, for half-pixel-centre bilinear resizing ``size_in → size_out``."""
-    o = first[:, None] + torch.arange(span, device=first.device)
-    valid = o < (first + count)[:, None]
-    o = o.clamp(max=size_out - 1)
+    start = torch.minimum(first, torch.full_like(first, size_out - span))
+    o = start[:, None] + torch.arange(span, device=first.device)
+    valid = (o >= first[:, None]) & (o < (first + count)[:, None])
     src = ((o.float() + 0.5) * (size_in / size_out) - 0.5).clamp(min=0)
     i0 = src.floor().long().clamp(max=size_in - 1)
     i1 = (i0 + 1).clamp(max=size_in - 1)
     return o, valid, i0, i1, (src - i0).clamp(0, 1)
+
+
+def _resize_into(
+    out: torch.Tensor,
+    src: torch.Tensor,
+    k: torch.Tensor,
+    span_x: tuple[torch.Tensor, torch.Tensor],
+    span_y: tuple[torch.Tensor, torch.Tensor],
+    out_hw: tuple[int, int],
+    threshold: float | None,
+) -> None:
+    """Bilinear resize (half-pixel centres) of ``src [m, Hs, Ws]`` to ``out_hw``, computed only
+    on a window around each detection's output span ``(first [m], count [m])`` per axis and
+    written into the contiguous ``out [N, H · W]`` at rows ``k [m]`` (thresholded unless
+    ``threshold`` is ``None``). Window pixels outside the spans are written 0 (callers
+    guarantee the result is 0 there); the rest of ``out`` is left untouched."""
+    h, w = out_hw
+    m, hs, ws = src.shape
+    sx, sy = int(span_x[1].max()), int(span_y[1].max())
+    ox, vx, ix0, ix1, lx = _bilinear_taps(*span_x, sx, w, ws)
+    oy, vy, iy0, iy1, ly = _bilinear_taps(*span_y, sy, h, hs)
+    # x first, then y (the order of torch's and OpenCV's bilinear kernels).
+    g0 = torch.gather(src, 2, ix0[:, None, :].expand(m, hs, sx))
+    g1 = torch.gather(src, 2, ix1[:, None, :].expand(m, hs, sx))
+    rows = g0 * (1 - lx)[:, None, :] + g1 * lx[:, None, :]  # [m, Hs, sx]
+    g0 = torch.gather(rows, 1, iy0[:, :, None].expand(m, sy, sx))
+    g1 = torch.gather(rows, 1, iy1[:, :, None].expand(m, sy, sx))
+    local = g0 * (1 - ly)[:, :, None] + g1 * ly[:, :, None]  # [m, sy, sx]
+    inside = vy[:, :, None] & vx[:, None, :]
+    values = local * inside if threshold is None else (local > threshold) & inside
+    lin = (k[:, None, None] * h + oy[:, :, None]) * w + ox[:, None, :]
+    out.view(-1).scatter_(0, lin.view(-1), values.view(-1))
 
 
 def assemble_masks(
@@ -110,7 +144,7 @@ def assemble_masks(
     h, w = input_hw
     nm, hp, wp = proto.shape
     dtype = torch.float32 if threshold is None else torch.bool
-    out = torch.zeros(n * h * w, dtype=dtype, device=coeffs.device)
+    out = torch.zeros(n, h * w, dtype=dtype, device=coeffs.device)
     if n == 0:
         return out.view(0, h, w)
     flat = proto.reshape(nm, hp * wp).float()
@@ -125,20 +159,7 @@ def assemble_masks(
         prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
         if proto_crop:
             prob = prob * _proto_window(b[k] * to_proto, hp, wp)
-        sx, sy = int(nx[k].max()), int(ny[k].max())
-        ox, vx, ix0, ix1, lx = _bilinear_taps(x0[k], nx[k], sx, w, wp)
-        oy, vy, iy0, iy1, ly = _bilinear_taps(y0[k], ny[k], sy, h, hp)
-        # x first, then y (the order of torch's and OpenCV's bilinear kernels).
-        g0 = torch.gather(prob, 2, ix0[:, None, :].expand(m, hp, sx))
-        g1 = torch.gather(prob, 2, ix1[:, None, :].expand(m, hp, sx))
-        rows = g0 * (1 - lx)[:, None, :] + g1 * lx[:, None, :]  # [m, Hp, sx]
-        g0 = torch.gather(rows, 1, iy0[:, :, None].expand(m, sy, sx))
-        g1 = torch.gather(rows, 1, iy1[:, :, None].expand(m, sy, sx))
-        local = g0 * (1 - ly)[:, :, None] + g1 * ly[:, :, None]  # [m, sy, sx]
-        inside = vy[:, :, None] & vx[:, None, :]
-        lin = (k[:, None, None] * h + oy[:, :, None]) * w + ox[:, None, :]
-        values = local[inside]
-        out[lin[inside]] = values if threshold is None else values > threshold
+        _resize_into(out, prob, k, (x0[k], nx[k]), (y0[k], ny[k]), (h, w), threshold)
     return out.view(n, h, w)
 
 
@@ -148,29 +169,58 @@ def masks_to_frame(
     orig_hw: tuple[int, int],
     threshold: float = 0.5,
     chunk: int = 32,
+    boxes: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """``[N, H, W]`` masks (bool) or probabilities (float) at network-input resolution →
     ``bool [N, h, w]`` on the source frame ``orig_hw = (h, w)``.
 
     Removes the letterbox padding, resizes bilinearly to the frame and thresholds
-    (``value > threshold``); see the module docstring for the exact steps.
+    (``value > threshold``); see the module docstring for the exact steps. With ``boxes
+    [N, 4]`` (xyxy input pixels; the masks must be 0 outside them, as
+    :func:`assemble_masks` guarantees), only the frame pixels whose interpolation taps reach
+    into a box are computed (same result, much faster for large frames).
     """
     if masks.ndim != 3 or tuple(masks.shape[1:]) != (p.out_h, p.out_w):
         raise ValueError(
             f"expected masks [N, {p.out_h}, {p.out_w}] (the letterbox output size), got "
             f"{tuple(masks.shape)}"
         )
+    n = masks.shape[0]
     h, w = orig_hw
     content = masks[:, p.top : p.top + p.new_h, p.left : p.left + p.new_w]
     if (p.new_h, p.new_w) == (h, w):  # scale 1: only the padding to remove
         if content.dtype == torch.bool and 0 <= threshold < 1:
             return content.clone()
         return content.float() > threshold
-    out = []
-    for s in range(0, content.shape[0], chunk):
-        m = content[s : s + chunk, None].float()
-        m = F.interpolate(m, size=(h, w), mode="bilinear", align_corners=False)
-        out.append(m[:, 0] > threshold)
-    if not out:
-        return torch.zeros((0, h, w), dtype=torch.bool, device=masks.device)
-    return torch.cat(out)
+    if boxes is None:
+        out = []
+        for s in range(0, n, chunk):
+            m = content[s : s + chunk, None].float()
+            m = F.interpolate(m, size=(h, w), mode="bilinear", align_corners=False)
+            out.append(m[:, 0] > threshold)
+        return torch.cat(out) if out else torch.zeros((0, h, w), dtype=torch.bool)
+    if boxes.shape != (n, 4):
+        raise ValueError(f"expected boxes [{n}, 4], got {tuple(boxes.shape)}")
+    b = boxes.detach().float()
+    spans = []
+    for lo, hi, size, offset, new, dst in (
+        (b[:, 0], b[:, 2], p.out_w, p.left, p.new_w, w),
+        (b[:, 1], b[:, 3], p.out_h, p.top, p.new_h, h),
+    ):
+        # Content pixels [c0, c1) that can be non-zero; frame pixels whose taps reach them,
+        # u = (x + 0.5) · new / dst − 0.5 in [c0 − 1, c1), plus one pixel of margin.
+        first, count = _pixel_span(lo, hi, size)
+        c0 = (first - offset).clamp(0, new).float()
+        c1 = (first + count - offset).clamp(0, new).float()
+        f0 = (torch.ceil((c0 - 0.5) * (dst / new) - 0.5) - 1).clamp(0, dst)
+        f1 = (torch.ceil((c1 + 0.5) * (dst / new) - 0.5) + 1).clamp(0, dst)
+        f1 = torch.where(c1 > c0, f1, f0)
+        spans.append((f0.long(), (f1 - f0).long()))
+    (fx, nx), (fy, ny) = spans
+    out = torch.zeros(n, h * w, dtype=torch.bool, device=masks.device)
+    order = (nx * ny).argsort(descending=True)
+    for s in range(0, n, chunk):
+        k = order[s : s + chunk]
+        src = content[k].float()
+        _resize_into(out, src, k, (fx[k], nx[k]), (fy[k], ny[k]), (h, w), threshold)
+    return out.view(n, h, w)
