@@ -41,7 +41,7 @@ class TrainConfig:
     conf: float = 0.001  # validation score threshold
     iou: float = 0.7  # validation NMS IoU
     max_det: int = 300
-    val_every: int = 1  # validate every N epochs (and always after the last)
+    val_every: int = 1  # validate every N epochs (make epochs a multiple to score the last)
 
     def __post_init__(self) -> None:
         if self.optimizer not in OPTIMIZERS:

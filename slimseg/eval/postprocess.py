@@ -143,7 +143,8 @@ def to_frame_detections(
             threshold=threshold,
             chunk=chunk,
         )
-        m = masks_to_frame(at_input, p, (h, w), chunk=chunk).cpu().numpy()
+        m = masks_to_frame(at_input, p, (h, w), chunk=chunk, boxes=boxes_in[s : s + chunk])
+        m = m.cpu().numpy()
         if rle:
             rles.extend(encode_rle(m))
         else:
