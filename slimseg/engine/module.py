@@ -134,6 +134,11 @@ class DetectorModule(L.LightningModule):
 
     def on_validation_epoch_start(self) -> None:
         self._val_results = []
+        if self.ema is not None and dist.is_available() and dist.is_initialized():
+            # each rank updated its EMA BatchNorm statistics from its own batches: validate and
+            # checkpoint rank 0's on every rank (parameters are already identical under DDP)
+            for buffer in self.ema.module.buffers():
+                dist.broadcast(buffer, src=0)
         if self.evaluator is None:
             base = self.trainer.datamodule.val_set.base
             types = ("bbox", "segm") if self.spec.task == "segment" else ("bbox",)

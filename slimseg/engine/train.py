@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import os
 import warnings
 from pathlib import Path
 
@@ -90,6 +91,25 @@ def next_run_dir(base: Path) -> Path:
     return candidate
 
 
+RUN_DIR_ENV = "SLIMSEG_RUN_DIR"
+
+
+def _is_launcher_process() -> bool:
+    """True in the process a user started (not a DDP child re-launched by Lightning)."""
+    return os.environ.get("LOCAL_RANK", "0") == "0" and os.environ.get("NODE_RANK", "0") == "0"
+
+
+def resolve_run_dir(out: Path, resume: bool) -> Path:
+    """The run folder: ``out`` when resuming, else a fresh ``out[-k]``; DDP child ranks reuse
+    the folder the launching rank chose (passed down in ``SLIMSEG_RUN_DIR``)."""
+    inherited = os.environ.get(RUN_DIR_ENV)
+    if inherited and not _is_launcher_process():
+        return Path(inherited)
+    chosen = out if resume else next_run_dir(out)
+    chosen.mkdir(parents=True, exist_ok=True)
+    return chosen
+
+
 def transfer_weights(module: DetectorModule, path: str | Path) -> int:
     """Copy every tensor of ``path`` whose name and shape match; returns how many."""
     source, _ = load_weights(path)
@@ -122,9 +142,7 @@ def train(
     last_ckpt = out / "checkpoints" / "last.ckpt"
     if resume and not last_ckpt.is_file():
         raise SlimsegError(f"{last_ckpt}: nothing to resume (no checkpoint in {out})")
-    if not resume:
-        out = next_run_dir(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = resolve_run_dir(out, resume)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
@@ -137,17 +155,19 @@ def train(
     dm = SegDataModule(
         data_cfg, cfg.imgsz, cfg.batch, cfg.workers, augment or AugmentConfig(), cfg.seed
     )
-    (out / "args.yaml").write_text(
-        yaml.safe_dump(
-            {
-                "model": model,
-                "data": str(data),
-                "spec": spec.to_dict(),
-                "train": dataclasses.asdict(cfg),
-            },
-            sort_keys=False,
+    if _is_launcher_process():
+        os.environ[RUN_DIR_ENV] = str(out)  # DDP child ranks inherit the folder chosen here
+        (out / "args.yaml").write_text(
+            yaml.safe_dump(
+                {
+                    "model": model,
+                    "data": str(data),
+                    "spec": spec.to_dict(),
+                    "train": dataclasses.asdict(cfg),
+                },
+                sort_keys=False,
+            )
         )
-    )
     use_gpu = accelerator in ("gpu", "cuda") or (
         accelerator == "auto" and torch.cuda.is_available()
     )
