@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -9,6 +11,7 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 from pycocotools.coco import COCO
+from pycocotools.cocoeval import COCOeval
 
 from slimseg.data.coco import CocoDataset
 from slimseg.errors import SlimsegError
@@ -251,3 +254,21 @@ def test_bad_inputs(gt_path: Path) -> None:
         CocoEvaluator(gt_path, (5, 7))
     with pytest.raises(ValueError):
         CocoEvaluator(gt_path, CAT_IDS, iou_types=("segm",))
+
+
+def test_written_results_json_rescores_the_same(gt_path: Path, tmp_path: Path) -> None:
+    ev = CocoEvaluator(gt_path, CAT_IDS)
+    res = run(ev, predictions(ev, {1: 0.9, 2: 0.8, 3: 0.7}, shift={2: 3}))
+    written = json.loads(ev.write_results(tmp_path / "results.json").read_text())
+    assert len(written) == 3 and {"bbox", "segmentation", "score"} <= set(written[0])
+    coco_gt = ev.gt
+    for iou_type, key in (("bbox", "box"), ("segm", "mask")):
+        dt = coco_gt.loadRes([dict(r) for r in written])
+        e = COCOeval(coco_gt, dt, iou_type)
+        e.params.imgIds = sorted(IMAGES)
+        e.params.catIds = sorted(CAT_IDS)
+        with contextlib.redirect_stdout(io.StringIO()):
+            e.evaluate()
+            e.accumulate()
+            e.summarize()
+        assert e.stats[0] == pytest.approx(res[key]["map50_95"], abs=1e-9)

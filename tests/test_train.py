@@ -122,3 +122,41 @@ def test_nan_loss_stops_and_keeps_last_checkpoint(
 def test_resume_without_checkpoint_is_a_clear_error(data_yaml: Path, tmp_path: Path) -> None:
     argv = ["train", "--model", "yolov8n", "--data", str(data_yaml), "--out", str(tmp_path)]
     assert main([*argv, "--resume", "--quiet"]) == 2
+
+
+class _Killed(RuntimeError):
+    pass
+
+
+def test_killed_and_resumed_run_ends_where_an_uninterrupted_run_does(
+    data_yaml: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = TINY.override(epochs=2)
+    _, straight = train(
+        "yolov8n-seg", data_yaml, cfg, tmp_path / "a", accelerator="cpu", progress=False
+    )
+
+    original = module_mod.DetectorModule.on_train_batch_start
+
+    def kill_in_second_epoch(self, batch: dict, batch_idx: int) -> None:
+        if self.current_epoch == 1:
+            raise _Killed("simulated kill")
+        original(self, batch, batch_idx)
+
+    monkeypatch.setattr(module_mod.DetectorModule, "on_train_batch_start", kill_in_second_epoch)
+    with pytest.raises(_Killed):
+        train("yolov8n-seg", data_yaml, cfg, tmp_path / "b", accelerator="cpu", progress=False)
+    monkeypatch.undo()
+    _, resumed = train(
+        "yolov8n-seg",
+        data_yaml,
+        cfg,
+        tmp_path / "b",
+        resume=True,
+        accelerator="cpu",
+        progress=False,
+    )
+    a, _ = load_weights(straight / "weights" / "last.pt")
+    b, _ = load_weights(resumed / "weights" / "last.pt")
+    for key, value in a.state_dict().items():
+        torch.testing.assert_close(b.state_dict()[key], value, atol=1e-5, rtol=1e-4)

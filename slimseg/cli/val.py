@@ -32,6 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--conf", type=float, default=0.001)
     p.add_argument("--iou", type=float, default=0.7)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.add_argument("--save-json", default=None, help="also write COCO results json here")
     p.set_defaults(run=run)
 
 
@@ -56,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(
         model, loader, evaluator, conf=args.conf, iou=args.iou, progress=not args.json
     )
+    if args.save_json:
+        written = evaluator.write_results(args.save_json)
+        if not args.json:
+            print(f"COCO results: {written}")
     if args.json:
         print(json.dumps(result))
     else:

@@ -2,15 +2,41 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import lightning as L
 import torch
-from torch.utils.data import DataLoader, get_worker_info
+from torch.utils.data import DataLoader, Sampler, get_worker_info
 
 from slimseg.data.augment import AugmentConfig
 from slimseg.data.coco import CocoDataset
 from slimseg.data.collate import make_collate
 from slimseg.data.config import DataConfig
 from slimseg.data.dataset import YoloDataset
+
+
+class EpochSampler(Sampler[int]):
+    """Shuffles with ``seed + epoch`` and re-seeds the dataset's augmentation per epoch.
+
+    Lightning calls ``set_epoch`` before each training epoch, so the order and the augmentation
+    of epoch ``e`` depend only on ``(seed, e)``: a resumed run sees the same batches as an
+    uninterrupted one. The shared ``generator`` is also the DataLoader's, from which worker
+    seeds are drawn.
+    """
+
+    def __init__(self, dataset: YoloDataset, seed: int, generator: torch.Generator) -> None:
+        self.dataset, self.seed, self.generator = dataset, seed, generator
+        self.set_epoch(0)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.generator.manual_seed(self.seed + epoch)
+        self.dataset.reseed(self.seed * 1_000_003 + epoch)
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(torch.randperm(len(self.dataset), generator=self.generator).tolist())
 
 
 def _seed_worker(_worker_id: int) -> None:
@@ -55,15 +81,16 @@ class SegDataModule(L.LightningDataModule):
             self.val_set = YoloDataset(self._base("val"), self.imgsz)
 
     def _loader(self, dataset: YoloDataset, shuffle: bool) -> DataLoader:
+        generator = torch.Generator().manual_seed(self.seed)
         return DataLoader(
             dataset,
             batch_size=self.batch_size,
-            shuffle=shuffle,
+            sampler=EpochSampler(dataset, self.seed, generator) if shuffle else None,
             num_workers=self.workers,
             collate_fn=make_collate(self.mask_ratio),
             pin_memory=torch.cuda.is_available(),
             worker_init_fn=_seed_worker,
-            generator=torch.Generator().manual_seed(self.seed),
+            generator=generator,
         )
 
     def transfer_batch_to_device(self, batch: dict, device: torch.device, idx: int) -> dict:

@@ -1,13 +1,16 @@
 """slimseg weight files: the model spec, class names, mobility priors and (EMA) weights.
 
 A ``.pt`` file written by ``save_weights`` is a plain ``torch.save`` dict (format
-``slimseg-weights/1``) that loads without Lightning. ``load_weights`` also reads Lightning
-``.ckpt`` files written by ``slimseg train`` (their EMA weights when present).
+``slimseg-weights/1``) of tensors and plain data: it loads without Lightning and with
+``torch.load(weights_only=True)``, so nothing is unpickled from a downloaded file.
+``load_weights`` also reads Lightning ``.ckpt`` files written by ``slimseg train`` (their EMA
+weights when present); those load with ``weights_only=True`` too.
 """
 
 from __future__ import annotations
 
 import os
+import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,9 +70,14 @@ def load_weights(path: str | Path, fused: bool = False) -> tuple[nn.Module, Weig
     if not path.is_file():
         raise SlimsegError(f"{path}: weights file not found")
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # any unpickling failure means a bad file
-        raise SlimsegError(f"{path}: not a readable checkpoint ({type(exc).__name__})") from None
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise SlimsegError(
+            f"{path}: refusing to unpickle objects from a weights file (only tensors and plain "
+            "data load); save its state dict instead: torch.save(model.state_dict(), 'x.pt')"
+        ) from None
+    except (OSError, RuntimeError, EOFError, ValueError) as exc:
+        raise SlimsegError(f"{path}: not a readable checkpoint ({exc})") from None
     if not isinstance(ckpt, dict):
         raise SlimsegError(f"{path}: not a slimseg weights file or Lightning checkpoint")
     if ckpt.get("format") == FORMAT:

@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import lightning as L
 import torch
 import torch.distributed as dist
+from lightning.pytorch.loggers import TensorBoardLogger
 from torch import nn
 
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.criterion import build_criterion
 from slimseg.engine.ema import ModelEMA
 from slimseg.engine.evaluate import detect_batch
+from slimseg.engine.preview import prediction_grid
 from slimseg.engine.schedule import lr_factor, warmup_values
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator
@@ -171,10 +172,17 @@ class DetectorModule(L.LightningModule):
         if mask:
             self.log("val/mask_map50_95", mask["map50_95"], prog_bar=True, sync_dist=False)
             self.log("val/mask_map50", mask["map50"], sync_dist=False)
-        fitness = 0.1 * box["map50"] + 0.9 * box["map50_95"]
-        if mask:
-            fitness = 0.5 * fitness + 0.5 * (0.1 * mask["map50"] + 0.9 * mask["map50_95"])
-        self.log("val/fitness", fitness if math.isfinite(fitness) else 0.0, sync_dist=False)
+        self._log_prediction_images()
+
+    def _log_prediction_images(self) -> None:
+        """Predicted masks on the first 4 validation frames, as a TensorBoard image."""
+        if not self.trainer.is_global_zero or not isinstance(self.logger, TensorBoardLogger):
+            return
+        val_set = self.trainer.datamodule.val_set
+        grid = prediction_grid(self.eval_model, val_set, self.names, count=4, columns=4)
+        self.logger.experiment.add_image(
+            "val/predictions", grid, self.current_epoch, dataformats="HWC"
+        )
 
     # --------------------------------------------------------------- checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:

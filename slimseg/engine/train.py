@@ -41,7 +41,8 @@ QUIET_WARNINGS = (
 
 
 class RunWriter(L.Callback):
-    """After each validation (rank 0): ``weights/last.pt``, ``best.pt`` and ``results.csv``."""
+    """After each validation (rank 0): ``weights/last.pt``, ``best.pt`` (highest mask
+    mAP50-95, box for detection-only models) and a ``results.csv`` row."""
 
     def __init__(self, out: Path) -> None:
         self.out = out
@@ -51,7 +52,8 @@ class RunWriter(L.Callback):
         if not trainer.is_global_zero or trainer.sanity_checking:
             return
         metrics = trainer.callback_metrics
-        fitness = float(metrics.get("val/fitness", 0.0))
+        key = "val/mask_map50_95" if "val/mask_map50_95" in metrics else "val/box_map50_95"
+        score = float(metrics.get(key, 0.0))
         info = WeightsInfo(
             spec=module.spec,
             names=module.names,
@@ -61,8 +63,8 @@ class RunWriter(L.Callback):
             train_config=dataclasses.asdict(module.cfg),
         )
         save_weights(self.out / "weights" / "last.pt", module.eval_model, info)
-        if fitness > self.best:
-            self.best = fitness
+        if score > self.best:  # best = highest mask mAP50-95 (box for detection models)
+            self.best = score
             save_weights(self.out / "weights" / "best.pt", module.eval_model, info)
         row = {"epoch": trainer.current_epoch}
         row |= {k: round(float(v), 6) for k, v in metrics.items() if "/" in k}

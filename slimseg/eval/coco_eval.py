@@ -206,6 +206,21 @@ class CocoEvaluator:
                 for c, r, s in zip(cats, rles, scores.tolist(), strict=True)
             )
 
+    def write_results(self, path: str | Path) -> Path:
+        """Write the accumulated detections as a COCO results json (boxes xywh; masks as RLE
+        under ``segmentation`` when evaluated), atomically."""
+        merged: dict[int, dict] = {}
+        for i, r in enumerate(self._results["bbox"]):
+            merged[i] = dict(r)
+        for i, r in enumerate(self._results.get("segm", [])):
+            merged[i]["segmentation"] = r["segmentation"]
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(json.dumps(list(merged.values())))
+        tmp.replace(path)
+        return path
+
     def _instances(self) -> list[int]:
         counts = dict.fromkeys(self.cat_ids, 0)
         for img_id in self._img_ids:
