@@ -160,3 +160,17 @@ def test_killed_and_resumed_run_ends_where_an_uninterrupted_run_does(
     b, _ = load_weights(resumed / "weights" / "last.pt")
     for key, value in a.state_dict().items():
         torch.testing.assert_close(b.state_dict()[key], value, atol=1e-5, rtol=1e-4)
+
+
+def test_init_from_our_weights_reports_what_loaded(run_dir: Path) -> None:
+    from slimseg.engine.train import transfer_weights
+    from slimseg.models.registry import get_spec
+
+    spec = get_spec("yolov8n-seg-rep", 6).to_dict()
+    target = module_mod.DetectorModule(spec, TINY.__dict__, ["c"] * 6)
+    report = transfer_weights(target, run_dir / "weights" / "best.pt")
+    assert report.startswith("loaded ") and "kept the initial values" in report  # head differs
+    source, _ = load_weights(run_dir / "weights" / "best.pt")
+    key = "backbone.stem.0.conv.weight"
+    torch.testing.assert_close(target.model.state_dict()[key], source.state_dict()[key])
+    torch.testing.assert_close(target.ema.module.state_dict()[key], source.state_dict()[key])

@@ -26,6 +26,10 @@ from slimseg.models.specs import ModelSpec, spec_from_mapping
 FORMAT = "slimseg-weights/1"
 
 
+class NotSlimsegWeightsError(SlimsegError):
+    """The file holds tensors, but not in a slimseg weights or checkpoint layout."""
+
+
 @dataclass
 class WeightsInfo:
     """What a weights file says about its model besides the tensors."""
@@ -79,7 +83,7 @@ def load_weights(path: str | Path, fused: bool = False) -> tuple[nn.Module, Weig
     except (OSError, RuntimeError, EOFError, ValueError) as exc:
         raise SlimsegError(f"{path}: not a readable checkpoint ({exc})") from None
     if not isinstance(ckpt, dict):
-        raise SlimsegError(f"{path}: not a slimseg weights file or Lightning checkpoint")
+        raise NotSlimsegWeightsError(f"{path}: not a slimseg weights file or Lightning checkpoint")
     if ckpt.get("format") == FORMAT:
         state, meta = ckpt["state_dict"], ckpt
         stored_fused = bool(ckpt.get("fused", False))
@@ -93,7 +97,7 @@ def load_weights(path: str | Path, fused: bool = False) -> tuple[nn.Module, Weig
         meta = {**meta, "epoch": ckpt.get("epoch", -1), "metrics": ckpt.get("metrics", {})}
         stored_fused = False
     else:
-        raise SlimsegError(f"{path}: not a slimseg weights file or Lightning checkpoint")
+        raise NotSlimsegWeightsError(f"{path}: not a slimseg weights file or Lightning checkpoint")
     spec = spec_from_mapping(ModelSpec, meta["spec"], f"{path}:spec")
     model = build_from_spec(spec, fused=stored_fused)
     missing, unexpected = model.load_state_dict(state, strict=False)

@@ -113,6 +113,7 @@ class MappingReport:
     skipped: list[Skipped] = field(default_factory=list)
     class_rows: list[int] | None = None
     reference_classes: int | None = None
+    classes_loaded: bool = False
     model_tensors: int = 0
 
     @property
@@ -135,7 +136,10 @@ class MappingReport:
         if self.class_rows is not None:
             rows = ", ".join(map(str, self.class_rows))
             of = f" of {self.reference_classes}" if self.reference_classes else ""
-            lines.append(f"  class predictor: rows [{rows}]{of}")
+            if self.classes_loaded:
+                lines.append(f"  class predictor: rows [{rows}]{of}")
+            else:
+                lines.append(f"  class predictor: not loaded (rows [{rows}]{of} requested)")
         for reason, items in self.skipped_by_reason().items():
             lines.append(f"  skipped ({reason}): {len(items)}")
             for s in items[:examples]:
@@ -199,9 +203,7 @@ def _translate_layer(rest: str, kind: type[nn.Module]) -> str:
     return rest
 
 
-def _target(
-    model: nn.Module, layer: int, rest: str, variant: str
-) -> tuple[str | None, str, str]:
+def _target(model: nn.Module, layer: int, rest: str, variant: str) -> tuple[str | None, str, str]:
     """Our key for reference ``model.{layer}.{rest}``, or ``(None, reason, detail)``."""
     if layer in _LAYERS:
         path, kind = _LAYERS[layer]
@@ -241,11 +243,19 @@ def map_reference_state_dict(
     at its initialisation (the model's classes are not the reference's).
     """
     variant = _variant_name(model)
+    if any(isinstance(m, ConvBNAct) and m.is_fused for m in model.modules()):
+        raise SlimsegError(
+            f"{variant} is fused (BatchNorm folded); load pretrained weights into the "
+            "unfused model, then fuse it"
+        )
     ours = model.state_dict()
     rows = None if class_rows is None else [int(r) for r in class_rows]
     report = MappingReport(
         variant=variant, total=len(state), class_rows=rows, model_tensors=len(ours)
     )
+    nc = getattr(model, "num_classes", None)
+    if rows is not None and nc is not None and len(rows) != nc:
+        raise SlimsegError(f"{len(rows)} class rows given for the {nc}-class {variant}")
     mapped: dict[str, torch.Tensor] = {}
     row_index = torch.tensor(rows, dtype=torch.long) if rows is not None else None
     for key, tensor in state.items():
@@ -254,13 +264,14 @@ def map_reference_state_dict(
             report.skipped.append(Skipped(key, UNKNOWN_LAYER, "not a model.{i} tensor"))
             continue
         layer, rest = int(m.group(1)), m.group(2)
+        is_predictor = layer == HEAD_INDEX and _CLASS_PREDICTOR.match(rest) is not None
+        if is_predictor and tensor.dim() >= 1:
+            report.reference_classes = int(tensor.shape[0])
         target, reason, detail = _target(model, layer, rest, variant)
         if target is None:
             report.skipped.append(Skipped(key, reason, detail))
             continue
-        is_predictor = layer == HEAD_INDEX and _CLASS_PREDICTOR.match(rest) is not None
         if is_predictor:
-            report.reference_classes = int(tensor.shape[0])
             if skip_classes:
                 report.skipped.append(Skipped(key, CLASSES_NOT_COCO, f"→ {target}"))
                 continue
@@ -282,10 +293,7 @@ def map_reference_state_dict(
             tensor = tensor.to(dtype=want.dtype)
         mapped[target] = tensor.detach().clone()
         report.loaded.append(target)
-    if rows is not None:
-        nc = getattr(model, "num_classes", None)
-        if nc is not None and len(rows) != nc:
-            raise SlimsegError(f"{len(rows)} class rows given for a {nc}-class {variant}")
+        report.classes_loaded |= is_predictor
     return mapped, report
 
 
@@ -301,9 +309,10 @@ def _conversion_hint(path: Path) -> str:
 
 
 def _tensor_dict(obj: object) -> dict[str, torch.Tensor] | None:
-    if isinstance(obj, Mapping) and obj:
-        if all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in obj.items()):
-            return dict(obj)
+    if not isinstance(obj, Mapping) or not obj:
+        return None
+    if all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in obj.items()):
+        return dict(obj)
     return None
 
 
@@ -363,6 +372,6 @@ def load_pretrained(
     rows = rows_for_names(names) if names is not None else None
     skip_classes = names is not None and rows is None
     mapped, report = map_reference_state_dict(state, model, rows, skip_classes=skip_classes)
-    missing, unexpected = model.load_state_dict(mapped, strict=False)
+    _, unexpected = model.load_state_dict(mapped, strict=False)
     assert not unexpected, unexpected
     return report

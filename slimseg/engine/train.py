@@ -26,7 +26,13 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from slimseg.data.augment import AugmentConfig
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
-from slimseg.deploy.checkpoint import WeightsInfo, load_weights, save_weights
+from slimseg.deploy.checkpoint import (
+    NotSlimsegWeightsError,
+    WeightsInfo,
+    load_weights,
+    save_weights,
+)
+from slimseg.deploy.pretrained import load_pretrained
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.module import DetectorModule
 from slimseg.errors import SlimsegError
@@ -112,17 +118,29 @@ def resolve_run_dir(out: Path, resume: bool) -> Path:
     return chosen
 
 
-def transfer_weights(module: DetectorModule, path: str | Path) -> int:
-    """Copy every tensor of ``path`` whose name and shape match; returns how many."""
-    source, _ = load_weights(path)
-    own = module.model.state_dict()
-    matched = {k: v for k, v in source.state_dict().items() if k in own and own[k].shape == v.shape}
-    if not matched:
-        raise SlimsegError(f"{path}: no tensor matches {module.spec.name}; wrong --weights?")
-    module.model.load_state_dict(matched, strict=False)
+def transfer_weights(module: DetectorModule, path: str | Path) -> str:
+    """Initialise from ``path``: slimseg weights/checkpoints (tensors with matching names and
+    shapes) or a reference YOLOv8 state dict (mapped by structure, COCO class rows picked by
+    name). Returns a report of what loaded and what was skipped."""
+    try:
+        source, _ = load_weights(path)
+    except NotSlimsegWeightsError:
+        report = load_pretrained(path, module.model, module.names).format()
+    else:
+        own = module.model.state_dict()
+        matched = {
+            k: v for k, v in source.state_dict().items() if k in own and own[k].shape == v.shape
+        }
+        if not matched:
+            raise SlimsegError(f"{path}: no tensor matches {module.spec.name}; wrong --weights?")
+        module.model.load_state_dict(matched, strict=False)
+        skipped = sorted(set(own) - set(matched))
+        report = f"loaded {len(matched)} of {len(own)} tensors from {path}"
+        if skipped:
+            report += f"; kept the initial values of {len(skipped)} (e.g. {', '.join(skipped[:3])})"
     if module.ema is not None:
         module.ema.module.load_state_dict(module.model.state_dict())
-    return len(matched)
+    return report
 
 
 def train(
@@ -152,8 +170,7 @@ def train(
         spec.to_dict(), dataclasses.asdict(cfg), list(data_cfg.names), list(data_cfg.mobility)
     )
     if weights and not resume:
-        n = transfer_weights(module, weights)
-        print(f"initialised {n} tensors from {weights}")
+        print(transfer_weights(module, weights))
     dm = SegDataModule(
         data_cfg, cfg.imgsz, cfg.batch, cfg.workers, augment or AugmentConfig(), cfg.seed
     )
