@@ -20,8 +20,8 @@ class EpochSampler(Sampler[int]):
 
     Lightning calls ``set_epoch`` before each training epoch, so the order and the augmentation
     of epoch ``e`` depend only on ``(seed, e)``: a resumed run sees the same batches as an
-    uninterrupted one. The shared ``generator`` is also the DataLoader's, from which worker
-    seeds are drawn.
+    uninterrupted one. ``generator`` is the DataLoader's (worker seeds are drawn from it); it is
+    re-seeded per epoch too.
     """
 
     def __init__(self, dataset: YoloDataset, seed: int, generator: torch.Generator) -> None:
@@ -29,6 +29,7 @@ class EpochSampler(Sampler[int]):
         self.set_epoch(0)
 
     def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
         self.generator.manual_seed(self.seed + epoch)
         self.dataset.reseed(self.seed * 1_000_003 + epoch)
 
@@ -36,7 +37,9 @@ class EpochSampler(Sampler[int]):
         return len(self.dataset)
 
     def __iter__(self) -> Iterator[int]:
-        return iter(torch.randperm(len(self.dataset), generator=self.generator).tolist())
+        # a private generator: the order must not depend on who else drew from the shared one
+        order = torch.Generator().manual_seed(self.seed * 7919 + self.epoch)
+        return iter(torch.randperm(len(self.dataset), generator=order).tolist())
 
 
 def _seed_worker(_worker_id: int) -> None:

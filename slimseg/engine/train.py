@@ -22,6 +22,7 @@ import torch
 import yaml
 from lightning.pytorch.callbacks import ModelCheckpoint, TQDMProgressBar
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from slimseg.data.augment import AugmentConfig
 from slimseg.data.config import load_data_config
@@ -87,6 +88,20 @@ class RunWriter(L.Callback):
 
     def load_state_dict(self, state: dict) -> None:
         self.best = float(state.get("best", -1.0))
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning checkpoints written to a temp file in the same folder, then renamed: a run
+    killed while saving never leaves a truncated ``last.ckpt``."""
+
+    def save_checkpoint(
+        self, checkpoint: dict, path: str | Path, storage_options: object = None
+    ) -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.tmp")
+        torch.save(checkpoint, tmp)
+        os.replace(tmp, path)
 
 
 def next_run_dir(base: Path) -> Path:
@@ -202,7 +217,14 @@ def train(
         sync_batchnorm=cfg.sync_bn and multi,
         logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),
         callbacks=[
-            ModelCheckpoint(dirpath=out / "checkpoints", save_last=True, save_top_k=0),
+            # checkpoints/last.ckpt after every epoch, so a killed run loses one epoch at most
+            ModelCheckpoint(
+                dirpath=out / "checkpoints",
+                filename="last",
+                save_top_k=1,
+                every_n_epochs=1,
+                enable_version_counter=False,
+            ),
             RunWriter(out),
             *([TQDMProgressBar(refresh_rate=1)] if progress else []),
         ],
@@ -212,6 +234,7 @@ def train(
         enable_progress_bar=progress,
         enable_model_summary=False,
         default_root_dir=str(out),
+        plugins=[AtomicCheckpointIO()],
     )
     with warnings.catch_warnings():
         for message in QUIET_WARNINGS:
