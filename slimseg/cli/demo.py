@@ -7,19 +7,16 @@ import json
 import time
 from pathlib import Path
 
-from torch.utils.data import DataLoader
-
 from slimseg.data.coco import CocoDataset
-from slimseg.data.collate import make_collate
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
 from slimseg.data.synth import generate
 from slimseg.data.visualize import write_png
 from slimseg.deploy.checkpoint import load_weights
 from slimseg.engine.config import load_train_config
-from slimseg.engine.evaluate import evaluate
+from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.engine.preview import prediction_grid
-from slimseg.eval.coco_eval import CocoEvaluator, format_metrics_table
+from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.plots import plot_results
 from slimseg.models.registry import CONFIG_DIR
 
@@ -74,8 +71,7 @@ def run(args: argparse.Namespace) -> int:
     print("[3/4] validating the best EMA weights, fused (as deployed)")
     model, info = load_weights(run_dir / "weights" / "best.pt", fused=True)
     val_set = YoloDataset(CocoDataset.from_config(load_data_config(data_yaml), "val"), cfg.imgsz)
-    loader = DataLoader(val_set, batch_size=cfg.batch, collate_fn=make_collate())
-    metrics = evaluate(model, loader, CocoEvaluator.from_dataset(val_set.base), progress=False)
+    metrics, _ = evaluate_dataset(model, val_set, cfg.batch, progress=False)
     print(format_metrics_table(metrics, info.names))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     print("[4/4] plots")

@@ -5,16 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from torch.utils.data import DataLoader
-
 from slimseg.data.coco import CocoDataset
-from slimseg.data.collate import make_collate
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
 from slimseg.deploy.checkpoint import load_weights
-from slimseg.engine.evaluate import evaluate
+from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.errors import SlimsegError
-from slimseg.eval.coco_eval import CocoEvaluator, format_metrics_table
+from slimseg.eval.coco_eval import format_metrics_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -46,16 +43,14 @@ def run(args: argparse.Namespace) -> int:
         )
     imgsz = args.imgsz or int(info.train_config.get("imgsz", 640))
     base = CocoDataset.from_config(data_cfg, args.split)
-    loader = DataLoader(
+    result, evaluator = evaluate_dataset(
+        model,
         YoloDataset(base, imgsz),
-        batch_size=args.batch,
-        num_workers=args.workers,
-        collate_fn=make_collate(),
-    )
-    types = ("bbox", "segm") if model.spec.task == "segment" else ("bbox",)
-    evaluator = CocoEvaluator.from_dataset(base, types)
-    result = evaluate(
-        model, loader, evaluator, conf=args.conf, iou=args.iou, progress=not args.json
+        args.batch,
+        args.workers,
+        conf=args.conf,
+        iou=args.iou,
+        progress=not args.json,
     )
     if args.save_json:
         written = evaluator.write_results(args.save_json)

@@ -7,8 +7,11 @@ from collections.abc import Iterable
 
 import torch
 from torch import nn
+from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from slimseg.data.collate import make_collate
+from slimseg.data.dataset import YoloDataset
 from slimseg.eval.coco_eval import CocoEvaluator
 from slimseg.eval.postprocess import FrameDetections, batch_to_frame_detections
 from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
@@ -65,3 +68,23 @@ def evaluate(
     result = evaluator.summarize()
     result["speed_ms"] = {k: 1000 * v / max(images, 1) for k, v in timings.items()}
     return result
+
+
+def iou_types_for(model: nn.Module) -> tuple[str, ...]:
+    """COCO iou types a model is scored on: boxes always, masks for segmenters."""
+    return ("bbox", "segm") if model.spec.task == "segment" else ("bbox",)
+
+
+def evaluate_dataset(
+    model: nn.Module,
+    dataset: YoloDataset,
+    batch: int = 8,
+    workers: int = 0,
+    conf: float = 0.001,
+    iou: float = 0.7,
+    progress: bool = True,
+) -> tuple[dict, CocoEvaluator]:
+    """COCO mAP of ``model`` on a validation ``YoloDataset`` (letterbox only) over its json."""
+    loader = DataLoader(dataset, batch_size=batch, num_workers=workers, collate_fn=make_collate())
+    evaluator = CocoEvaluator.from_dataset(dataset.base, iou_types_for(model))
+    return evaluate(model, loader, evaluator, conf, iou, progress=progress), evaluator

@@ -13,7 +13,7 @@ from torch import nn
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.criterion import build_criterion
 from slimseg.engine.ema import ModelEMA
-from slimseg.engine.evaluate import detect_batch
+from slimseg.engine.evaluate import detect_batch, iou_types_for
 from slimseg.engine.preview import prediction_grid
 from slimseg.engine.schedule import lr_factor, warmup_values
 from slimseg.errors import SlimsegError
@@ -142,8 +142,7 @@ class DetectorModule(L.LightningModule):
                 dist.broadcast(buffer, src=0)
         if self.evaluator is None:
             base = self.trainer.datamodule.val_set.base
-            types = ("bbox", "segm") if self.spec.task == "segment" else ("bbox",)
-            self.evaluator = CocoEvaluator.from_dataset(base, types)
+            self.evaluator = CocoEvaluator.from_dataset(base, iou_types_for(self.model))
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         model = self.eval_model
