@@ -71,6 +71,7 @@ class DetectorModule(L.LightningModule):
         self.evaluator: CocoEvaluator | None = None
         self._val_results: list[tuple[list[int], list[Any]]] = []
         self.last_metrics: dict = {}
+        self.validated_epoch = -1  # the training epoch the last validation scored
 
     # ------------------------------------------------------------------ training
     def forward(self, images: torch.Tensor) -> Any:
@@ -165,6 +166,7 @@ class DetectorModule(L.LightningModule):
             self.evaluator.update([ids[i] for i in keep], [frames[i] for i in keep])
         metrics = self.evaluator.summarize()
         self.last_metrics = metrics
+        self.validated_epoch = self.current_epoch
         box, mask = metrics["box"], metrics.get("mask")
         self.log("val/box_map50_95", box["map50_95"], prog_bar=True, sync_dist=False)
         self.log("val/box_map50", box["map50"], sync_dist=False)

@@ -59,13 +59,14 @@ class RunWriter(L.Callback):
         if not trainer.is_global_zero or trainer.sanity_checking:
             return
         metrics = trainer.callback_metrics
+        epoch = min(trainer.current_epoch, module.cfg.epochs - 1)  # validate() after fit: +1
         key = "val/mask_map50_95" if "val/mask_map50_95" in metrics else "val/box_map50_95"
         score = float(metrics.get(key, 0.0))
         info = WeightsInfo(
             spec=module.spec,
             names=module.names,
             mobility=module.mobility,
-            epoch=trainer.current_epoch,
+            epoch=epoch,
             metrics=module.last_metrics,
             train_config=dataclasses.asdict(module.cfg),
         )
@@ -73,12 +74,15 @@ class RunWriter(L.Callback):
         if score > self.best:  # best = highest mask mAP50-95 (box for detection models)
             self.best = score
             save_weights(self.out / "weights" / "best.pt", module.eval_model, info)
-        row = {"epoch": trainer.current_epoch}
+        row = {"epoch": epoch}
         row |= {k: round(float(v), 6) for k, v in metrics.items() if "/" in k}
         path = self.out / "results.csv"
         new = not path.exists()
+        if not new:  # keep the header's columns (a validate-only row has no train terms)
+            with path.open(newline="") as f:
+                row = dict.fromkeys(next(csv.reader(f)), "") | row
         with path.open("a", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(row))
+            writer = csv.DictWriter(f, fieldnames=list(row), extrasaction="ignore")
             if new:
                 writer.writeheader()
             writer.writerow(row)
@@ -240,4 +244,7 @@ def train(
         for message in QUIET_WARNINGS:
             warnings.filterwarnings("ignore", message=message)
         trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if resume else None)
+        if module.validated_epoch != cfg.epochs - 1 and not trainer.interrupted:
+            # epochs is not a multiple of val_every: score the final weights anyway
+            trainer.validate(module, datamodule=dm, verbose=False)
     return module, out
