@@ -1,0 +1,115 @@
+"""Export metadata: everything a runtime needs to use a model without hard-coded constants.
+
+Stored as ONNX ``metadata_props`` (every value a JSON string) and as a sidecar ``NAME.json``
+with the same content (TensorRT engines carry no metadata). ``export/CONTRACT.md`` documents
+each key.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from torch import nn
+
+from slimseg import __version__
+from slimseg.data.letterbox import PAD_VALUE
+
+# Mobility threshold of SEEDS.md Eq. 1 at its starting value: classes above it are dynamic.
+DEFAULT_MOBILITY_THRESHOLD = 0.25
+# Masks from 1/4-resolution prototypes are soft at the edges: dilate them before dropping
+# keypoints (ORB's 31-px patch straddles the edge otherwise). Pixels at the 640 input.
+RECOMMENDED_MASK_DILATION_PX = 5
+
+LETTERBOX_RULE = {
+    "centered": True,
+    "pad_value": PAD_VALUE,
+    "scale": "min(H_in / h, W_in / w)",
+    "resized_size": "new_w = floor(w * scale + 0.5), new_h = floor(h * scale + 0.5)",
+    "padding": "left = (W_in - new_w) // 2, top = (H_in - new_h) // 2 (odd pixel right/bottom)",
+    "interpolation": "bilinear (cv2.INTER_LINEAR)",
+    "inverse": "x_frame = (x_input - left) / scale, y_frame = (y_input - top) / scale",
+}
+
+
+def build_metadata(
+    model: nn.Module,
+    names: list[str],
+    mobility: list[float],
+    imgsz: tuple[int, int],
+    precision: str = "fp32",
+    dynamic: bool = False,
+) -> dict[str, Any]:
+    """The metadata dict of an exported model (values are JSON-serialisable)."""
+    spec = model.spec
+    nc = spec.num_classes
+    if len(names) != nc:
+        names = [f"class{i}" for i in range(nc)]
+    if len(mobility) != nc:
+        mobility = [1.0] * nc
+    dynamic_classes = [i for i, m in enumerate(mobility) if m > DEFAULT_MOBILITY_THRESHOLD]
+    meta: dict[str, Any] = {
+        "model": spec.name,
+        "spec_hash": spec.hash,
+        "spec": spec.to_dict(),
+        "slimseg_version": __version__,
+        "task": spec.task,
+        "family": spec.family,
+        "names": list(names),
+        "mobility": [float(m) for m in mobility],
+        "mobility_threshold": DEFAULT_MOBILITY_THRESHOLD,
+        "dynamic_classes": dynamic_classes,
+        "imgsz": [int(imgsz[0]), int(imgsz[1])],
+        "strides": [8, 16, 32],
+        "precision": precision,
+        "dynamic_shapes": dynamic,
+        "input": {
+            "name": "images",
+            "layout": "NCHW",
+            "dtype": "float16" if precision == "fp16" else "float32",
+            "color": "RGB",
+            "scale": 1 / 255,
+            "mean": [0.0, 0.0, 0.0],
+            "std": [1.0, 1.0, 1.0],
+        },
+        "letterbox": LETTERBOX_RULE,
+        "recommended_mask_dilation_px": RECOMMENDED_MASK_DILATION_PX,
+        "nms": {"conf": 0.25, "iou": 0.7, "max_det": 300, "class_aware": True},
+    }
+    if spec.family == "darknet-yolov3":
+        meta["outputs"] = {
+            "output0": {
+                "shape": ["B", 5 + nc, "A"],
+                "rows": "cx, cy, w, h (input px), objectness (sigmoid), nc class probabilities "
+                "(sigmoid); score = objectness * class probability",
+                "anchor_order": "level (stride 8, 16, 32) -> anchor (3) -> cell (row-major)",
+            }
+        }
+        return meta
+    nm = spec.head.num_masks if spec.task == "segment" else 0
+    meta["num_masks"] = nm
+    meta["outputs"] = {
+        "output0": {
+            "shape": ["B", 4 + nc + nm, "A"],
+            "rows": f"cx, cy, w, h (input px), {nc} class scores (sigmoid), {nm} raw mask "
+            "coefficients",
+            "anchor_order": "level (stride 8, 16, 32) -> cell (row-major)",
+        }
+    }
+    if nm:
+        meta["outputs"]["output1"] = {
+            "shape": ["B", nm, "H/4", "W/4"],
+            "rows": "raw prototypes; mask = sigmoid(coefficients . prototypes), crop to the box, "
+            "upsample to the input, > 0.5, then undo the letterbox",
+        }
+    return meta
+
+
+def to_metadata_props(meta: dict[str, Any]) -> dict[str, str]:
+    """ONNX ``metadata_props``: every value JSON-encoded (strings too, so parsing is uniform)."""
+    return {key: json.dumps(value) for key, value in meta.items()}
+
+
+def from_metadata_props(props: dict[str, str]) -> dict[str, Any]:
+    """Inverse of ``to_metadata_props``."""
+    return {key: json.loads(value) for key, value in props.items()}

@@ -1,0 +1,266 @@
+"""ONNX export with a verified parity check: nothing reaches its final path unverified.
+
+Pipeline: eval model → fuse (Conv+BN, RepConv) → ``torch.onnx.export`` (opset ≥ 17, TorchScript
+exporter: a plain static graph) → onnx checker + shape inference → onnxslim → FP16 conversion
+(``--half``: FP16 weights, compute, input and outputs) → metadata → parity against the fused
+torch model on two inputs with onnxruntime → rename into place, plus a ``NAME.json`` sidecar.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import nn
+
+from slimseg.deploy.metadata import build_metadata, to_metadata_props
+from slimseg.errors import SlimsegError
+from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
+
+MIN_OPSET = 17
+FP32_BOX_TOL_PX = 1e-3
+FP32_SCORE_TOL = 1e-4
+FP32_MASK_TOL = 1e-3  # raw coefficients and prototypes
+FP16_MATCH_IOU = 0.9
+FP16_SCORE_TOL = 0.02
+
+
+class ExportParityError(SlimsegError):
+    """The exported graph does not compute what the fused torch model computes."""
+
+
+@dataclass
+class ExportReport:
+    """What ``export_onnx`` wrote and measured."""
+
+    path: Path
+    sidecar: Path
+    precision: str
+    opset: int
+    nodes: int
+    ops: list[str]
+    parity: dict[str, float] = field(default_factory=dict)
+
+
+def output_names(model: nn.Module) -> list[str]:
+    return (
+        ["output0", "output1"]
+        if model.spec.task == "segment" and hasattr(model, "proto")
+        else ["output0"]
+    )
+
+
+def _parity_inputs(imgsz: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
+    """Two inputs ``[1, 3, H, W]`` in [0, 1]: uniform noise, and smooth blobs on a gradient
+    (closer to a real frame, so scores and masks are not all saturated)."""
+    h, w = imgsz
+    rng = np.random.default_rng(seed)
+    noise = rng.random((1, 3, h, w), dtype=np.float32)
+    yy, xx = np.mgrid[:h, :w].astype(np.float32)
+    scene = np.stack([xx / w, yy / h, 0.5 * np.ones_like(xx)])
+    for _ in range(6):
+        cx, cy, r = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(8, min(h, w) / 3)
+        blob = ((xx - cx) ** 2 + (yy - cy) ** 2) < r**2
+        scene[:, blob] = rng.random(3, dtype=np.float32)[:, None]
+    return [noise, scene[None].astype(np.float32)]
+
+
+def _session(path: Path, threads: int | None = None):
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    if threads:
+        opts.intra_op_num_threads = threads
+    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
+def _as_tuple(out: object) -> list[np.ndarray]:
+    items = out if isinstance(out, tuple) else (out,)
+    return [t.detach().float().numpy() for t in items]
+
+
+def _iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    lt = np.maximum(a[:, None, :2], b[None, :, :2])
+    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
+    inter = np.clip(rb - lt, 0, None).prod(-1)
+    area_a = (a[:, 2:] - a[:, :2]).prod(-1)
+    area_b = (b[:, 2:] - b[:, :2]).prod(-1)
+    return inter / (area_a[:, None] + area_b[None] - inter + 1e-9)
+
+
+def _rows(model: nn.Module, pred: np.ndarray) -> torch.Tensor:
+    t = torch.from_numpy(pred).float()
+    return yolov3_to_rows(t) if model.spec.family == "darknet-yolov3" else t
+
+
+def check_fp32_parity(model: nn.Module, ref: list[np.ndarray], got: list[np.ndarray]) -> dict:
+    """Max abs differences (boxes px, scores, mask terms); raises ExportParityError."""
+    nc = model.num_classes
+    ref_rows, got_rows = _rows(model, ref[0]).numpy(), _rows(model, got[0]).numpy()
+    diffs = {
+        "box_px": float(np.abs(ref_rows[:, :4] - got_rows[:, :4]).max()),
+        "score": float(np.abs(ref_rows[:, 4 : 4 + nc] - got_rows[:, 4 : 4 + nc]).max()),
+    }
+    if ref_rows.shape[1] > 4 + nc or len(ref) > 1:
+        parts = [np.abs(ref_rows[:, 4 + nc :] - got_rows[:, 4 + nc :]).max(initial=0.0)]
+        parts += [np.abs(r - g).max() for r, g in zip(ref[1:], got[1:], strict=True)]
+        diffs["mask_terms"] = float(max(parts))
+    limits = {"box_px": FP32_BOX_TOL_PX, "score": FP32_SCORE_TOL, "mask_terms": FP32_MASK_TOL}
+    bad = {k: v for k, v in diffs.items() if v > limits[k]}
+    if bad:
+        raise ExportParityError(
+            f"FP32 ONNX differs from the fused torch model: {bad} (limits {limits})"
+        )
+    return diffs
+
+
+def check_fp16_parity(
+    model: nn.Module, ref: list[np.ndarray], got: list[np.ndarray], top: int = 20
+) -> dict:
+    """FP16 keeps the detections: on every candidate anchor of the FP32 model (best class
+    score ≥ 0.05, or the ``top`` best), the FP16 box has IoU ≥ 0.9 with the FP32 box, the best
+    score differs by ≤ 0.02 and the class is the same (unless two classes are within 0.02).
+    Checked per anchor, before NMS, so near-tied overlapping boxes cannot swap survivors.
+    NMS survivors that also match are reported as ``nms_matched``.
+    """
+    nc = model.num_classes
+    r = _rows(model, ref[0])[0].numpy().T  # [A, 4 + nc (+ ...)]
+    g = _rows(model, got[0])[0].numpy().T
+    r_scores, g_scores = r[:, 4 : 4 + nc], g[:, 4 : 4 + nc]
+    best = r_scores.max(1)
+    candidates = np.flatnonzero(best >= 0.05)
+    if len(candidates) == 0:
+        candidates = np.argsort(-best)[:top]
+    xyxy = lambda b: np.concatenate([b[:, :2] - b[:, 2:4] / 2, b[:, :2] + b[:, 2:4] / 2], 1)  # noqa: E731
+    rb, gb = xyxy(r[candidates, :4]), xyxy(g[candidates, :4])
+    iou = np.diag(_iou_matrix(rb, gb))
+    score_diff = np.abs(best[candidates] - g_scores[candidates].max(1))
+    top2 = np.sort(r_scores[candidates], 1)[:, -2:] if nc > 1 else None
+    tied = (top2[:, 1] - top2[:, 0] <= FP16_SCORE_TOL) if top2 is not None else False
+    same_class = (r_scores[candidates].argmax(1) == g_scores[candidates].argmax(1)) | tied
+    ok = (iou >= FP16_MATCH_IOU) & (score_diff <= FP16_SCORE_TOL) & same_class
+    result = {
+        "checked": len(candidates),
+        "matched": int(ok.sum()),
+        "min_iou": float(iou.min()),
+        "max_score_diff": float(score_diff.max()),
+    }
+    if not ok.all():
+        raise ExportParityError(
+            f"FP16 ONNX changed {int((~ok).sum())} of {len(candidates)} detections (same class, "
+            f"IoU >= {FP16_MATCH_IOU}, |score diff| <= {FP16_SCORE_TOL} required; min IoU "
+            f"{result['min_iou']:.3f}, max score diff {result['max_score_diff']:.3g})"
+        )
+    d_ref = non_max_suppression(_rows(model, ref[0]), nc, conf=0.05, max_det=300)[0]
+    d_got = non_max_suppression(_rows(model, got[0]), nc, conf=0.05, max_det=300)[0]
+    if len(d_ref) and len(d_got):
+        m = _iou_matrix(d_ref.boxes.numpy(), d_got.boxes.numpy()) >= FP16_MATCH_IOU
+        m &= (d_ref.classes[:, None] == d_got.classes[None, :]).numpy()
+        result["nms_matched"] = float(m.any(1).mean())
+    return result
+
+
+def _to_fp16(model_proto: onnx.ModelProto) -> onnx.ModelProto:
+    from onnxruntime.transformers.float16 import convert_float_to_float16
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return convert_float_to_float16(model_proto, keep_io_types=False)
+
+
+def export_onnx(
+    model: nn.Module,
+    out: str | Path,
+    imgsz: tuple[int, int] = (640, 640),
+    names: list[str] | None = None,
+    mobility: list[float] | None = None,
+    half: bool = False,
+    dynamic: bool = False,
+    opset: int = 18,
+    simplify: bool = True,
+) -> ExportReport:
+    """Export ``model`` (fused here) to ``out``; the file appears only after parity passes."""
+    if opset < MIN_OPSET:
+        raise SlimsegError(f"--opset {opset}: need >= {MIN_OPSET} (TensorRT 8.6+/10 parse it)")
+    h, w = imgsz
+    if h % 32 or w % 32:
+        raise SlimsegError(f"--imgsz {h}x{w}: both sides must be multiples of 32")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fused = model.fuse() if hasattr(model, "fuse") else model
+    fused = fused.float().eval().requires_grad_(False)
+    outputs = output_names(fused)
+    axes = None
+    if dynamic:
+        axes = {
+            "images": {0: "batch", 2: "height", 3: "width"},
+            "output0": {0: "batch", 2: "anchors"},
+        }
+        if len(outputs) > 1:
+            axes["output1"] = {0: "batch", 2: "mask_height", 3: "mask_width"}
+    precision = "fp16" if half else "fp32"
+    meta = build_metadata(fused, names or [], mobility or [], imgsz, precision, dynamic)
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.stem}.") as tmp_dir:
+        raw = Path(tmp_dir) / "raw.onnx"
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(
+                fused,
+                torch.zeros(1, 3, h, w),
+                str(raw),
+                opset_version=opset,
+                input_names=["images"],
+                output_names=outputs,
+                dynamic_axes=axes,
+                do_constant_folding=True,
+                dynamo=False,
+            )
+        proto = onnx.load(str(raw))
+        onnx.checker.check_model(proto)
+        proto = onnx.shape_inference.infer_shapes(proto)
+        if simplify:
+            import onnxslim
+
+            proto = onnxslim.slim(proto)
+        if half:
+            proto = _to_fp16(proto)
+        del proto.metadata_props[:]
+        for key, value in to_metadata_props(meta).items():
+            entry = proto.metadata_props.add()
+            entry.key, entry.value = key, value
+        onnx.checker.check_model(proto)
+        candidate = Path(tmp_dir) / out.name
+        onnx.save(proto, str(candidate))
+        parity = verify_parity(fused, candidate, imgsz, half)
+        sidecar_tmp = Path(tmp_dir) / "sidecar.json"
+        sidecar_tmp.write_text(json.dumps(meta, indent=1))
+        os.replace(candidate, out)
+        sidecar = out.with_suffix(".json")
+        os.replace(sidecar_tmp, sidecar)
+    ops = sorted({n.op_type for n in proto.graph.node})
+    return ExportReport(out, sidecar, precision, opset, len(proto.graph.node), ops, parity)
+
+
+def verify_parity(
+    fused: nn.Module, path: Path, imgsz: tuple[int, int], half: bool
+) -> dict[str, float]:
+    """Run onnxruntime and the fused torch model on two inputs; raise on disagreement."""
+    session = _session(path)
+    results: dict[str, float] = {}
+    for k, x in enumerate(_parity_inputs(imgsz)):
+        with torch.no_grad():
+            ref = _as_tuple(fused(torch.from_numpy(x)))
+        feed = x.astype(np.float16) if half else x
+        got = [o.astype(np.float32) for o in session.run(None, {"images": feed})]
+        check = check_fp16_parity if half else check_fp32_parity
+        for key, value in check(fused, ref, got).items():
+            results[f"input{k}/{key}"] = value
+    return results

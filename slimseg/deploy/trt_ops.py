@@ -1,0 +1,39 @@
+"""ONNX operators our exports may contain, each supported by TensorRT's ONNX parser (8.6, 10.x).
+
+The list is deliberately short: it is what the zoo needs. A test exports every variant and
+checks its graph against it, so a change that introduces another operator fails until the op
+is verified in TensorRT's operator support matrix and added here (and to export/CONTRACT.md).
+"""
+
+TENSORRT_SUPPORTED_OPS = frozenset(
+    {
+        "Add",
+        "Cast",
+        "Concat",
+        "Conv",
+        "ConvTranspose",
+        "Div",
+        "Exp",
+        "LeakyRelu",
+        "MaxPool",
+        "Mul",
+        "Reshape",
+        "Resize",
+        "Sigmoid",
+        "Slice",
+        "Softmax",
+        "Split",
+        "Sub",
+        "Transpose",
+    }
+)
+
+# Extra shape arithmetic of ``--dynamic`` exports (anchor grids from the input size): shape
+# tensors computed from the input's shape, never from its values; all parsed by TensorRT.
+DYNAMIC_SHAPE_OPS = frozenset(
+    {"ConstantOfShape", "Expand", "Gather", "Range", "Shape", "Unsqueeze", "Cast"}
+)
+
+# Operators whose output shape depends on tensor values: never allowed (TensorRT needs
+# shapes known at build time, and runtimes pre-allocate outputs).
+DATA_DEPENDENT_OPS = frozenset({"NonZero", "NonMaxSuppression", "TopK", "Unique", "Loop", "If"})
