@@ -112,3 +112,12 @@ def test_export_cli_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     assert "parity vs fused torch" in capsys.readouterr().out
     assert main(["export", "--weights", "yolov8n", "--imgsz", "100", "--out", str(out)]) == 2
     assert main(["export", "--weights", "yolov8n", "--opset", "13", "--out", str(out)]) == 2
+
+
+def test_bench_reports_every_form(capsys: pytest.CaptureFixture) -> None:
+    argv = ["bench", "--model", "yolov8n-seg", "yolov8n-seg-gs-rep", "--imgsz", "64"]
+    assert main([*argv, "--runs", "1", "--warmup", "0", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for name in ("yolov8n-seg", "yolov8n-seg-gs-rep"):
+        assert set(result[name]) == {"torch", "torch_fused", "ort_fp32", "ort_fp16", "postprocess"}
+        assert all(v > 0 for v in result[name].values())

@@ -1,0 +1,76 @@
+"""Latency of one model in every form, measured side by side in one process.
+
+torch unfused, torch fused, onnxruntime FP32 and FP16 (exported with the parity-checked
+exporter into a temporary folder), plus NMS + mask post-processing. Median of ``runs`` timed
+calls after ``warmup`` untimed ones, batch 1, ``threads`` intra-op threads everywhere;
+onnxruntime sessions never spin idle threads (they would steal the cores from the others).
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from slimseg.data.letterbox import letterbox_params
+from slimseg.deploy.onnx_export import _session, export_onnx
+from slimseg.eval.postprocess import to_frame_detections
+from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
+
+
+def median_ms(fn: Callable[[], object], runs: int, warmup: int) -> float:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return 1000 * statistics.median(times)
+
+
+def bench_model(
+    model: nn.Module,
+    imgsz: int = 640,
+    threads: int = 2,
+    runs: int = 10,
+    warmup: int = 3,
+    forms: tuple[str, ...] = ("torch", "torch_fused", "ort_fp32", "ort_fp16"),
+) -> dict[str, float]:
+    """Milliseconds per form (plus ``postprocess``) for one model."""
+    torch.set_num_threads(threads)
+    model = model.eval()
+    fused = model.fuse()
+    x = torch.rand(1, 3, imgsz, imgsz)
+    result: dict[str, float] = {}
+    with torch.no_grad():
+        if "torch" in forms:
+            result["torch"] = median_ms(lambda: model(x), runs, warmup)
+        if "torch_fused" in forms:
+            result["torch_fused"] = median_ms(lambda: fused(x), runs, warmup)
+        out = fused(x)
+    with tempfile.TemporaryDirectory() as tmp:
+        for form, half in (("ort_fp32", False), ("ort_fp16", True)):
+            if form not in forms:
+                continue
+            path = export_onnx(model, Path(tmp) / f"{form}.onnx", (imgsz, imgsz), half=half).path
+            session = _session(path, threads)
+            feed = {"images": x.numpy().astype(np.float16 if half else np.float32)}
+            result[form] = median_ms(lambda s=session, f=feed: s.run(None, f), runs, warmup)
+    result["postprocess"] = median_ms(lambda: _postprocess(model, out, imgsz), runs, warmup)
+    return result
+
+
+def _postprocess(model: nn.Module, out: object, imgsz: int) -> list[object]:
+    pred, proto = out if isinstance(out, tuple) else (out, None)
+    if model.spec.family == "darknet-yolov3":
+        pred = yolov3_to_rows(pred)
+    dets: list[Detections] = non_max_suppression(pred, model.num_classes, conf=0.25)
+    meta = {"letterbox": letterbox_params(480, 640, imgsz), "orig_shape": (480, 640)}
+    return [to_frame_detections(d, None if proto is None else proto[0], meta) for d in dets]
