@@ -169,11 +169,33 @@ def check_fp16_parity(
 
 
 def _to_fp16(model_proto: onnx.ModelProto) -> onnx.ModelProto:
+    """FP16 weights, compute and IO; the converter appends Cast nodes, so re-sort the graph."""
     from onnxruntime.transformers.float16 import convert_float_to_float16
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return convert_float_to_float16(model_proto, keep_io_types=False)
+        converted = convert_float_to_float16(model_proto, keep_io_types=False)
+    _toposort(converted.graph)
+    return converted
+
+
+def _toposort(graph: onnx.GraphProto) -> None:
+    """Order ``graph.node`` so every node follows the producers of its inputs (Kahn)."""
+    available = {i.name for i in graph.input} | {t.name for t in graph.initializer} | {""}
+    pending = list(graph.node)
+    ordered: list[onnx.NodeProto] = []
+    while pending:
+        ready = [n for n in pending if all(i in available for i in n.input)]
+        if not ready:
+            raise SlimsegError("ONNX graph has a cycle or a dangling input after conversion")
+        for n in ready:
+            ordered.append(n)
+            available.update(n.output)
+        ids = {id(n) for n in ready}
+        pending = [n for n in pending if id(n) not in ids]
+    copies = [onnx.NodeProto.FromString(n.SerializeToString()) for n in ordered]
+    del graph.node[:]
+    graph.node.extend(copies)
 
 
 def export_onnx(

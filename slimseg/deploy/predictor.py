@@ -91,10 +91,8 @@ def combined_mask(prediction: Prediction, classes: Iterable[int | str] | None = 
     keep = np.ones(len(prediction), bool)
     if classes is not None:
         wanted = set(classes)
-        keep = np.array(
-            [int(c) in wanted or n in wanted for c, n in zip(prediction.classes, prediction.names)],
-            bool,
-        ).reshape(-1)
+        pairs = zip(prediction.classes, prediction.names, strict=True)
+        keep = np.array([int(c) in wanted or n in wanted for c, n in pairs], bool).reshape(-1)
     if not keep.any():
         return out
     if prediction.masks is not None:

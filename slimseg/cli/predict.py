@@ -1,0 +1,219 @@
+"""``slimseg predict``: detections, masks and overlays for images, a folder or a video.
+
+Per frame, in ``--out``: ``<stem>_overlay.png`` (masks tinted, boxes and class labels),
+``<stem>_mask.png`` (``uint8``, 255 where any detected object is) and ``<stem>.json``
+(``image``, ``size [h, w]``, ``detections`` with ``box`` xyxy frame pixels, ``class``, ``name``,
+``score``, ``mobility``, and ``timings_ms``). Video frames are named ``frame_000000`` onwards.
+Every file is written to a temporary name, then renamed into place.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from slimseg.data.sample import Sample
+from slimseg.data.visualize import draw_sample, write_png
+from slimseg.deploy.predictor import BACKENDS, Prediction, Predictor, combined_mask
+from slimseg.errors import SlimsegError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+STAGES = ("preprocess", "inference", "postprocess")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "predict",
+        help="masks, boxes and overlays for images, a folder or a video",
+        description="Run an exported .onnx (onnxruntime) or .pt/.ckpt weights (torch) on an "
+        "image, a folder of .png/.jpg/.jpeg/.bmp images or a video. Writes per frame "
+        "<stem>_overlay.png, <stem>_mask.png (255 = any object) and <stem>.json to --out. "
+        "Exit 1 if some files could not be read.",
+    )
+    p.add_argument("--model", required=True, help="model.onnx, weights.pt or checkpoint.ckpt")
+    p.add_argument("--source", required=True, help="an image, a folder of images or a video")
+    p.add_argument("--conf", type=float, default=0.25, help="score threshold")
+    p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold")
+    p.add_argument(
+        "--imgsz",
+        type=int,
+        nargs="+",
+        default=None,
+        help="network input H [W] (default: the model's; static ONNX graphs only run at theirs)",
+    )
+    p.add_argument("--backend", default="auto", choices=BACKENDS)
+    p.add_argument("--threads", type=int, default=None, help="intra-op CPU threads")
+    p.add_argument("--max-det", type=int, default=300, help="detections kept per frame")
+    p.add_argument("--out", default="runs/predict", help="output folder")
+    p.set_defaults(run=run)
+
+
+def _read_image(path: Path) -> np.ndarray | None:
+    """RGB ``uint8 [h, w, 3]``, or ``None`` if OpenCV cannot decode the file."""
+    try:
+        data = np.fromfile(path, np.uint8)
+    except OSError:
+        return None
+    if data.size == 0:
+        return None
+    bgr = cv2.imdecode(data, cv2.IMREAD_COLOR)
+    return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _image_frames(paths: list[Path]) -> Iterator[tuple[str, str, np.ndarray | None]]:
+    """``(stem, source path, RGB or None)`` per image; duplicate stems get their suffix."""
+    stems = [p.stem for p in paths]
+    for path, stem in zip(paths, stems, strict=True):
+        if stems.count(stem) > 1:  # a.png and a.jpg: keep both
+            stem = f"{stem}_{path.suffix[1:].lower()}"
+        yield stem, str(path), _read_image(path)
+
+
+def _video_frames(path: Path) -> Iterator[tuple[str, str, np.ndarray | None]]:
+    cap = cv2.VideoCapture(str(path))
+    try:
+        index = 0
+        while True:
+            ok, bgr = cap.read()
+            if not ok:
+                break
+            yield f"frame_{index:06d}", str(path), cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            index += 1
+    finally:
+        cap.release()
+
+
+def open_source(
+    source: str | Path,
+) -> tuple[Iterator[tuple[str, str, np.ndarray | None]], int, bool]:
+    """Frames of ``source`` as ``(stem, path, RGB or None if unreadable)``, their count (0:
+    unknown) and whether they come from a video."""
+    path = Path(source)
+    if not path.exists():
+        raise SlimsegError(f"{path}: no such file or folder")
+    if path.is_dir():
+        images = sorted(
+            p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
+        )
+        if not images:
+            raise SlimsegError(f"{path}: no {'/'.join(IMAGE_SUFFIXES)} images in this folder")
+        return _image_frames(images), len(images), False
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        return _image_frames([path]), 1, False
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise SlimsegError(
+                f"{path}: neither an image ({'/'.join(IMAGE_SUFFIXES)}) nor a video OpenCV can open"
+            )
+        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    finally:
+        cap.release()
+    return _video_frames(path), max(count, 0), True
+
+
+def _write_gray_png(path: Path, gray: np.ndarray) -> None:
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    if not cv2.imwrite(str(tmp), gray):
+        raise OSError(f"could not write {path}")
+    os.replace(tmp, path)
+
+
+def _write_json(path: Path, payload: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(payload) + "\n")
+    os.replace(tmp, path)
+
+
+def save_prediction(
+    out_dir: Path,
+    stem: str,
+    source: str,
+    image: np.ndarray,
+    pred: Prediction,
+    names: list[str],
+    frame: int | None = None,
+) -> None:
+    """Write ``<stem>_overlay.png``, ``<stem>_mask.png`` and ``<stem>.json`` atomically."""
+    h, w = pred.image_hw
+    masks = (
+        pred.masks.astype(np.uint8)
+        if pred.masks is not None
+        else np.zeros((len(pred), h, w), np.uint8)
+    )
+    sample = Sample(image=image, boxes=pred.boxes, classes=pred.classes, masks=masks)
+    write_png(out_dir / f"{stem}_overlay.png", draw_sample(sample, names))
+    _write_gray_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
+    payload = {"image": source}
+    if frame is not None:
+        payload["frame"] = frame
+    payload.update(
+        {
+            "size": [h, w],
+            "detections": pred.detections(),
+            "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
+        }
+    )
+    _write_json(out_dir / f"{stem}.json", payload)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0 <= args.conf < 1 or not 0 < args.iou <= 1:
+        raise SlimsegError(
+            f"--conf must be in [0, 1) and --iou in (0, 1], got {args.conf}, {args.iou}"
+        )
+    if args.max_det < 1:
+        raise SlimsegError(f"--max-det must be >= 1, got {args.max_det}")
+    frames, total, is_video = open_source(args.source)
+    predictor = Predictor.from_path(
+        args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
+    )
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    print(f"{predictor} -> {out_dir}")
+    sums = dict.fromkeys(STAGES, 0.0)
+    done, detections, skipped = 0, 0, []
+    start = time.perf_counter()
+    with tqdm(total=total or None, desc="predict", unit="img") as bar:
+        for index, (stem, source, image) in enumerate(frames):
+            bar.update(1)
+            if image is None:
+                skipped.append(source)
+                continue
+            pred = predictor.predict(image, conf=args.conf, iou=args.iou, max_det=args.max_det)
+            save_prediction(
+                out_dir,
+                stem,
+                source,
+                image,
+                pred,
+                predictor.names,
+                frame=index if is_video else None,
+            )
+            for k in STAGES:
+                sums[k] += pred.timings.get(k, 0.0)
+            done += 1
+            detections += len(pred)
+    elapsed = time.perf_counter() - start
+    rate = done / elapsed if elapsed > 0 else 0.0
+    stages = ", ".join(f"{k} {sums[k] / max(done, 1):.1f}" for k in STAGES)
+    print(
+        f"{done} image(s), {detections} detection(s) in {elapsed:.2f} s: {rate:.2f} images/s "
+        f"end to end; mean ms per image: {stages}"
+    )
+    if skipped:
+        shown = ", ".join(skipped[:5]) + (
+            f" (+{len(skipped) - 5} more)" if len(skipped) > 5 else ""
+        )
+        print(f"skipped {len(skipped)} unreadable file(s): {shown}", file=sys.stderr)
+        return 1
+    return 0
