@@ -19,7 +19,8 @@ import torch
 from torch import nn
 
 from slimseg.data.letterbox import letterbox_params
-from slimseg.deploy.onnx_export import _session, export_onnx
+from slimseg.deploy.onnx_export import export_onnx
+from slimseg.deploy.ort_session import cpu_session
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
 
@@ -60,7 +61,7 @@ def bench_model(
             if form not in forms:
                 continue
             path = export_onnx(model, Path(tmp) / f"{form}.onnx", (imgsz, imgsz), half=half).path
-            session = _session(path, threads)
+            session = cpu_session(path, threads)
             feed = {"images": x.numpy().astype(np.float16 if half else np.float32)}
             result[form] = median_ms(lambda s=session, f=feed: s.run(None, f), runs, warmup)
     result["postprocess"] = median_ms(lambda: _postprocess(model, out, imgsz), runs, warmup)

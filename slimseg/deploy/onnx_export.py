@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from slimseg.deploy.metadata import build_metadata, to_metadata_props
+from slimseg.deploy.ort_session import cpu_session
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
 
@@ -70,16 +71,6 @@ def _parity_inputs(imgsz: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
         blob = ((xx - cx) ** 2 + (yy - cy) ** 2) < r**2
         scene[:, blob] = rng.random(3, dtype=np.float32)[:, None]
     return [noise, scene[None].astype(np.float32)]
-
-
-def _session(path: Path, threads: int | None = None):
-    import onnxruntime as ort
-
-    opts = ort.SessionOptions()
-    if threads:
-        opts.intra_op_num_threads = threads
-    opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
 def _as_tuple(out: object) -> list[np.ndarray]:
@@ -275,7 +266,7 @@ def verify_parity(
     fused: nn.Module, path: Path, imgsz: tuple[int, int], half: bool
 ) -> dict[str, float]:
     """Run onnxruntime and the fused torch model on two inputs; raise on disagreement."""
-    session = _session(path)
+    session = cpu_session(path)
     results: dict[str, float] = {}
     for k, x in enumerate(_parity_inputs(imgsz)):
         with torch.no_grad():

@@ -30,6 +30,7 @@ import torch
 
 from slimseg.data.letterbox import LetterboxParams, letterbox_image, letterbox_params
 from slimseg.deploy.metadata import build_metadata
+from slimseg.deploy.ort_session import cpu_session
 from slimseg.errors import SlimsegError
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
@@ -270,20 +271,7 @@ class Predictor:
 
     @classmethod
     def _from_onnx(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
-        import onnxruntime as ort
-
-        opts = ort.SessionOptions()
-        if threads:
-            opts.intra_op_num_threads = threads
-        opts.inter_op_num_threads = 1
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        try:
-            session = ort.InferenceSession(
-                str(path), sess_options=opts, providers=["CPUExecutionProvider"]
-            )
-        except Exception as exc:  # onnxruntime raises its own untyped errors
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise SlimsegError(f"{path}: onnxruntime cannot load it ({msg})") from None
+        session = cpu_session(path, threads)
         meta = read_onnx_metadata(path, dict(session.get_modelmeta().custom_metadata_map))
         runner = _OnnxRunner(session)
         static = runner.input_shape[2:4]
