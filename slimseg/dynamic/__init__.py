@@ -1,0 +1,1 @@
+"""SLAM-facing reference logic: which feature points to drop, from model outputs."""
