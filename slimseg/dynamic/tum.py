@@ -1,0 +1,248 @@
+"""TUM RGB-D sequence reader: lists, RGB↔depth association, frames in metres, ground truth.
+
+Layout (TUM RGB-D, Bonn, and ``slimseg data synth --sequences``)::
+
+    rgb.txt  depth.txt        "timestamp filename" per line, '#' lines are comments
+    rgb/<t>.png               8-bit colour (read and returned as RGB)
+    depth/<t>.png             16-bit depth, metres = value / depth_scale (5000 on TUM); 0 = invalid
+    groundtruth.txt           "timestamp tx ty tz qx qy qz qw" (optional)
+    camera.yaml               optional intrinsics: fx, fy, cx, cy, depth_scale
+
+Association follows TUM's ``associate.py``: greedy by smallest |t_rgb - t_depth|, each stamp used
+at most once, pairs further apart than ``max_dt`` (0.02 s) dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from slimseg.errors import SlimsegError
+
+Stamped = tuple[float, str]
+
+# TUM freiburg1 defaults (the TUM "Intrinsic Camera Calibration" page; depth factor 5000).
+TUM_FR1 = {"fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3, "depth_scale": 5000.0}
+MAX_DT = 0.02  # s, associate.py's default max_difference
+
+
+class Associations(list[tuple[Stamped, Stamped]]):
+    """``associate`` result: a list of ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs
+    sorted by RGB time, plus how many RGB and depth entries found no partner."""
+
+    unmatched_rgb: int = 0
+    unmatched_depth: int = 0
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics in px; ``depth_scale``: stored depth units per metre."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    depth_scale: float
+
+
+def _read_lines(path: Path) -> list[tuple[int, str]]:
+    """Non-empty, non-comment lines of a text file with their 1-based numbers."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise SlimsegError(f"cannot read {path}: {e}") from None
+    out = []
+    for no, raw in enumerate(text.splitlines(), 1):
+        line = raw.strip()
+        if line and not line.startswith("#"):
+            out.append((no, line))
+    return out
+
+
+def read_list(path: str | Path) -> list[Stamped]:
+    """Parse a TUM ``rgb.txt`` / ``depth.txt``: ``[(timestamp s, relative file path), ...]``
+    in file order. Raises ``SlimsegError`` naming the file and line for a malformed line."""
+    path = Path(path)
+    out: list[Stamped] = []
+    for no, line in _read_lines(path):
+        parts = line.split()
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            t = float(parts[0])
+            if not np.isfinite(t):
+                raise ValueError
+        except ValueError:
+            raise SlimsegError(
+                f"{path}:{no}: expected 'timestamp filename', got {line!r}"
+            ) from None
+        out.append((t, parts[1]))
+    return out
+
+
+def associate(rgb: list[Stamped], depth: list[Stamped], max_dt: float = MAX_DT) -> Associations:
+    """Pair RGB and depth entries greedily by smallest ``|t_rgb - t_depth|`` (each used once).
+
+    ``rgb``, ``depth``: ``[(t s, path), ...]``; pairs with ``|Δt| > max_dt`` are dropped.
+    Returns :class:`Associations` sorted by RGB time, with ``unmatched_rgb`` /
+    ``unmatched_depth`` counts.
+    """
+    result = Associations()
+    tr = np.array([t for t, _ in rgb], np.float64)  # [R]
+    td = np.array([t for t, _ in depth], np.float64)  # [D]
+    if len(tr) and len(td):
+        d_order = np.argsort(td, kind="stable")
+        td_sorted = td[d_order]
+        lo = np.searchsorted(td_sorted, tr - max_dt, side="left")  # [R]
+        hi = np.searchsorted(td_sorted, tr + max_dt, side="right")  # [R]
+        counts = hi - lo
+        ri = np.repeat(np.arange(len(tr)), counts)  # candidate pairs [C]
+        offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        di = d_order[np.repeat(lo, counts) + offsets]
+        dt = np.abs(tr[ri] - td[di])
+        keep = dt <= max_dt
+        ri, di, dt = ri[keep], di[keep], dt[keep]
+        used_r = np.zeros(len(tr), bool)
+        used_d = np.zeros(len(td), bool)
+        pairs = []
+        for c in np.lexsort((di, ri, dt)):  # smallest |Δt| first, ties by index
+            r, d = int(ri[c]), int(di[c])
+            if not used_r[r] and not used_d[d]:
+                used_r[r] = used_d[d] = True
+                pairs.append((r, d))
+        pairs.sort(key=lambda p: (tr[p[0]], p[0]))
+        result.extend((rgb[r], depth[d]) for r, d in pairs)
+    result.unmatched_rgb = len(rgb) - len(result)
+    result.unmatched_depth = len(depth) - len(result)
+    return result
+
+
+def read_groundtruth(path: str | Path) -> np.ndarray:
+    """Parse ``groundtruth.txt``: ``float64 [K, 8]`` rows ``t tx ty tz qx qy qz qw`` (s, m,
+    quaternion last). Raises ``SlimsegError`` naming the file and line for a malformed line."""
+    path = Path(path)
+    rows = []
+    for no, line in _read_lines(path):
+        try:
+            vals = [float(v) for v in line.split()]
+            if len(vals) != 8:
+                raise ValueError
+        except ValueError:
+            raise SlimsegError(
+                f"{path}:{no}: expected 8 numbers 't tx ty tz qx qy qz qw', got {line!r}"
+            ) from None
+        rows.append(vals)
+    return np.array(rows, np.float64).reshape(-1, 8)
+
+
+def mask_name(timestamp: float | str) -> str:
+    """DynaSLAM-style mask-cache file name for an RGB frame: the RGB file's name, i.e. the
+    timestamp with 6 decimals plus ``.png`` (``1305031102.175304`` → ``"1305031102.175304.png"``).
+
+    A ``str`` timestamp is used verbatim (pass the stamp string from ``rgb.txt`` when it does
+    not have 6 decimals).
+    """
+    stem = timestamp if isinstance(timestamp, str) else f"{float(timestamp):.6f}"
+    return f"{stem}.png"
+
+
+def _lookup(cfg: dict, *keys: str) -> float | None:
+    for k in keys:
+        v = cfg.get(k)
+        if v is not None:
+            return float(v)
+    return None
+
+
+def read_camera(path: Path) -> Camera:
+    """Intrinsics from a ``camera.yaml`` (``fx fy cx cy depth_scale``; ORB-SLAM's ``Camera.fx``
+    / ``Camera1.fx`` and ``DepthMapFactor`` / ``RGBD.DepthMapFactor`` also accepted). Missing
+    keys fall back to the TUM fr1 defaults."""
+    try:
+        text = path.read_text(encoding="utf-8")
+        lines = [ln for ln in text.splitlines() if not ln.startswith("%YAML")]
+        cfg = yaml.safe_load("\n".join(lines)) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        raise SlimsegError(f"cannot read camera file {path}: {e}") from None
+    if not isinstance(cfg, dict):
+        raise SlimsegError(f"camera file {path}: expected a mapping of fx, fy, cx, cy")
+    vals = {}
+    try:
+        for key in ("fx", "fy", "cx", "cy"):
+            v = _lookup(cfg, key, f"Camera.{key}", f"Camera1.{key}")
+            vals[key] = TUM_FR1[key] if v is None else v
+        v = _lookup(cfg, "depth_scale", "DepthMapFactor", "RGBD.DepthMapFactor")
+    except (TypeError, ValueError) as e:
+        raise SlimsegError(f"camera file {path}: non-numeric intrinsics ({e})") from None
+    vals["depth_scale"] = TUM_FR1["depth_scale"] if v is None else v
+    if vals["depth_scale"] <= 0:
+        raise SlimsegError(f"camera file {path}: depth_scale must be > 0")
+    return Camera(**vals)
+
+
+class TumSequence:
+    """A TUM-layout RGB-D sequence folder.
+
+    ``frames``: associated ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs (paths relative
+    to ``root``); ``camera``: :class:`Camera` from ``camera.yaml`` if present, else TUM fr1
+    defaults (fx 517.3, fy 516.5, cx 318.6, cy 255.3, depth scale 5000). Raises
+    ``SlimsegError`` when a list is missing or malformed or no frame pair associates.
+    """
+
+    def __init__(self, root: str | Path, max_dt: float = MAX_DT) -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise SlimsegError(f"TUM sequence folder {self.root} does not exist")
+        lists = {}
+        for name in ("rgb.txt", "depth.txt"):
+            p = self.root / name
+            if not p.is_file():
+                raise SlimsegError(f"TUM sequence {self.root}: missing {p}")
+            lists[name] = read_list(p)
+        self.frames: Associations = associate(lists["rgb.txt"], lists["depth.txt"], max_dt)
+        if not self.frames:
+            raise SlimsegError(
+                f"TUM sequence {self.root} is empty: {len(lists['rgb.txt'])} rgb and "
+                f"{len(lists['depth.txt'])} depth entries, no pair within {max_dt} s"
+            )
+        cam = self.root / "camera.yaml"
+        self.camera = read_camera(cam) if cam.is_file() else Camera(**TUM_FR1)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def load(self, i: int) -> tuple[np.ndarray, np.ndarray, float]:
+        """Frame ``i``: ``rgb uint8 [H, W, 3]`` (RGB order), ``depth_m float32 [H, W]`` metres
+        (0 where invalid) and the RGB timestamp (s). Raises ``SlimsegError`` naming the file
+        when it is missing or unreadable, and both files when their sizes differ."""
+        if not -len(self.frames) <= i < len(self.frames):
+            raise IndexError(f"frame {i} out of range (sequence has {len(self.frames)})")
+        (t_rgb, rgb_rel), (_, depth_rel) = self.frames[i]
+        rgb_path, depth_path = self.root / rgb_rel, self.root / depth_rel
+        bgr = _imread(rgb_path, cv2.IMREAD_COLOR)
+        raw = _imread(depth_path, cv2.IMREAD_UNCHANGED)
+        if raw.ndim != 2:
+            raise SlimsegError(f"depth image {depth_path} has {raw.shape[2]} channels, expected 1")
+        if raw.shape != bgr.shape[:2]:
+            raise SlimsegError(
+                f"size mismatch: {rgb_path} is {bgr.shape[1]}x{bgr.shape[0]} but "
+                f"{depth_path} is {raw.shape[1]}x{raw.shape[0]}"
+            )
+        depth = raw.astype(np.float32) / np.float32(self.camera.depth_scale)
+        depth[~np.isfinite(depth) | (depth < 0)] = 0.0
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        return rgb, depth, t_rgb
+
+
+def _imread(path: Path, flags: int) -> np.ndarray:
+    """``cv2.imread`` that raises ``SlimsegError`` naming ``path`` instead of returning None."""
+    if not path.is_file():
+        raise SlimsegError(f"missing image file {path}")
+    img = cv2.imread(str(path), flags)
+    if img is None:
+        raise SlimsegError(f"cannot decode image file {path}")
+    return img
