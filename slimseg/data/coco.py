@@ -503,6 +503,15 @@ def _box_pixels(box: tuple[float, ...], height: int, width: int) -> tuple[int, i
     return r0, r1, c0, c1
 
 
+def segm_to_rle(segm: list | dict, height: int, width: int) -> dict:
+    """Polygons (merged), uncompressed or compressed RLE → one compressed RLE."""
+    if isinstance(segm, list):
+        return mask_utils.merge(mask_utils.frPyObjects(segm, height, width))
+    if isinstance(segm["counts"], list):
+        return mask_utils.frPyObjects(segm, height, width)
+    return segm
+
+
 def decode_instance_mask(inst: Instance, height: int, width: int) -> np.ndarray:
     """The ``uint8 [H, W]`` 0/1 mask of a parsed instance (filled box for box instances)."""
     segm = inst.segm
@@ -511,12 +520,7 @@ def decode_instance_mask(inst: Instance, height: int, width: int) -> np.ndarray:
         m = np.zeros((height, width), np.uint8)
         m[r0:r1, c0:c1] = 1
         return m
-    if isinstance(segm, list):
-        rle = mask_utils.merge(mask_utils.frPyObjects(segm, height, width))
-    elif isinstance(segm["counts"], list):
-        rle = mask_utils.frPyObjects(segm, height, width)
-    else:
-        rle = segm
+    rle = segm_to_rle(segm, height, width)
     with warnings.catch_warnings():
         # pycocotools' Cython array lacks numpy 2's ``copy`` keyword: harmless, silenced here.
         warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)
@@ -529,12 +533,7 @@ def instance_area(inst: Instance, height: int, width: int) -> int:
     if segm is None:
         r0, r1, c0, c1 = _box_pixels(inst.box, height, width)
         return (r1 - r0) * (c1 - c0)
-    if isinstance(segm, list):
-        rle = mask_utils.merge(mask_utils.frPyObjects(segm, height, width))
-    elif isinstance(segm["counts"], list):
-        rle = mask_utils.frPyObjects(segm, height, width)
-    else:
-        rle = segm
+    rle = segm_to_rle(segm, height, width)
     return int(mask_utils.area(rle))
 
 

@@ -32,6 +32,7 @@ from pycocotools import mask as mask_utils
 from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
+from slimseg.data.coco import segm_to_rle
 from slimseg.errors import SlimsegError
 from slimseg.eval.postprocess import FrameDetections
 from slimseg.utils.table import format_table
@@ -61,29 +62,22 @@ def _fill_gt_defaults(data: dict) -> dict:
         a.setdefault("iscrowd", 0)
         segm = a.get("segmentation")
         has_segm = bool(segm)
+        needed = has_segm and ("bbox" not in a or "area" not in a)
+        rle = segm_to_rle(segm, *sizes[a["image_id"]]) if needed else None
         if "bbox" not in a and has_segm:
-            a["bbox"] = [float(v) for v in mask_utils.toBbox(_to_rle(segm, sizes[a["image_id"]]))]
+            a["bbox"] = [float(v) for v in mask_utils.toBbox(rle)]
         if not has_segm and "bbox" in a:
             x, y, w, h = a["bbox"]
             a["segmentation"] = [[x, y, x + w, y, x + w, y + h, x, y + h]]
         if "area" not in a:
             if has_segm:
-                a["area"] = float(mask_utils.area(_to_rle(segm, sizes[a["image_id"]])))
+                a["area"] = float(mask_utils.area(rle))
             else:
                 a["area"] = float(a["bbox"][2] * a["bbox"][3])
         anns.append(a)
     out = dict(data)
     out["annotations"] = anns
     return out
-
-
-def _to_rle(segm: Any, hw: tuple[int, int]) -> dict:
-    h, w = hw
-    if isinstance(segm, list):
-        return mask_utils.merge(mask_utils.frPyObjects(segm, h, w))
-    if isinstance(segm["counts"], list):
-        return mask_utils.frPyObjects(segm, h, w)
-    return segm
 
 
 def _load_gt(gt: str | Path | dict | COCO) -> COCO:
