@@ -174,8 +174,11 @@ def train(
     weights: str | None = None,
     augment: AugmentConfig | None = None,
     progress: bool = True,
+    callbacks: list[L.Callback] | None = None,
 ) -> tuple[DetectorModule, Path]:
-    """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder."""
+    """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder.
+
+    ``callbacks`` are added to the run's own (checkpointing, run writer, progress bar)."""
     data_cfg = load_data_config(data)
     spec = get_spec(model, len(data_cfg.names))
     last_ckpt = out / "checkpoints" / "last.ckpt"
@@ -230,6 +233,7 @@ def train(
                 enable_version_counter=False,
             ),
             RunWriter(out),
+            *(callbacks or []),
             *([TQDMProgressBar(refresh_rate=1)] if progress else []),
         ],
         check_val_every_n_epoch=cfg.val_every,
