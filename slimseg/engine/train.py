@@ -5,7 +5,7 @@ Run folder layout::
     OUT/weights/last.pt, best.pt   EMA weights + spec + names + mobility (slimseg-weights/1)
     OUT/checkpoints/last.ckpt      Lightning state for --resume
     OUT/tb/                        TensorBoard logs
-    OUT/results.csv                one row per validation: epoch, losses, mAPs
+    OUT/results.csv                one row per validation: epoch, losses, mAPs (mIoU, MPA)
     OUT/args.yaml                  model, data, recipe of the run
 """
 
@@ -49,7 +49,8 @@ QUIET_WARNINGS = (
 
 class RunWriter(L.Callback):
     """After each validation (rank 0): ``weights/last.pt``, ``best.pt`` (highest mask
-    mAP50-95, box for detection-only models) and a ``results.csv`` row."""
+    mAP50-95, box for detection-only models, mIoU for semantic models) and a ``results.csv``
+    row."""
 
     def __init__(self, out: Path) -> None:
         self.out = out
@@ -60,7 +61,8 @@ class RunWriter(L.Callback):
             return
         metrics = trainer.callback_metrics
         epoch = min(trainer.current_epoch, module.cfg.epochs - 1)  # validate() after fit: +1
-        key = "val/mask_map50_95" if "val/mask_map50_95" in metrics else "val/box_map50_95"
+        keys = ("val/miou", "val/mask_map50_95", "val/box_map50_95")
+        key = next((k for k in keys if k in metrics), keys[-1])
         score = float(metrics.get(key, 0.0))
         info = WeightsInfo(
             spec=module.spec,
@@ -71,7 +73,7 @@ class RunWriter(L.Callback):
             train_config=dataclasses.asdict(module.cfg),
         )
         save_weights(self.out / "weights" / "last.pt", module.eval_model, info)
-        if score > self.best:  # best = highest mask mAP50-95 (box for detection models)
+        if score > self.best:  # best = highest mIoU / mask mAP50-95 / box mAP50-95
             self.best = score
             save_weights(self.out / "weights" / "best.pt", module.eval_model, info)
         row = {"epoch": epoch}
@@ -230,6 +232,7 @@ def train(
                 filename="last",
                 save_top_k=1,
                 every_n_epochs=1,
+                save_on_train_epoch_end=True,  # Lightning's default waits for validation
                 enable_version_counter=False,
             ),
             RunWriter(out),

@@ -1,0 +1,67 @@
+"""``slimseg ablate``: the paper's Table II as one command (train, evaluate, measure, chart)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+from slimseg.ablate.config import load_ablation_config
+from slimseg.errors import SlimsegError
+from slimseg.models.registry import CONFIG_DIR
+
+ABLATION_DIR = CONFIG_DIR.parent / "ablation"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    shipped = ", ".join(sorted(p.stem for p in ABLATION_DIR.glob("*.yaml")))
+    p = sub.add_parser(
+        "ablate",
+        help="train and compare variants under one recipe and seed (the paper's Table II)",
+        description="Train, evaluate (COCO box and mask mAP) and measure (params, gradients, "
+        "GFLOPs, onnxruntime latency, training images/s) every variant of a sweep config; "
+        "write OUT/results.csv, results.md (with the paper's Table II beside ours) and "
+        "results.png. Interrupted sweeps resume: rerun the same command. Shipped configs "
+        f"(configs/ablation): {shipped}.",
+    )
+    p.add_argument("--config", required=True, help="sweep YAML, or the name of a shipped one")
+    p.add_argument("--out", default=None, help="sweep folder (default runs/ablate/<name>)")
+    p.add_argument("--data", default=None, help="data YAML replacing the config's data")
+    p.add_argument("--accelerator", default=None, help="cpu | gpu | auto (default: config)")
+    p.add_argument("--devices", default=None, help="e.g. 4 for DDP on 4 GPUs (default: config)")
+    p.add_argument("--num-nodes", type=int, default=None)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=run)
+
+
+def resolve_config_path(value: str) -> Path:
+    """A path to a YAML, or the stem of a shipped config in ``configs/ablation``."""
+    path = Path(value)
+    if path.is_file():
+        return path
+    shipped = ABLATION_DIR / f"{value}.yaml"
+    if shipped.is_file():
+        return shipped
+    names = ", ".join(sorted(p.stem for p in ABLATION_DIR.glob("*.yaml")))
+    raise SlimsegError(f"--config {value}: no such file or shipped sweep; shipped: {names}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from slimseg.ablate.sweep import run_sweep
+
+    cfg = load_ablation_config(resolve_config_path(args.config), data=args.data)
+    launch = {"accelerator": args.accelerator, "devices": args.devices}
+    launch |= {"num_nodes": args.num_nodes}
+    launch = {k: v for k, v in launch.items() if v is not None}
+    if launch:
+        cfg = dataclasses.replace(cfg, trainer=dataclasses.replace(cfg.trainer, **launch))
+    out = Path(args.out) if args.out else Path("runs") / "ablate" / cfg.name
+    start = time.perf_counter()
+    print(f"sweep {cfg.name}: {len(cfg.variants)} variants -> {out} (config hash {cfg.hash})")
+    rows = run_sweep(cfg, out, progress=not args.quiet)
+    minutes = (time.perf_counter() - start) / 60
+    print(f"\n{len(rows)} variants in {minutes:.1f} min this run\n")
+    print((out / "results.md").read_text())
+    print(f"results: {out / 'results.csv'}, {out / 'results.md'}, {out / 'results.png'}")
+    return 0
