@@ -74,7 +74,7 @@ def test_bad_configs_name_the_field(tmp_path: Path, edit: dict, needle: str) -> 
         lines = [line for line in text.splitlines() if not line.startswith(f"{key}:")]
         text = "\n".join([*lines, f"{key}: {value}"])
     path.write_text(text)
-    with pytest.raises(SlimsegError, match=None) as err:
+    with pytest.raises(SlimsegError) as err:
         load_ablation_config(path)
     assert needle in str(err.value) and str(path) in str(err.value)
 
@@ -85,7 +85,7 @@ def test_unknown_train_field_and_missing_recipe(tmp_path: Path) -> None:
     with pytest.raises(SlimsegError, match=r"train: unknown field\(s\) \['lr00'\]"):
         load_ablation_config(path)
     path.write_text(path.read_text().replace(str(RECIPE), "nowhere.yaml"))
-    with pytest.raises(SlimsegError, match="train.recipe .*nowhere.yaml does not exist"):
+    with pytest.raises(SlimsegError, match=r"train.recipe .*nowhere.yaml does not exist"):
         load_ablation_config(path)
 
 
