@@ -69,7 +69,9 @@ def write_reports(rows: list[dict], out: Path, cfg: AblationConfig) -> tuple[Pat
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, extrasaction="ignore")
     writer.writeheader()
-    writer.writerows(rows)
+    writer.writerows(
+        {k: round(v, 6) if isinstance(v, float) else v for k, v in r.items()} for r in rows
+    )
     csv_path = _atomic_text(out / "results.csv", buf.getvalue())
     md_path = _atomic_text(out / "results.md", markdown(rows, cfg))
     png_path = plot_sweep(rows, out / "results.png", cfg.name)
