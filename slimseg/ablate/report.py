@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 import re
 from pathlib import Path
 
@@ -14,6 +13,7 @@ from matplotlib.figure import Figure
 
 from slimseg.ablate.config import AblationConfig
 from slimseg.eval.paper import TABLE2, TABLE2_IMGSZ, TABLE2_NUM_CLASSES, PaperRow
+from slimseg.utils.atomic import atomic_path, write_text
 
 CSV_COLUMNS = (
     "variant",
@@ -72,8 +72,8 @@ def write_reports(rows: list[dict], out: Path, cfg: AblationConfig) -> tuple[Pat
     writer.writerows(
         {k: round(v, 6) if isinstance(v, float) else v for k, v in r.items()} for r in rows
     )
-    csv_path = _atomic_text(out / "results.csv", buf.getvalue())
-    md_path = _atomic_text(out / "results.md", markdown(rows, cfg))
+    csv_path = write_text(out / "results.csv", buf.getvalue())
+    md_path = write_text(out / "results.md", markdown(rows, cfg))
     png_path = plot_sweep(rows, out / "results.png", cfg.name)
     return csv_path, md_path, png_path
 
@@ -239,9 +239,8 @@ def plot_sweep(rows: list[dict], out: Path, title: str) -> Path:
         ax.grid(alpha=0.3)
     axes[0].set_title(f"{title}: filled = mask mAP, hollow = box mAP", fontsize=10)
     fig.tight_layout()
-    tmp = out.with_name(f".{out.stem}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    os.replace(tmp, out)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=110)
     return out
 
 
@@ -260,10 +259,3 @@ def _pts(v: float, base: float) -> str:
 
 def _rel(v: float, base: float) -> str:
     return f"{100 * (v / base - 1):+.1f} %"
-
-
-def _atomic_text(path: Path, text: str) -> Path:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-    return path

@@ -41,6 +41,7 @@ from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.errors import SlimsegError
 from slimseg.eval.complexity import measure
 from slimseg.models.registry import build_model
+from slimseg.utils.atomic import write_json
 
 ROW_VERSION = 1
 
@@ -80,7 +81,7 @@ def prepare_sweep_dir(cfg: AblationConfig, out: Path) -> None:
             )
         return
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(marker, {"hash": cfg.hash, "config": cfg.to_dict(), "source": cfg.source})
+    write_json(marker, {"hash": cfg.hash, "config": cfg.to_dict(), "source": cfg.source})
 
 
 def sweep_data(cfg: AblationConfig, out: Path, progress: bool) -> Path:
@@ -141,7 +142,7 @@ def run_sweep(
             if int(os.environ.get("LOCAL_RANK", "0")) or int(os.environ.get("NODE_RANK", "0")):
                 continue  # DDP worker ranks train; the launching rank measures and writes
         row = measure_variant(cfg, name, vdir, data_yaml, data_cfg.names, sha, progress)
-        _write_json(vdir / "row.json", row)
+        write_json(vdir / "row.json", row, indent=1)
         rows.append(row)
         paths = write_reports(rows, out, cfg)
         log(f"[{k}/{len(cfg.variants)}] {name}: {_summary(row)} -> {paths[1]}")
@@ -241,10 +242,3 @@ def _summary(row: dict) -> str:
         f"box mAP50-95 {row['box_map50_95']:.3f}, seg {row['seg_map50_95']:.3f}, "
         f"{row['gflops']:.2f} GFLOPs, {row['latency_ms']:.1f} ms, {row['train_img_s']:.1f} img/s"
     )
-
-
-def _write_json(path: Path, obj: object) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=float))
-    os.replace(tmp, path)

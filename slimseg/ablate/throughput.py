@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
 import lightning as L
+
+from slimseg.utils.atomic import write_json
 
 
 class ThroughputMeter(L.Callback):
@@ -41,9 +42,7 @@ class ThroughputMeter(L.Callback):
         seconds = self._last - self._start
         images = self._images * trainer.world_size  # every rank sees its own share
         self.epochs[str(trainer.current_epoch)] = [images, round(seconds, 4)]
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
-        tmp.write_text(json.dumps({"epochs": self.epochs}, indent=1))
-        os.replace(tmp, self.path)
+        write_json(self.path, {"epochs": self.epochs}, indent=1)
 
 
 def read_epochs(path: Path) -> dict[str, list[float]]:

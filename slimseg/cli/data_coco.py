@@ -107,15 +107,15 @@ def run_coco_subset(args: argparse.Namespace) -> int:
 
 
 def run_voc2coco(args: argparse.Namespace) -> int:
-    from slimseg.data.subset import write_json_atomic
     from slimseg.data.voc import voc_to_coco
+    from slimseg.utils.atomic import write_json
 
     if args.out.suffix.lower() != ".json":
         raise SlimsegError(f"--out {args.out}: expected a .json file name")
     data, stats = voc_to_coco(
         args.voc_root, args.sets, args.classes, args.difficult, args.keep_unlabeled
     )
-    write_json_atomic(data, args.out)
+    write_json(args.out, data)
     print(format_table(["id", "class", "instances", "difficult"], stats.rows()))
     if stats.bad_boxes:
         print(

@@ -20,14 +20,12 @@ a ``coco_id`` absent from the json falls back to matching by name (with a warnin
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import write_json
 from slimseg.utils.yaml_io import read_yaml
 
 
@@ -202,24 +200,6 @@ def build_subset(
     return out, stats
 
 
-def write_json_atomic(obj: object, path: str | Path) -> Path:
-    """Write ``obj`` as JSON to ``path`` via a temp file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(obj, f, separators=(",", ":"))
-        umask = os.umask(0o022)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; use the usual mode
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
 def coco_subset(
     ann: str | Path,
     classes_file: str | Path,
@@ -242,5 +222,5 @@ def coco_subset(
     data = load_coco_json(ann)
     subset, stats = build_subset(data, classes, keep_unlabeled, images_dir, source=str(ann))
     del data
-    write_json_atomic(subset, out_path)
+    write_json(out_path, subset)
     return out_path, stats

@@ -9,7 +9,6 @@ weights when present); those load with ``weights_only=True`` too.
 
 from __future__ import annotations
 
-import os
 import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from slimseg import __version__
 from slimseg.errors import SlimsegError
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
+from slimseg.utils.atomic import atomic_path
 
 FORMAT = "slimseg-weights/1"
 
@@ -59,9 +59,8 @@ def save_weights(path: str | Path, model: nn.Module, info: WeightsInfo) -> Path:
         "fused": not any(isinstance(m, nn.BatchNorm2d) for m in model.modules()),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
     }
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
     return path
 
 

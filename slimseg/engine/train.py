@@ -38,6 +38,7 @@ from slimseg.engine.config import TrainConfig
 from slimseg.engine.module import DetectorModule
 from slimseg.errors import SlimsegError
 from slimseg.models.registry import get_spec
+from slimseg.utils.atomic import atomic_path
 
 # Lightning notices that are noise for slimseg runs (short CPU epochs, pytree deprecation).
 QUIET_WARNINGS = (
@@ -103,11 +104,8 @@ class AtomicCheckpointIO(TorchCheckpointIO):
     def save_checkpoint(
         self, checkpoint: dict, path: str | Path, storage_options: object = None
     ) -> None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp")
-        torch.save(checkpoint, tmp)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            torch.save(checkpoint, tmp)
 
 
 def next_run_dir(base: Path) -> Path:

@@ -19,8 +19,6 @@ Load into an unfused model, then call ``fuse_model``.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +27,7 @@ from torch import nn
 
 from slimseg.layers.conv import ConvBNAct
 from slimseg.models.darknet_yolov3 import Darknet19YOLOv3
+from slimseg.utils.atomic import write_bytes
 
 _F32 = np.dtype("<f4")
 _I32 = np.dtype("<i4")
@@ -205,17 +204,5 @@ def save_darknet_weights(
         for t in _conv_tensors(conv, f"{path}: "):
             chunks.append(t.detach().to("cpu", torch.float32).contiguous().numpy().astype(_F32))
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk if isinstance(chunk, bytes) else chunk.tobytes())
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes(path, b"".join(c if isinstance(c, bytes) else c.tobytes() for c in chunks))
     return n

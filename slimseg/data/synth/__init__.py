@@ -8,7 +8,7 @@ No download: ``generate(out, train, val, imgsz, seed)`` renders everything from 
 - :mod:`.texture`, :mod:`.camera`: procedural room (wall, floor, clutter) seen by a pinhole;
 - :mod:`.scene`: one frame (layered instances, depth, sensor effects), ``render_image``;
 - :mod:`.sequence`: TUM RGB-D sequences with dynamic masks and static backgrounds;
-- :mod:`.coco_writer`, :mod:`.files`, :mod:`.generate`: COCO json, atomic writes, data.yaml.
+- :mod:`.coco_writer`, :mod:`.generate`: COCO json, data.yaml (written atomically).
 """
 
 from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES, Category

@@ -8,8 +8,8 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from slimseg.data.synth.categories import coco_categories
-from slimseg.data.synth.files import write_json
 from slimseg.data.synth.scene import Frame
+from slimseg.utils.atomic import write_json
 
 MIN_AREA = 16  # instances with fewer visible pixels are left out of the json
 

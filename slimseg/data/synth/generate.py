@@ -11,10 +11,10 @@ from tqdm import tqdm
 
 from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES
 from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
-from slimseg.data.synth.files import write_png, write_text
 from slimseg.data.synth.scene import STREAM_TRAIN, STREAM_VAL, render_image
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import write_png, write_text
 
 _OWNED = ("train", "val", "sequences", "data.yaml")  # what --overwrite may delete
 

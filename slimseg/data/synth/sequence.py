@@ -28,7 +28,6 @@ import numpy as np
 from slimseg.data.synth.camera import Intrinsics, Pose, Room, project, render_room
 from slimseg.data.synth.categories import BY_NAME, CATEGORIES
 from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
-from slimseg.data.synth.files import write_png, write_text, write_yaml
 from slimseg.data.synth.scene import (
     DEPTH_SCALE,
     STREAM_SEQUENCE,
@@ -43,6 +42,7 @@ from slimseg.data.synth.scene import (
     sample_noise,
 )
 from slimseg.data.synth.shapes import Style, sample_style, walking_pose
+from slimseg.utils.atomic import write_png, write_text, write_yaml
 
 FPS = 30.0
 T0_US = 1_305_031_102_175_304  # first colour timestamp (microseconds), a TUM-like epoch
