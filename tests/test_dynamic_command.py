@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from slimseg.cli.main import main
@@ -38,3 +39,74 @@ def test_dynamic_command_on_a_synthetic_sequence(tmp_path: Path, capsys) -> None
     assert (out / "overlay.png").is_file()
     printed = capsys.readouterr().out
     assert "precision %" in printed and "box+depth-ransac" in printed
+
+
+@pytest.fixture(scope="module")
+def small_sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("synth")
+    generate(root, 1, 1, 64, 0, sequences=1, frames=6, seq_size=(160, 128), progress=False)
+    return root / "sequences" / "seq_000"
+
+
+def test_epipolar_mode_and_restore_with_gt_instances(
+    small_sequence: Path, tmp_path: Path, capsys
+) -> None:
+    out = tmp_path / "out"
+    argv = ["dynamic", "--gt-instances", "--sequence", str(small_sequence), "--out", str(out)]
+    assert main([*argv, "--mode", "semantic+epipolar", "--restore", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "semantic+epipolar" in printed and "fusion+epipolar" in printed
+    assert "epipolar check of ground-truth instances" in printed
+    assert "PatchMatch (ours)" in printed and "cv2.inpaint Telea" in printed
+    rows = (out / "restoration.csv").read_text().splitlines()
+    assert rows[0].startswith("method,PSNR dB,SSIM") and len(rows) == 5
+    frames = TumSequence(small_sequence)
+    for i in range(len(frames)):
+        rgb, depth, stamp = frames.load(i)
+        name = mask_name(stamp)
+        restored = cv2.imread(str(out / "restored" / "rgb" / name))
+        raw = cv2.imread(str(out / "restored" / "depth" / name), cv2.IMREAD_UNCHANGED)
+        assert restored.shape == (128, 160, 3) and raw.dtype == np.uint16
+        gt = cv2.imread(str(small_sequence / "dynamic" / name), cv2.IMREAD_GRAYSCALE) > 0
+        keep = ~cv2.dilate(gt.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+        assert np.array_equal(restored[keep], cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)[keep])
+        assert np.allclose(raw[keep] / 5000.0, depth[keep], atol=1e-3)
+        if gt.any():  # the walker is gone: the fill is not its colour or depth
+            assert np.abs(raw[gt] / 5000.0 - depth[gt]).mean() > 0.05
+    assert not list((out / "restored" / "rgb").glob(".*"))  # no temp files left
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--model", "x.onnx", "--gt-instances"], "exactly one of --model"),
+        ([], "exactly one of --model"),
+    ],
+)
+def test_dynamic_command_rejects_bad_arguments(
+    small_sequence: Path, tmp_path: Path, capsys, extra: list[str], message: str
+) -> None:
+    argv = ["dynamic", "--sequence", str(small_sequence), "--out", str(tmp_path), *extra]
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_restore_gt_masks_need_a_dynamic_folder(tmp_path: Path, capsys) -> None:
+    generate(tmp_path / "d", 1, 1, 64, 0, sequences=1, frames=2, seq_size=(96, 64), progress=False)
+    seq = tmp_path / "d" / "sequences" / "seq_000"
+    for f in (seq / "dynamic").iterdir():
+        f.unlink()
+    (seq / "dynamic").rmdir()
+    argv = ["dynamic", "--gt-instances", "--sequence", str(seq), "--out", str(tmp_path / "o")]
+    assert main([*argv, "--restore", "--quiet"]) == 2
+    assert "--restore-mask gt needs ground-truth masks" in capsys.readouterr().err
+
+
+def test_restore_rejects_masks_of_the_wrong_size(small_sequence: Path, tmp_path: Path) -> None:
+    from slimseg.dynamic.restore_run import restore_sequence
+    from slimseg.errors import SlimsegError
+
+    with pytest.raises(SlimsegError, match=r"is \(80, 64\) \(w, h\) but the frame is \(160, 128\)"):
+        restore_sequence(
+            small_sequence, lambda i, t: np.zeros((64, 80), np.uint8), tmp_path, progress=False
+        )

@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import math
+import os
 from pathlib import Path
 
-from slimseg.deploy.predictor import Predictor
+import cv2
+import numpy as np
+
 from slimseg.dynamic.pipeline import MODES
-from slimseg.dynamic.sequence_run import run_sequence
+from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
+from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
+from slimseg.dynamic.tum import mask_name
+from slimseg.errors import SlimsegError
 from slimseg.utils.table import format_table
 
 
@@ -17,11 +24,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "dynamic",
         help="dynamic-keypoint masks for a TUM RGB-D sequence (+ precision/recall with GT)",
         description="Run a model and the reference masking logic (Eq. 1/3/4 of the substation "
-        "paper, YOLO-SLAM's depth-RANSAC) on a TUM-layout sequence. Writes masks/<rgb "
-        "timestamp>.png (255 = dynamic), frames.csv and overlay.png; with ground-truth "
-        "dynamic/ masks, prints keypoint precision and recall of every mode.",
+        "paper, YOLO-SLAM's depth-RANSAC, VTD-SLAM's epipolar check) on a TUM-layout sequence. "
+        "Writes masks/<rgb timestamp>.png (255 = dynamic), frames.csv and overlay.png; with "
+        "ground-truth dynamic/ masks, prints keypoint precision and recall of every mode. "
+        "--restore fills the removed regions from neighbouring frames (PatchMatch) and, with a "
+        "true background/ (synthetic sequences), scores it against cv2.inpaint.",
     )
-    p.add_argument("--model", required=True, help="exported .onnx, or weights .pt/.ckpt")
+    p.add_argument("--model", help="exported .onnx, or weights .pt/.ckpt")
+    p.add_argument(
+        "--gt-instances",
+        action="store_true",
+        help="use the sequence's annotations.json instances instead of a model (synthetic "
+        "sequences): evaluates the masking logic and the epipolar check without detector errors",
+    )
     p.add_argument("--sequence", required=True, help="folder with rgb.txt and depth.txt")
     p.add_argument("--out", default="runs/dynamic")
     p.add_argument("--mode", default="fusion", choices=MODES)
@@ -29,17 +44,54 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
     p.add_argument("--min-static", type=int, default=100, help="Eq. 1: static points needed")
     p.add_argument("--dilation", type=int, default=0, help="mask dilation in pixels")
+    p.add_argument(
+        "--epipolar-depth",
+        action="store_true",
+        help="epipolar modes: with the previous depth, use the PnP reprojection error (sees "
+        "motion along epipolar lines) where depth is valid",
+    )
+    p.add_argument(
+        "--restore",
+        action="store_true",
+        help="write restored/rgb/<ts>.png and restored/depth/<ts>.png (uint16, depth scale)",
+    )
+    p.add_argument(
+        "--restore-mask",
+        choices=("pred", "gt"),
+        default=None,
+        help="region to restore: the mode's dynamic mask (pred, default) or the ground-truth "
+        "dynamic/ masks (gt, default without --model)",
+    )
+    p.add_argument(
+        "--restore-dilation", type=int, default=2, help="px added around the removed region"
+    )
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    predictor = Predictor.from_path(args.model, threads=args.threads)
+    if (args.model is None) == (not args.gt_instances):
+        raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
+    sequence = Path(args.sequence)
+    if args.gt_instances:
+        from slimseg.dynamic.annotations import AnnotationInstances
+
+        predictor = AnnotationInstances(sequence)
+    else:
+        from slimseg.deploy.predictor import Predictor
+
+        predictor = Predictor.from_path(args.model, threads=args.threads)
+    restore_mask = args.restore_mask or ("pred" if args.model else "gt")
+    if args.restore and restore_mask == "gt" and not (sequence / "dynamic").is_dir():
+        raise SlimsegError(
+            f"--restore-mask gt needs ground-truth masks in {sequence / 'dynamic'}; "
+            "use --restore-mask pred"
+        )
     out = Path(args.out)
     report = run_sequence(
         predictor,
-        Path(args.sequence),
+        sequence,
         out,
         args.mode,
         args.conf,
@@ -47,9 +99,19 @@ def run(args: argparse.Namespace) -> int:
         args.min_static,
         args.dilation,
         progress=not args.quiet,
+        epipolar_depth=args.epipolar_depth,
     )
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
+    _print_scores(report)
+    if report.skipped:
+        print(f"{len(report.skipped)} frame(s) without ground truth, e.g. {report.skipped[0]}")
+    if args.restore:
+        _restore(args, sequence, out, restore_mask)
+    return 0
+
+
+def _print_scores(report: SequenceReport) -> None:
     if report.scores:
         rows = [
             [m, s.tp, s.fp, s.fn, _pct(s.precision), _pct(s.recall)]
@@ -58,9 +120,48 @@ def run(args: argparse.Namespace) -> int:
         ]
         print("dynamic keypoints vs ground truth:")
         print(format_table(["mode", "TP", "FP", "FN", "precision %", "recall %"], rows))
-    if report.skipped:
-        print(f"{len(report.skipped)} frame(s) without ground truth, e.g. {report.skipped[0]}")
-    return 0
+    if report.epipolar:
+        print("epipolar check of ground-truth instances (truth as decision):")
+        rows = [[k, v] for k, v in sorted(report.epipolar.items())]
+        print(format_table(["instances", "count"], rows))
+
+
+def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) -> None:
+    folder = out / "masks" if which == "pred" else sequence / "dynamic"
+
+    def masks(i: int, stamp: float) -> np.ndarray:
+        path = folder / mask_name(stamp)
+        m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if m is None:
+            raise SlimsegError(f"missing or unreadable dynamic mask {path}")
+        return m
+
+    rep = restore_sequence(
+        sequence,
+        masks,
+        out,
+        args.restore_dilation,
+        keypoints=args.keypoints,
+        progress=not args.quiet,
+    )
+    cover = 100 * float(np.mean(rep.coverage)) if rep.coverage else float("nan")
+    print(
+        f"restored {rep.restored} of {rep.frames} frames ({which} masks) into "
+        f"{out / 'restored'}; {rep.references / max(rep.restored, 1):.1f} references per "
+        f"frame, {_pct(cover / 100)} % of removed pixels seen by a reference"
+    )
+    if rep.methods:
+        rows = report_rows(rep)
+        print(f"restoration inside the removed regions vs true background ({rep.scored} frames):")
+        print(format_table(REPORT_HEADERS, rows))
+        path = out / "restoration.csv"
+        tmp = path.with_name(f".{path.name}.tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(REPORT_HEADERS)
+            writer.writerows(rows)
+        os.replace(tmp, path)
+        print(f"table written to {path}")
 
 
 def _pct(v: float) -> str:

@@ -6,7 +6,13 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
 - ``fusion``: Eq. 4 (a seg mask covering ≤ t_o of its box is replaced by the box) on dynamic
   keyframes (Eq. 3), plain seg masks otherwise; then Eq. 1;
 - ``box+depth-ransac``: inside boxes of dynamic classes, YOLO-SLAM's depth-RANSAC keeps the
-  largest depth-consistent set as dynamic; the rest of each box stays static.
+  largest depth-consistent set as dynamic; the rest of each box stays static;
+- ``semantic+epipolar`` / ``fusion+epipolar`` (VTD-SLAM's multi-view check): like ``seg`` /
+  ``fusion``, but every detection of a dynamic class (prior > ``dynamic_mobility``) is first
+  checked against the previous frame (``epipolar.check_motion`` on its instance mask); one the
+  check finds *static* gets mobility 0, so its points stay static (a standing person). Objects
+  with too few matched points, and every object of the first frame (no ``previous``), keep
+  their prior: undecided means dynamic. Eq. 3 then counts with the corrected priors.
 """
 
 from __future__ import annotations
@@ -16,10 +22,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.fusion import box_masks, dilate, fuse_seg_box
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
-MODES = ("seg", "box", "fusion", "box+depth-ransac")
+MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
+EPIPOLAR_MODES = {"semantic+epipolar": "seg", "fusion+epipolar": "fusion"}
 
 
 @dataclass
@@ -32,6 +40,9 @@ class FrameResult:
     m_th: float | None
     dynamic_frame: bool
     used_seg: list[bool] = field(default_factory=list)
+    epipolar: EpipolarResult | None = None
+    """epipolar modes: the check's outcome for the detections listed in ``checked``"""
+    checked: list[int] = field(default_factory=list)
 
     @property
     def counts(self) -> dict[str, int]:
@@ -60,16 +71,28 @@ def process_frame(
     dilation_px: int = 0,
     dynamic_mobility: float = 0.25,
     rng: np.random.Generator | None = None,
+    descriptors: np.ndarray | None = None,
+    previous: PreviousFrame | None = None,
 ) -> FrameResult:
     """Classify ``keypoints [N, 2]`` of one ``hw`` frame given detections in frame pixels:
     ``boxes [M, 4]`` xyxy, ``classes [M]``, ``masks bool [M, H, W]`` (None: detector only),
-    ``class_mobility [K]`` priors; ``depth_m [H, W]`` metres for depth-RANSAC."""
+    ``class_mobility [K]`` priors; ``depth_m [H, W]`` metres for depth-RANSAC.
+
+    Epipolar modes: ``descriptors uint8 [N, 32]`` are the ORB descriptors of ``keypoints`` (see
+    ``epipolar.orb_features``) and ``previous`` the previous frame's features (None on the
+    first frame: no check, the mode behaves like its base mode)."""
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; valid: {list(MODES)}")
     mob = np.asarray(class_mobility, np.float32)[np.asarray(classes, int)]
     boxes = np.asarray(boxes, np.float32).reshape(-1, 4)
-    if mode in ("seg", "fusion") and masks is None:
+    if mode in ("seg", "fusion", *EPIPOLAR_MODES) and masks is None:
         raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
+    epi, checked = None, []
+    if mode in EPIPOLAR_MODES:
+        mob, epi, checked = _epipolar_priors(
+            keypoints, descriptors, previous, masks, mob, dynamic_mobility
+        )
+        mode = EPIPOLAR_MODES[mode]
     used_seg: list[bool] = []
     if mode == "box+depth-ransac":
         from slimseg.dynamic.depth_ransac import screen_box_keypoints
@@ -97,7 +120,39 @@ def process_frame(
         region = np.zeros(hw, bool)
     else:
         region = regions[mob > result.m_th].any(0) if len(regions) else np.zeros(hw, bool)
-    return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg)
+    return FrameResult(
+        result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg, epi, checked
+    )
+
+
+def _epipolar_priors(
+    keypoints: np.ndarray,
+    descriptors: np.ndarray | None,
+    previous: PreviousFrame | None,
+    masks: np.ndarray,
+    mob: np.ndarray,
+    dynamic_mobility: float,
+) -> tuple[np.ndarray, EpipolarResult | None, list[int]]:
+    """Mobility priors with the detections the epipolar check finds static set to 0."""
+    candidates = np.flatnonzero(mob > dynamic_mobility)
+    if previous is None or len(candidates) == 0:
+        return mob, None, []
+    if descriptors is None:
+        raise ValueError(
+            "epipolar modes need the ORB descriptors of the keypoints: pass descriptors= "
+            "(epipolar.orb_features gives keypoints and descriptors together)"
+        )
+    current = OrbFeatures(np.asarray(keypoints, np.float32).reshape(-1, 2), descriptors)
+    result = check_motion(
+        previous.features,
+        current,
+        np.asarray(masks, bool)[candidates],
+        depth_m=previous.depth_m,
+        camera=previous.camera,
+    )
+    mob = mob.copy()
+    mob[candidates[result.decided & ~result.moving]] = 0.0
+    return mob, result, candidates.tolist()
 
 
 def _mask(region: np.ndarray, dilation_px: int) -> np.ndarray:

@@ -5,6 +5,12 @@ chosen mode → ``masks/<rgb timestamp>.png`` (uint8, 255 = dynamic; the offline
 convention of DynaSLAM-style runtimes) and a CSV row. When the sequence has ground-truth
 ``dynamic/`` masks (the synthetic generator writes them), every mode is scored on the same
 detections and keypoints: precision and recall of dynamic keypoints.
+
+The epipolar modes get the previous frame's ORB features (``PreviousFrame``); the first frame
+has none and behaves like the base mode. ``predictor`` may also be an
+:class:`~slimseg.dynamic.annotations.AnnotationInstances` (ground-truth instances of a synthetic
+sequence): then the report also counts how the epipolar check classified every checked
+instance against its ground-truth ``moving`` flag.
 """
 
 from __future__ import annotations
@@ -20,7 +26,9 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.data.visualize import tile, write_png
-from slimseg.dynamic.pipeline import MODES, orb_keypoints, process_frame
+from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.epipolar import PreviousFrame, orb_features
+from slimseg.dynamic.pipeline import EPIPOLAR_MODES, MODES, FrameResult, process_frame
 from slimseg.dynamic.tum import TumSequence, mask_name
 
 
@@ -48,6 +56,9 @@ class SequenceReport:
     skipped: list[str] = field(default_factory=list)
     scores: dict[str, ModeScore] = field(default_factory=dict)
     ms_per_frame: dict[str, float] = field(default_factory=dict)
+    epipolar: dict[str, int] = field(default_factory=dict)
+    """GT instances only: ``"<truth> as <decision>"`` counts, truth moving/static, decision
+    moving/static/undecided, over every instance the epipolar check looked at."""
 
 
 def run_sequence(
@@ -60,9 +71,12 @@ def run_sequence(
     min_static: int = 100,
     dilation_px: int = 0,
     progress: bool = True,
+    epipolar_depth: bool = False,
 ) -> SequenceReport:
     """Process every associated frame of ``sequence`` with ``predictor`` (a slimseg
-    ``Predictor``); write masks, ``frames.csv`` and ``overlay.png`` under ``out``."""
+    ``Predictor`` or ``AnnotationInstances``); write masks, ``frames.csv`` and ``overlay.png``
+    under ``out``. ``epipolar_depth``: give the epipolar check the previous depth and the
+    intrinsics (depth-aided residual, see ``epipolar``)."""
     seq = TumSequence(sequence)
     gt_dir = Path(sequence) / "dynamic"
     mobility = np.asarray(predictor.mobility, np.float32)
@@ -72,15 +86,19 @@ def run_sequence(
     t_model = t_logic = 0.0
     rng = np.random.default_rng(0)
     step = max(len(seq.frames) // 6, 1)
+    gt_instances = isinstance(predictor, AnnotationInstances)
+    previous: PreviousFrame | None = None
     for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
         rgb, depth, stamp = seq.load(i)
         t0 = time.perf_counter()
-        pred = predictor.predict(rgb, conf=conf)
+        pred = predictor.for_stamp(stamp) if gt_instances else predictor.predict(rgb, conf=conf)
         t1 = time.perf_counter()
-        kps = orb_keypoints(rgb, keypoints)
+        feats = orb_features(rgb, keypoints)  # same keypoints as orb_keypoints, + descriptors
+        kps = feats.keypoints
         hw = rgb.shape[:2]
         args = (kps, pred.boxes, pred.classes, pred.masks, mobility, hw)
-        result = process_frame(*args, mode, depth, min_static, dilation_px, rng=rng)
+        extra = {"rng": rng, "descriptors": feats.descriptors, "previous": previous}
+        result = process_frame(*args, mode, depth, min_static, dilation_px, **extra)
         t_logic += time.perf_counter() - t1
         t_model += t1 - t0
         name = mask_name(stamp)
@@ -107,17 +125,24 @@ def run_sequence(
                 for m in MODES:
                     if m == mode:
                         dyn = result.dynamic
-                    elif m in ("seg", "fusion") and pred.masks is None:
+                    elif m in ("seg", "fusion", *EPIPOLAR_MODES) and pred.masks is None:
                         continue
                     else:
                         dyn = process_frame(
-                            *args, m, depth, min_static, dilation_px, rng=rng
+                            *args, m, depth, min_static, dilation_px, **extra
                         ).dynamic
                     s = report.scores[m]
                     s.tp += int((dyn & truth).sum())
                     s.fp += int((dyn & ~truth).sum())
                     s.fn += int((~dyn & truth).sum())
                     s.tn += int((~dyn & ~truth).sum())
+        if gt_instances and previous is not None and pred.masks is not None:
+            _count_epipolar(report, predictor, stamp, result, args, depth, extra, mode)
+        if epipolar_depth:
+            cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
+            previous = PreviousFrame(feats, depth, cam)
+        else:
+            previous = PreviousFrame(feats)
         if i % step == 0 and len(panels) < 6:
             panels.append(_overlay(rgb, result.mask, kps, result.dynamic))
         report.frames += 1
@@ -127,6 +152,29 @@ def run_sequence(
     n = max(report.frames, 1)
     report.ms_per_frame = {"model": 1000 * t_model / n, "masking_logic": 1000 * t_logic / n}
     return report
+
+
+def _count_epipolar(
+    report: SequenceReport,
+    instances: AnnotationInstances,
+    stamp: float,
+    result: FrameResult,
+    args: tuple,
+    depth: np.ndarray,
+    extra: dict,
+    mode: str,
+) -> None:
+    """Tally the epipolar decisions of this frame's instances against their ``moving`` flag."""
+    if mode not in EPIPOLAR_MODES:
+        result = process_frame(*args, "semantic+epipolar", depth, **extra)
+    epi = result.epipolar
+    if epi is None:
+        return
+    truth = instances.moving(stamp)[result.checked]
+    for t, dec, mov in zip(truth, epi.decided, epi.moving, strict=True):
+        decision = "moving" if mov else ("static" if dec else "undecided")
+        key = f"{'moving' if t else 'static'} as {decision}"
+        report.epipolar[key] = report.epipolar.get(key, 0) + 1
 
 
 def _at(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
