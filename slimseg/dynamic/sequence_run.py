@@ -25,11 +25,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.data.visualize import tile, write_png
+from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, MODES, FrameResult, process_frame
+from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.tum import TumSequence, mask_name
+from slimseg.utils.atomic import write_png
 
 
 @dataclass
@@ -96,15 +98,14 @@ def run_sequence(
         feats = orb_features(rgb, keypoints)  # same keypoints as orb_keypoints, + descriptors
         kps = feats.keypoints
         hw = rgb.shape[:2]
-        args = (kps, pred.boxes, pred.classes, pred.masks, mobility, hw)
+        boxes, classes, masks = instances_of(pred)  # semantic maps: one object per component
+        args = (kps, boxes, classes, masks, mobility, hw)
         extra = {"rng": rng, "descriptors": feats.descriptors, "previous": previous}
         result = process_frame(*args, mode, depth, min_static, dilation_px, **extra)
         t_logic += time.perf_counter() - t1
         t_model += t1 - t0
         name = mask_name(stamp)
-        tmp = out / "masks" / f".{name}.tmp.png"
-        cv2.imwrite(str(tmp), result.mask)
-        os.replace(tmp, out / "masks" / name)
+        write_png(out / "masks" / name, result.mask)
         rows.append(
             {
                 "timestamp": f"{stamp:.6f}",
@@ -112,7 +113,7 @@ def run_sequence(
                 "m_th": result.m_th,
                 "dynamic_frame": result.dynamic_frame,
                 "used_seg": result.used_seg,
-                "detections": len(pred.boxes),
+                "detections": len(boxes),
                 "model_ms": round(1000 * (t1 - t0), 2),
             }
         )
@@ -125,7 +126,7 @@ def run_sequence(
                 for m in MODES:
                     if m == mode:
                         dyn = result.dynamic
-                    elif m in ("seg", "fusion", *EPIPOLAR_MODES) and pred.masks is None:
+                    elif m in ("seg", "fusion", *EPIPOLAR_MODES) and masks is None:
                         continue
                     else:
                         dyn = process_frame(
