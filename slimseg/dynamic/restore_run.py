@@ -16,7 +16,6 @@ by construction (SLAM drops them), so the count is also the gain.
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from slimseg.dynamic.restore import (
 )
 from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import write_png
 
 MaskSource = Callable[[int, float], np.ndarray]
 
@@ -94,13 +94,6 @@ def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = 1000) -> int:
     return sum(region[min(int(k.pt[1]), h - 1), min(int(k.pt[0]), w - 1)] for k in kps)
 
 
-def _write(path: Path, img: np.ndarray) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    if not cv2.imwrite(str(tmp), img):
-        raise OSError(f"cannot write {tmp}")
-    os.replace(tmp, path)
-
-
 def restore_sequence(
     sequence: Path,
     masks: MaskSource,
@@ -154,9 +147,9 @@ def restore_sequence(
         restored = restore_frame(target, [(cands[r.index], r) for r in refs])
         t_ours = time.perf_counter() - t0
         name = mask_name(stamp)
-        _write(out / "restored" / "rgb" / name, cv2.cvtColor(restored.rgb, cv2.COLOR_RGB2BGR))
+        write_png(out / "restored" / "rgb" / name, restored.rgb)
         raw = np.clip(np.round(restored.depth * scale), 0, 65535).astype(np.uint16)
-        _write(out / "restored" / "depth" / name, raw)
+        write_png(out / "restored" / "depth" / name, raw)
         report.frames += 1
         if target.removed.any():
             report.restored += 1
