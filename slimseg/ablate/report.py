@@ -88,8 +88,8 @@ def markdown(rows: list[dict], cfg: AblationConfig) -> str:
         "",
         f"Data: {data} ({first['val_images']} val images). Recipe: "
         f"{t.epochs} epochs, batch {t.batch}, {t.imgsz} px, {t.optimizer} lr0 {t.lr0}, "
-        f"seed {t.seed}. mAP: COCO (pycocotools) of the fused best EMA weights on the val "
-        f"split, in %. GFLOPs, gradients and params at nc {first['num_classes']}, "
+        f"seed {t.seed}. mAP: COCO (pycocotools) of the best EMA weights on the val split, "
+        f"in %. GFLOPs, gradients and params at nc {first['num_classes']}, "
         f"{cfg.gflops_imgsz} px. Config hash {cfg.hash}, git {first['git_sha']}.",
         "",
         "## Table II columns",
