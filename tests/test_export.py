@@ -37,9 +37,13 @@ def test_every_variant_exports_with_parity_and_tensorrt_ops(name: str, tmp_path:
     report = export_onnx(_realistic(name), tmp_path / f"{name}.onnx", imgsz, ["a"] * 5, [1.0] * 5)
     assert set(report.ops) <= TENSORRT_SUPPORTED_OPS, set(report.ops) - TENSORRT_SUPPORTED_OPS
     assert not set(report.ops) & DATA_DEPENDENT_OPS
-    assert report.parity["input1/box_px"] <= 1e-3 and report.parity["input1/score"] <= 1e-4
     proto = onnx.load(str(report.path))
     dims = [[d.dim_value for d in o.type.tensor_type.shape.dim] for o in proto.graph.output]
+    if name.startswith("msnet"):  # semantic logits (tests/test_msnet.py checks more)
+        assert report.parity["input1/logit"] <= 1e-3
+        assert dims == [[1, 5 + 1, 128, 160]]
+        return
+    assert report.parity["input1/box_px"] <= 1e-3 and report.parity["input1/score"] <= 1e-4
     a = sum((128 // s) * (160 // s) for s in (8, 16, 32))
     if name.startswith("yolov8") and "seg" in name:
         assert dims == [[1, 4 + 5 + 32, a], [1, 32, 32, 40]]

@@ -14,6 +14,8 @@ EXPECTED = {f"yolov8{s}-seg{v}" for s in "ns" for v in ("", "-gs", "-rep", "-gs-
     "yolov8n",
     "yolov8s",
     "darknet19-yolov3",
+    "msnet-t",
+    "msnet-s",
 }
 
 

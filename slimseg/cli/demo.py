@@ -18,6 +18,7 @@ from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.engine.preview import prediction_grid
 from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.plots import plot_results
+from slimseg.eval.semantic_metrics import format_semantic_table
 from slimseg.models.registry import CONFIG_DIR
 
 DEMO_RECIPE = CONFIG_DIR.parent / "train" / "cpu-demo.yaml"
@@ -72,18 +73,25 @@ def run(args: argparse.Namespace) -> int:
     model, info = load_weights(run_dir / "weights" / "best.pt", fused=True)
     val_set = YoloDataset(CocoDataset.from_config(load_data_config(data_yaml), "val"), cfg.imgsz)
     metrics, _ = evaluate_dataset(model, val_set, cfg.batch, progress=False)
-    print(format_metrics_table(metrics, info.names))
+    semantic = "miou" in metrics  # msnet-*: mIoU / MPA instead of COCO mAP
+    print(format_semantic_table(metrics) if semantic else format_metrics_table(metrics, info.names))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     print("[4/4] plots")
     curves = plot_results(run_dir / "results.csv", out / "results.png")
     grid = prediction_grid(model, val_set, info.names, count=8)
     preds = write_png(out / "predictions.png", grid)
     minutes = (time.perf_counter() - start) / 60
-    box, mask = metrics["box"], metrics.get("mask") or {}
+    if semantic:
+        score = f"mIoU {metrics['miou']:.3f}, MPA {metrics['mpa']:.3f}"
+    else:
+        box, mask = metrics["box"], metrics.get("mask") or {}
+        nan = float("nan")
+        score = (
+            f"box mAP50-95 {box['map50_95']:.3f} (mAP50 {box['map50']:.3f}), mask mAP50-95 "
+            f"{mask.get('map50_95', nan):.3f} (mAP50 {mask.get('map50', nan):.3f})"
+        )
     print(
-        f"\ndone in {minutes:.1f} min: box mAP50-95 {box['map50_95']:.3f} "
-        f"(mAP50 {box['map50']:.3f}), mask mAP50-95 {mask.get('map50_95', float('nan')):.3f} "
-        f"(mAP50 {mask.get('map50', float('nan')):.3f}) at epoch {info.epoch + 1}\n"
+        f"\ndone in {minutes:.1f} min: {score} at epoch {info.epoch + 1}\n"
         f"  weights     {run_dir / 'weights'}/best.pt, last.pt\n"
         f"  resume      {run_dir / 'checkpoints' / 'last.ckpt'}\n"
         f"  logs        {run_dir / 'tb'} (tensorboard --logdir {run_dir / 'tb'})\n"

@@ -3,7 +3,10 @@
 Per frame, in ``--out``: ``<stem>_overlay.png`` (masks tinted, boxes and class labels),
 ``<stem>_mask.png`` (``uint8``, 255 where any detected object is) and ``<stem>.json``
 (``image``, ``size [h, w]``, ``detections`` with ``box`` xyxy frame pixels, ``class``, ``name``,
-``score``, ``mobility``, and ``timings_ms``). Video frames are named ``frame_000000`` onwards.
+``score``, ``mobility``, and ``timings_ms``). Semantic models (MSNET) write
+``<stem>_classes.png`` (``uint8`` class ids, 0 = background, k + 1 = class k) instead of
+detections, a class-colour overlay, the mask of every non-background pixel and a json with
+the pixel count per class. Video frames are named ``frame_000000`` onwards.
 Every file is written to a temporary name, then renamed into place.
 """
 
@@ -22,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.data.sample import Sample
-from slimseg.data.visualize import draw_sample, write_png
+from slimseg.data.visualize import draw_class_map, draw_sample, write_png
 from slimseg.deploy.predictor import BACKENDS, Prediction, Predictor, combined_mask
 from slimseg.errors import SlimsegError
 
@@ -143,7 +146,11 @@ def save_prediction(
     names: list[str],
     frame: int | None = None,
 ) -> None:
-    """Write ``<stem>_overlay.png``, ``<stem>_mask.png`` and ``<stem>.json`` atomically."""
+    """Write ``<stem>_overlay.png``, ``<stem>_mask.png`` and ``<stem>.json`` atomically
+    (semantic predictions: also ``<stem>_classes.png``)."""
+    if pred.class_map is not None:
+        _save_semantic(out_dir, stem, source, image, pred, names, frame)
+        return
     h, w = pred.image_hw
     masks = (
         pred.masks.astype(np.uint8)
@@ -160,6 +167,36 @@ def save_prediction(
         {
             "size": [h, w],
             "detections": pred.detections(),
+            "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
+        }
+    )
+    _write_json(out_dir / f"{stem}.json", payload)
+
+
+def _save_semantic(
+    out_dir: Path,
+    stem: str,
+    source: str,
+    image: np.ndarray,
+    pred: Prediction,
+    names: list[str],
+    frame: int | None,
+) -> None:
+    assert pred.class_map is not None
+    write_png(out_dir / f"{stem}_overlay.png", draw_class_map(image, pred.class_map, names))
+    _write_gray_png(out_dir / f"{stem}_classes.png", pred.class_map)
+    _write_gray_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
+    ids, counts = np.unique(pred.class_map, return_counts=True)
+    payload: dict = {"image": source}
+    if frame is not None:
+        payload["frame"] = frame
+    payload.update(
+        {
+            "size": list(pred.image_hw),
+            "class_pixels": {
+                ("background" if i == 0 else names[i - 1]): int(n)
+                for i, n in zip(ids.tolist(), counts.tolist(), strict=True)
+            },
             "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
         }
     )

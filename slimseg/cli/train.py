@@ -8,6 +8,7 @@ from pathlib import Path
 from slimseg.data.augment import load_augment_config
 from slimseg.engine.config import load_train_config
 from slimseg.eval.coco_eval import format_metrics_table
+from slimseg.eval.semantic_metrics import format_semantic_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -65,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     if module.trainer.is_global_zero:
-        if module.last_metrics:
+        if module.last_metrics and "miou" in module.last_metrics:
+            print(format_semantic_table(module.last_metrics))
+        elif module.last_metrics:
             print(format_metrics_table(module.last_metrics, module.names))
         print(f"run folder: {out}  (weights/best.pt, weights/last.pt, results.csv, tb/)")
     return 0

@@ -1,4 +1,5 @@
-"""``slimseg val``: COCO box and mask mAP of a weights file on a dataset config."""
+"""``slimseg val``: COCO box and mask mAP of a weights file on a dataset config; mIoU and
+MPA for semantic models (MSNET), or for a YOLO segmenter with ``--semantic``."""
 
 from __future__ import annotations
 
@@ -9,16 +10,20 @@ from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
 from slimseg.deploy.checkpoint import load_weights
-from slimseg.engine.evaluate import evaluate_dataset
+from slimseg.engine.evaluate import SEMANTIC_CONF, evaluate_dataset, is_semantic
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import format_metrics_table
+from slimseg.eval.semantic_metrics import format_semantic_table
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "val",
-        help="COCO box/mask mAP of trained weights on a dataset's val split",
-        description="Evaluate weights (.pt from slimseg train, or its .ckpt) with pycocotools.",
+        help="COCO box/mask mAP (or mIoU/MPA) of trained weights on a dataset's val split",
+        description="Evaluate weights (.pt from slimseg train, or its .ckpt) with pycocotools; "
+        "semantic models (msnet-*) report per-class IoU and pixel accuracy, mIoU and MPA over "
+        "the split's confusion matrix. --semantic scores a YOLO segmenter the same way: its "
+        "masks (score >= --conf) painted into a class map by ascending confidence.",
     )
     p.add_argument("--weights", required=True, help="weights/best.pt or checkpoints/last.ckpt")
     p.add_argument("--data", required=True, help="dataset config YAML")
@@ -26,7 +31,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imgsz", type=int, default=None, help="default: the training imgsz")
     p.add_argument("--batch", type=int, default=8)
     p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--conf", type=float, default=0.001)
+    p.add_argument(
+        "--conf",
+        type=float,
+        default=None,
+        help="score threshold (default 0.001 for mAP, 0.25 for --semantic)",
+    )
+    p.add_argument(
+        "--semantic",
+        action="store_true",
+        help="mIoU/MPA of a YOLO segmenter's masks as a class map (implied for msnet)",
+    )
     p.add_argument("--iou", type=float, default=0.7)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--save-json", default=None, help="also write COCO results json here")
@@ -42,16 +57,37 @@ def run(args: argparse.Namespace) -> int:
             f"{model.num_classes}; evaluate on the dataset it was trained for"
         )
     imgsz = args.imgsz or int(info.train_config.get("imgsz", 640))
+    semantic = args.semantic or is_semantic(model)
+    if semantic and model.spec.task == "detect":
+        raise SlimsegError(
+            f"--semantic: {args.weights} is a detector ({info.spec.name}); it needs masks"
+        )
+    if semantic and args.save_json:
+        raise SlimsegError("--save-json writes COCO detections: not available for mIoU/MPA")
+    conf = args.conf if args.conf is not None else (SEMANTIC_CONF if semantic else 0.001)
     base = CocoDataset.from_config(data_cfg, args.split)
     result, evaluator = evaluate_dataset(
         model,
         YoloDataset(base, imgsz),
         args.batch,
         args.workers,
-        conf=args.conf,
+        conf=conf,
         iou=args.iou,
         progress=not args.json,
+        semantic=semantic,
     )
+    if semantic:
+        if args.json:  # undefined per-class values (NaN) as null: strict JSON
+            print(json.dumps(_nan_to_none(result)))
+            return 0
+        how = "" if is_semantic(model) else f", masks with score >= {conf} as a class map"
+        print(
+            f"{info.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px{how})"
+        )
+        print(format_semantic_table(result))
+        speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
+        print(f"speed per image: {speed}")
+        return 0
     if args.save_json:
         written = evaluator.write_results(args.save_json)
         if not args.json:
@@ -64,3 +100,13 @@ def run(args: argparse.Namespace) -> int:
         speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
         print(f"speed per image: {speed}")
     return 0
+
+
+def _nan_to_none(value: object) -> object:
+    if isinstance(value, float) and value != value:
+        return None
+    if isinstance(value, dict):
+        return {k: _nan_to_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_nan_to_none(v) for v in value]
+    return value

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from slimseg.data.sample import Sample
+from slimseg.data.semantic import ignore_padding, semantic_target
 
 
 def downsample_masks(masks: np.ndarray, ratio: int) -> np.ndarray:
@@ -19,18 +20,26 @@ def downsample_masks(masks: np.ndarray, ratio: int) -> np.ndarray:
     return (blocks.mean(axis=(2, 4)) >= 0.5).astype(np.uint8)
 
 
-def make_collate(mask_ratio: int = 4) -> Callable[[list[Sample]], dict]:
+def make_collate(mask_ratio: int = 4, semantic: bool = False) -> Callable[[list[Sample]], dict]:
     """Collate function producing a batch dict.
 
     ``images``: ``float32 [B, 3, H, W]`` in [0, 1] (RGB); ``targets``: ``float32 [M, 6]`` rows
     ``(batch_index, class, x1, y1, x2, y2)`` in input pixels; ``masks``: ``uint8
-    [M, H/r, W/r]`` aligned with ``targets``; plus ``image_ids``, ``paths``, ``meta``.
+    [M, H/r, W/r]`` aligned with ``targets``; plus ``image_ids``, ``paths``, ``meta``. With
+    ``semantic=True`` (semantic models) also ``semantic``: ``int64 [B, H, W]`` class maps
+    (0 = background, class + 1, later instances painted over earlier ones; letterbox padding
+    of validation samples = ``IGNORE_INDEX``).
     """
 
     def collate(samples: list[Sample]) -> dict:
         images = torch.from_numpy(np.stack([s.image for s in samples])).permute(0, 3, 1, 2)
-        rows, masks = [], []
+        rows, masks, class_maps = [], [], []
         for i, s in enumerate(samples):
+            if semantic:
+                target = semantic_target(s.masks, s.classes)
+                if "letterbox" in s.meta:
+                    target = ignore_padding(target, s.meta["letterbox"])
+                class_maps.append(target)
             n = s.num_instances
             if n == 0:
                 continue
@@ -44,6 +53,7 @@ def make_collate(mask_ratio: int = 4) -> Callable[[list[Sample]], dict]:
             "masks": torch.from_numpy(np.concatenate(masks))
             if masks
             else torch.zeros(0, h // mask_ratio, w // mask_ratio, dtype=torch.uint8),
+            **({"semantic": torch.from_numpy(np.stack(class_maps))} if semantic else {}),
             "image_ids": [s.image_id for s in samples],
             "paths": [s.path for s in samples],
             "meta": [s.meta for s in samples],

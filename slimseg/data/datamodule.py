@@ -65,12 +65,14 @@ class SegDataModule(L.LightningDataModule):
         augment: AugmentConfig | None = None,
         seed: int = 0,
         mask_ratio: int = 4,
+        semantic: bool = False,
     ) -> None:
         super().__init__()
         self.data = data
         self.imgsz, self.batch_size, self.workers = imgsz, batch_size, workers
         self.augment = augment or AugmentConfig()
         self.seed, self.mask_ratio = seed, mask_ratio
+        self.semantic = semantic  # batches carry class-map targets (semantic models)
         self.train_set: YoloDataset | None = None
         self.val_set: YoloDataset | None = None
 
@@ -92,7 +94,7 @@ class SegDataModule(L.LightningDataModule):
             batch_size=self.batch_size,
             sampler=EpochSampler(dataset, self.seed, generator) if shuffle else None,
             num_workers=self.workers,
-            collate_fn=make_collate(self.mask_ratio),
+            collate_fn=make_collate(self.mask_ratio, self.semantic),
             pin_memory=torch.cuda.is_available(),
             worker_init_fn=_seed_worker,
             generator=generator,

@@ -47,6 +47,32 @@ def draw_sample(
     return canvas
 
 
+def draw_class_map(
+    image: np.ndarray,
+    class_map: np.ndarray,
+    names: Sequence[str] | None = None,
+    alpha: float = 0.5,
+) -> np.ndarray:
+    """RGB ``uint8 [H, W, 3]``: ``image`` tinted with the colour of each pixel's class
+    (``class_map [H, W]``, 0 = background left untinted, ``k + 1`` = class ``k``, coloured
+    as :func:`draw_sample` colours class ``k``), each present class named at its centroid."""
+    canvas = image.copy()
+    for label in np.unique(class_map):
+        if label == 0:
+            continue
+        sel = class_map == label
+        color = np.array(class_color(int(label) - 1), np.float32)
+        canvas[sel] = (canvas[sel] * (1 - alpha) + color * alpha).astype(np.uint8)
+        ys, xs = np.nonzero(sel)
+        k = int(label) - 1
+        text = names[k] if names and k < len(names) else str(k)
+        org = (int(xs.mean()), int(ys.mean()))
+        cv2.putText(
+            canvas, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.3, (255, 255, 255), 1, cv2.LINE_AA
+        )
+    return canvas
+
+
 def tile(images: Sequence[np.ndarray], columns: int, gap: int = 2) -> np.ndarray:
     """Tile equally sized RGB images into a grid with a white gap."""
     h, w = images[0].shape[:2]

@@ -1,9 +1,11 @@
 """Latency of one model in every form, measured side by side in one process.
 
 torch unfused, torch fused, onnxruntime FP32 and FP16 (exported with the parity-checked
-exporter into a temporary folder), plus NMS + mask post-processing. Median of ``runs`` timed
-calls after ``warmup`` untimed ones, batch 1, ``threads`` intra-op threads everywhere;
-onnxruntime sessions never spin idle threads (they would steal the cores from the others).
+exporter into a temporary folder), plus NMS + mask post-processing (semantic models: the
+class map on a 640 × 480 frame, i.e. crop, bilinear resize of the logits and argmax).
+Median of ``runs`` timed calls after ``warmup`` untimed ones, batch 1, ``threads`` intra-op
+threads everywhere; onnxruntime sessions never spin idle threads (they would steal the cores
+from the others).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
+from slimseg.ops.semantic import logits_to_frame
 
 
 def median_ms(fn: Callable[[], object], runs: int, warmup: int) -> float:
@@ -69,9 +72,11 @@ def bench_model(
 
 
 def _postprocess(model: nn.Module, out: object, imgsz: int) -> list[object]:
+    meta = {"letterbox": letterbox_params(480, 640, imgsz), "orig_shape": (480, 640)}
+    if model.spec.task == "semantic":
+        return [logits_to_frame(o, meta["letterbox"], meta["orig_shape"]) for o in out]
     pred, proto = out if isinstance(out, tuple) else (out, None)
     if model.spec.family == "darknet-yolov3":
         pred = yolov3_to_rows(pred)
     dets: list[Detections] = non_max_suppression(pred, model.num_classes, conf=0.25)
-    meta = {"letterbox": letterbox_params(480, 640, imgsz), "orig_shape": (480, 640)}
     return [to_frame_detections(d, None if proto is None else proto[0], meta) for d in dets]

@@ -76,6 +76,18 @@ def build_metadata(
         "recommended_mask_dilation_px": RECOMMENDED_MASK_DILATION_PX,
         "nms": {"conf": 0.25, "iou": 0.7, "max_det": 300, "class_aware": True},
     }
+    if spec.task == "semantic":
+        del meta["nms"], meta["recommended_mask_dilation_px"]
+        meta["strides"] = [4, 8, 16, 32]
+        meta["outputs"] = {
+            "logits": {
+                "shape": ["B", nc + 1, "H", "W"],
+                "rows": f"per-pixel class logits at the input resolution: channel 0 = "
+                f"background, channel k + 1 = names[k] ({nc} classes); class map = argmax "
+                "over channels (softmax for probabilities)",
+            }
+        }
+        return meta
     if spec.family == "darknet-yolov3":
         meta["outputs"] = {
             "output0": {

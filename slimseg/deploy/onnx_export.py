@@ -31,6 +31,8 @@ FP32_SCORE_TOL = 1e-4
 FP32_MASK_TOL = 1e-3  # raw coefficients and prototypes
 FP16_MATCH_IOU = 0.9
 FP16_SCORE_TOL = 0.02
+FP32_LOGIT_TOL = 1e-3  # semantic models: per-pixel class logits
+FP16_CLASS_AGREEMENT = 0.99  # semantic FP16: fraction of pixels with the FP32 argmax class
 
 
 class ExportParityError(SlimsegError):
@@ -51,6 +53,8 @@ class ExportReport:
 
 
 def output_names(model: nn.Module) -> list[str]:
+    if model.spec.task == "semantic":
+        return ["logits"]
     return (
         ["output0", "output1"]
         if model.spec.task == "segment" and hasattr(model, "proto")
@@ -111,6 +115,32 @@ def check_fp32_parity(model: nn.Module, ref: list[np.ndarray], got: list[np.ndar
             f"FP32 ONNX differs from the fused torch model: {bad} (limits {limits})"
         )
     return diffs
+
+
+def check_semantic_parity(
+    model: nn.Module, ref: list[np.ndarray], got: list[np.ndarray], half: bool = False
+) -> dict:
+    """Semantic models: max abs logit difference and the fraction of pixels whose argmax class
+    agrees. FP32: logits within ``FP32_LOGIT_TOL`` (so the class maps agree except at exact
+    ties); FP16: at least ``FP16_CLASS_AGREEMENT`` of the pixels keep their class."""
+    r, g = ref[0], got[0]
+    if r.shape != g.shape:
+        raise ExportParityError(f"ONNX logits {g.shape} differ from torch's {r.shape}")
+    result = {
+        "logit": float(np.abs(r - g).max()),
+        "class_agreement": float((r.argmax(1) == g.argmax(1)).mean()),
+    }
+    if half and result["class_agreement"] < FP16_CLASS_AGREEMENT:
+        raise ExportParityError(
+            f"FP16 ONNX changed the class of {1 - result['class_agreement']:.2%} of the pixels "
+            f"(at most {1 - FP16_CLASS_AGREEMENT:.0%} allowed)"
+        )
+    if not half and result["logit"] > FP32_LOGIT_TOL:
+        raise ExportParityError(
+            f"FP32 ONNX logits differ from the fused torch model by {result['logit']:.3g} "
+            f"(limit {FP32_LOGIT_TOL})"
+        )
+    return result
 
 
 def check_fp16_parity(
@@ -212,7 +242,12 @@ def export_onnx(
     fused = fused.float().eval().requires_grad_(False)
     outputs = output_names(fused)
     axes = None
-    if dynamic:
+    if dynamic and outputs == ["logits"]:
+        axes = {
+            "images": {0: "batch", 2: "height", 3: "width"},
+            "logits": {0: "batch", 2: "height", 3: "width"},
+        }
+    elif dynamic:
         axes = {
             "images": {0: "batch", 2: "height", 3: "width"},
             "output0": {0: "batch", 2: "anchors"},
@@ -273,7 +308,12 @@ def verify_parity(
             ref = _as_tuple(fused(torch.from_numpy(x)))
         feed = x.astype(np.float16) if half else x
         got = [o.astype(np.float32) for o in session.run(None, {"images": feed})]
-        check = check_fp16_parity if half else check_fp32_parity
-        for key, value in check(fused, ref, got).items():
+        if fused.spec.task == "semantic":
+            checked = check_semantic_parity(fused, ref, got, half)
+        elif half:
+            checked = check_fp16_parity(fused, ref, got)
+        else:
+            checked = check_fp32_parity(fused, ref, got)
+        for key, value in checked.items():
             results[f"input{k}/{key}"] = value
     return results

@@ -10,6 +10,9 @@ detections (up to float rounding) whichever file is loaded:
    :func:`~slimseg.ops.nms.yolov3_to_rows`);
 3. postprocess: :func:`~slimseg.ops.nms.non_max_suppression`, then
    :func:`~slimseg.eval.postprocess.to_frame_detections` (boxes and masks on the source frame).
+   Semantic models (MSNET, output ``logits [B, K+1, H, W]``) skip NMS: the logits are cropped
+   to the letterbox content, resized to the frame and argmaxed into
+   :attr:`Prediction.class_map` (:func:`~slimseg.ops.semantic.logits_to_frame`).
 
 Class names, mobility priors, input size and precision come from the ONNX metadata written by
 ``slimseg export`` (see :mod:`slimseg.deploy.metadata`), or from the weights file for torch,
@@ -34,6 +37,7 @@ from slimseg.deploy.ort_session import cpu_session
 from slimseg.errors import SlimsegError
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
+from slimseg.ops.semantic import logits_to_frame
 
 BACKENDS = ("auto", "onnxruntime", "torch")
 TORCH_SUFFIXES = (".pt", ".ckpt")
@@ -51,6 +55,12 @@ class Prediction:
     of each detection; ``masks``: ``bool [N, h, w]`` (``None`` for detection-only models);
     ``image_hw``: ``(h, w)``; ``timings``: milliseconds spent in ``preprocess``,
     ``inference`` and ``postprocess``.
+
+    Semantic models (MSNET) have no detections (empty ``boxes``/``scores``/``classes``,
+    ``masks`` ``None``); their output is ``class_map``: ``uint8 [h, w]`` on the source frame,
+    ``0`` = background, ``k + 1`` = class ``k`` (``int32`` if a model had over 254 classes).
+    It is ``None`` for detectors and instance segmenters. ``class_names``: the model's class
+    names (``class_names[k]`` is value ``k + 1`` of ``class_map``; empty for the others).
     """
 
     boxes: np.ndarray
@@ -61,6 +71,8 @@ class Prediction:
     masks: np.ndarray | None
     image_hw: tuple[int, int]
     timings: dict[str, float] = field(default_factory=dict)
+    class_map: np.ndarray | None = None
+    class_names: list[str] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.scores)
@@ -85,10 +97,23 @@ def combined_mask(prediction: Prediction, classes: Iterable[int | str] | None = 
     """``uint8 [h, w]``: 255 where any selected detection is, 0 elsewhere (a SLAM mask).
 
     ``classes``: class ids or names to keep (``None``: all), e.g. a model's
-    ``metadata["dynamic_classes"]``. Detection-only predictions (no masks) fill their boxes.
+    ``metadata["dynamic_classes"]``. Detection-only predictions (no masks) fill their boxes;
+    semantic predictions mark the pixels of the selected classes in their ``class_map``.
     """
     h, w = prediction.image_hw
     out = np.zeros((h, w), np.uint8)
+    if prediction.class_map is not None:
+        if classes is None:
+            out[prediction.class_map > 0] = 255
+            return out
+        labels = prediction.class_names
+        ids = [
+            int(c) + 1 if not isinstance(c, str) else labels.index(c) + 1
+            for c in classes
+            if not isinstance(c, str) or c in labels
+        ]
+        out[np.isin(prediction.class_map, ids)] = 255
+        return out
     keep = np.ones(len(prediction), bool)
     if classes is not None:
         wanted = set(classes)
@@ -134,7 +159,7 @@ class _OnnxRunner:
         batch = self.input_shape[0] if self.input_shape else None
         self.batch_size = batch if isinstance(batch, int) and batch > 0 else None
         names = [o.name for o in session.get_outputs()]
-        self.output_names = [n for n in ("output0", "output1") if n in names] or names
+        self.output_names = [n for n in ("output0", "output1", "logits") if n in names] or names
 
     def __call__(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
         outs = self.session.run(self.output_names, {self.input_name: x})
@@ -323,6 +348,8 @@ class Predictor:
         iou: float,
         max_det: int,
     ) -> list[Prediction]:
+        if self.task == "semantic":
+            return self._semantic(pred, metas)
         if self.family == "darknet-yolov3":
             pred = yolov3_to_rows(pred)
         if pred.ndim != 3 or pred.shape[1] < 4 + self.num_classes:
@@ -344,6 +371,32 @@ class Predictor:
                     mobility=[self.mobility[c] for c in classes],
                     masks=frame.masks,
                     image_hw=frame.image_hw,
+                )
+            )
+        return out
+
+    def _semantic(self, logits: torch.Tensor, metas: Sequence[dict]) -> list[Prediction]:
+        if logits.ndim != 4 or logits.shape[1] != self.num_classes + 1:
+            raise SlimsegError(
+                f"model output {tuple(logits.shape)} is not [B, {self.num_classes + 1}, H, W] "
+                f"logits for the {self.num_classes} classes in its metadata"
+            )
+        dtype = np.uint8 if self.num_classes < 255 else np.int32
+        out = []
+        for i, meta in enumerate(metas):
+            frame_hw = tuple(int(v) for v in meta["orig_shape"])
+            class_map = logits_to_frame(logits[i], meta["letterbox"], frame_hw)
+            out.append(
+                Prediction(
+                    boxes=np.zeros((0, 4), np.float32),
+                    scores=np.zeros(0, np.float32),
+                    classes=np.zeros(0, np.int64),
+                    names=[],
+                    mobility=[],
+                    masks=None,
+                    image_hw=frame_hw,
+                    class_map=class_map.numpy().astype(dtype),
+                    class_names=list(self.names),
                 )
             )
         return out

@@ -13,10 +13,16 @@ TENSORRT_SUPPORTED_OPS = frozenset(
         "Conv",
         "ConvTranspose",
         "Div",
+        "Erf",  # MSNET: exact GELU
         "Exp",
+        "Gemm",  # MSNET: Linear on 2-D activations
+        "LayerNormalization",  # MSNET (opset 17; TensorRT >= 8.6 parses it natively)
         "LeakyRelu",
+        "MatMul",  # MSNET: projections, q @ k^T, attn @ v
         "MaxPool",
         "Mul",
+        "ReduceMax",  # MSNET: channel / spatial attention pooling
+        "ReduceMean",
         "Reshape",
         "Resize",
         "Sigmoid",
@@ -31,8 +37,8 @@ TENSORRT_SUPPORTED_OPS = frozenset(
 # Extra shape arithmetic of ``--dynamic`` exports (anchor grids from the input size): shape
 # tensors computed from the input's shape, never from its values; all parsed by TensorRT.
 DYNAMIC_SHAPE_OPS = frozenset(
-    {"ConstantOfShape", "Expand", "Gather", "Range", "Shape", "Unsqueeze", "Cast"}
-)
+    {"ConstantOfShape", "Expand", "Gather", "Range", "Shape", "Unsqueeze", "Cast", "Tile"}
+)  # Tile: MSNET's class queries and position embeddings repeated to the batch size
 
 # Operators whose output shape depends on tensor values: never allowed (TensorRT needs
 # shapes known at build time, and runtimes pre-allocate outputs).

@@ -7,6 +7,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
+from slimseg.losses.semantic import SemanticLoss
 from slimseg.losses.yolov3 import YOLOv3Loss
 from slimseg.losses.yolov8_seg import YOLOv8Loss
 
@@ -30,4 +31,11 @@ def build_criterion(model: nn.Module) -> Criterion:
             return v3_loss(outputs, batch["targets"], tuple(batch["images"].shape[2:]))
 
         return v3
+    if family == "msnet":
+        sem_loss = SemanticLoss()
+
+        def semantic(outputs: object, batch: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+            return sem_loss(outputs, batch["semantic"])
+
+        return semantic
     raise ValueError(f"no loss for model family {family!r}")

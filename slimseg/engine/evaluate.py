@@ -1,10 +1,17 @@
-"""Validation shared by training and ``slimseg val``: batches → frame detections → COCO mAP."""
+"""Validation shared by training and ``slimseg val``: batches → frame detections → COCO mAP;
+for semantic models (and YOLO segmenters with ``semantic=True``): class maps → mIoU / MPA.
+
+Semantic metrics are computed on the network-input grid of the letterboxed validation images
+(the letterbox padding is ignored), so MSNET's logits and a YOLO segmenter's instance masks
+(painted into a class map by ascending confidence) are scored on exactly the same pixels.
+"""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterable
 
+import numpy as np
 import torch
 from torch import nn
 from torch.utils.data import DataLoader
@@ -12,9 +19,88 @@ from tqdm import tqdm
 
 from slimseg.data.collate import make_collate
 from slimseg.data.dataset import YoloDataset
+from slimseg.data.semantic import instances_to_semantic
+from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator
 from slimseg.eval.postprocess import FrameDetections, batch_to_frame_detections
+from slimseg.eval.semantic_metrics import ConfusionMatrix
+from slimseg.ops.masks import assemble_masks
 from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
+
+# Score threshold of a YOLO segmenter's detections painted into a class map (the predict
+# default): the 0.001 of mAP evaluation would paint every low-score guess.
+SEMANTIC_CONF = 0.25
+
+
+def is_semantic(model: nn.Module) -> bool:
+    """True for per-pixel class models (MSNET)."""
+    return model.spec.task == "semantic"
+
+
+@torch.no_grad()
+def semantic_batch(
+    model: nn.Module,
+    batch: dict,
+    conf: float = SEMANTIC_CONF,
+    iou: float = 0.7,
+    max_det: int = 300,
+    timings: dict[str, float] | None = None,
+) -> torch.Tensor:
+    """Class maps ``int64 [B, H, W]`` (0 = background, class + 1) on the network input.
+
+    Semantic models: argmax of the logits. YOLO segmenters: NMS (``conf``, ``iou``), masks
+    at input resolution, painted by ascending confidence
+    (:func:`~slimseg.data.semantic.instances_to_semantic`).
+    """
+    images = batch["images"].to(next(model.parameters()).device)
+    t0 = time.perf_counter()
+    out = model(images)
+    t1 = time.perf_counter()
+    if is_semantic(model):
+        maps = out.argmax(dim=1).cpu()
+    else:
+        if not (isinstance(out, tuple) and model.spec.task == "segment"):
+            raise SlimsegError(f"{model.spec.name} is not a segmenter: semantic metrics need masks")
+        pred, proto = out
+        dets = non_max_suppression(pred, model.num_classes, conf=conf, iou=iou, max_det=max_det)
+        hw = tuple(images.shape[2:])
+        maps_np = []
+        for d, pr in zip(dets, proto, strict=True):
+            masks = assemble_masks(d.coeffs, pr, d.boxes, hw).cpu().numpy()
+            maps_np.append(
+                instances_to_semantic(masks, d.classes.cpu().numpy(), d.scores.cpu().numpy())
+            )
+        maps = torch.from_numpy(np.stack(maps_np))
+    if timings is not None:
+        timings["inference"] = timings.get("inference", 0.0) + t1 - t0
+        timings["postprocess"] = timings.get("postprocess", 0.0) + time.perf_counter() - t1
+    return maps
+
+
+def evaluate_semantic(
+    model: nn.Module,
+    loader: Iterable[dict],
+    names: list[str] | None = None,
+    conf: float = SEMANTIC_CONF,
+    iou: float = 0.7,
+    max_det: int = 300,
+    progress: bool = True,
+) -> tuple[dict, ConfusionMatrix]:
+    """mIoU / MPA (:mod:`slimseg.eval.semantic_metrics`) of ``model`` over ``loader``, whose
+    batches carry ``semantic`` targets; adds ``speed_ms`` per image."""
+    was_training = model.training
+    model.eval()
+    matrix = ConfusionMatrix(model.num_classes + 1)
+    timings: dict[str, float] = {}
+    images = 0
+    for batch in tqdm(loader, desc="val", disable=not progress, leave=False):
+        maps = semantic_batch(model, batch, conf, iou, max_det, timings)
+        matrix.update(maps, batch["semantic"])
+        images += len(maps)
+    model.train(was_training)
+    result = matrix.compute(names)
+    result["speed_ms"] = {k: 1000 * v / max(images, 1) for k, v in timings.items()}
+    return result, matrix
 
 
 @torch.no_grad()
@@ -83,8 +169,19 @@ def evaluate_dataset(
     conf: float = 0.001,
     iou: float = 0.7,
     progress: bool = True,
-) -> tuple[dict, CocoEvaluator]:
-    """COCO mAP of ``model`` on a validation ``YoloDataset`` (letterbox only) over its json."""
-    loader = DataLoader(dataset, batch_size=batch, num_workers=workers, collate_fn=make_collate())
+    semantic: bool = False,
+) -> tuple[dict, CocoEvaluator | ConfusionMatrix]:
+    """COCO mAP of ``model`` on a validation ``YoloDataset`` (letterbox only) over its json.
+
+    Semantic models (MSNET), or any segmenter with ``semantic=True``, are scored with mIoU /
+    MPA instead (:func:`evaluate_semantic`; ``conf`` then thresholds the painted detections
+    of a YOLO segmenter); the second item is then the accumulated ``ConfusionMatrix``.
+    """
+    semantic = semantic or is_semantic(model)
+    collate = make_collate(semantic=semantic)
+    loader = DataLoader(dataset, batch_size=batch, num_workers=workers, collate_fn=collate)
+    if semantic:
+        names = list(getattr(dataset.base, "names", []) or []) or None
+        return evaluate_semantic(model, loader, names, conf, iou, progress=progress)
     evaluator = CocoEvaluator.from_dataset(dataset.base, iou_types_for(model))
     return evaluate(model, loader, evaluator, conf, iou, progress=progress), evaluator

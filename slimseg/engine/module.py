@@ -13,11 +13,12 @@ from torch import nn
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.criterion import build_criterion
 from slimseg.engine.ema import ModelEMA
-from slimseg.engine.evaluate import detect_batch, iou_types_for
+from slimseg.engine.evaluate import detect_batch, iou_types_for, is_semantic, semantic_batch
 from slimseg.engine.preview import prediction_grid
 from slimseg.engine.schedule import lr_factor, warmup_values
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator
+from slimseg.eval.semantic_metrics import ConfusionMatrix
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
 
@@ -49,6 +50,10 @@ def parameter_groups(model: nn.Module, weight_decay: float) -> list[dict]:
 class DetectorModule(L.LightningModule):
     """Trains ``build_from_spec(spec)``; validates (and checkpoints) its EMA weights.
 
+    Validation: COCO box/mask mAP (``val/box_map50_95``, ...) for detectors and instance
+    segmenters; mIoU and MPA from a confusion matrix over the val set (``val/miou``,
+    ``val/mpa``) for semantic models (MSNET).
+
     ``spec`` and ``train`` are plain dicts (so checkpoints hold them as hyper-parameters);
     ``names``/``mobility`` describe the classes.
     """
@@ -70,6 +75,7 @@ class DetectorModule(L.LightningModule):
         self.ema = ModelEMA(self.model, self.cfg.ema_decay) if self.cfg.ema else None
         self.evaluator: CocoEvaluator | None = None
         self._val_results: list[tuple[list[int], list[Any]]] = []
+        self.semantic = is_semantic(self.model)
         self.last_metrics: dict = {}
         self.validated_epoch = -1  # the training epoch the last validation scored
 
@@ -141,13 +147,24 @@ class DetectorModule(L.LightningModule):
             # checkpoint rank 0's on every rank (parameters are already identical under DDP)
             for buffer in self.ema.module.buffers():
                 dist.broadcast(buffer, src=0)
-        if self.evaluator is None:
+        if self.evaluator is None and not self.semantic:
             base = self.trainer.datamodule.val_set.base
             self.evaluator = CocoEvaluator.from_dataset(base, iou_types_for(self.model))
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         model = self.eval_model
         model.eval()
+        if self.semantic:
+            # one confusion matrix per image, keyed by id (DistributedSampler may repeat some)
+            maps = semantic_batch(model, batch)
+            n = self.model.num_classes + 1
+            per_image = []
+            for pred, target in zip(maps, batch["semantic"].cpu(), strict=True):
+                cm = ConfusionMatrix(n)
+                cm.update(pred, target)
+                per_image.append(cm.matrix)
+            self._val_results.append((list(batch["image_ids"]), per_image))
+            return
         frames = detect_batch(model, batch, self.cfg.conf, self.cfg.iou, self.cfg.max_det)
         self._val_results.append((list(batch["image_ids"]), frames))
 
@@ -157,6 +174,9 @@ class DetectorModule(L.LightningModule):
             gathered: list[Any] = [None] * dist.get_world_size()
             dist.all_gather_object(gathered, results)
             results = [r for part in gathered for r in part]
+        if self.semantic:
+            self._semantic_epoch_end(results)
+            return
         assert self.evaluator is not None
         self.evaluator.reset()
         seen: set[int] = set()
@@ -173,6 +193,21 @@ class DetectorModule(L.LightningModule):
         if mask:
             self.log("val/mask_map50_95", mask["map50_95"], prog_bar=True, sync_dist=False)
             self.log("val/mask_map50", mask["map50"], sync_dist=False)
+        self._log_prediction_images()
+
+    def _semantic_epoch_end(self, results: list[tuple[list[int], list[Any]]]) -> None:
+        total = ConfusionMatrix(self.model.num_classes + 1)
+        seen: set[int] = set()
+        for ids, matrices in results:
+            for img, m in zip(ids, matrices, strict=True):
+                if img not in seen:
+                    seen.add(img)
+                    total.matrix += m
+        metrics = total.compute(self.names)
+        self.last_metrics = metrics
+        self.validated_epoch = self.current_epoch
+        self.log("val/miou", metrics["miou"], prog_bar=True, sync_dist=False)
+        self.log("val/mpa", metrics["mpa"], prog_bar=True, sync_dist=False)
         self._log_prediction_images()
 
     def _log_prediction_images(self) -> None:

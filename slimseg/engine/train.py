@@ -194,7 +194,13 @@ def train(
     if weights and not resume:
         print(transfer_weights(module, weights))
     dm = SegDataModule(
-        data_cfg, cfg.imgsz, cfg.batch, cfg.workers, augment or AugmentConfig(), cfg.seed
+        data_cfg,
+        cfg.imgsz,
+        cfg.batch,
+        cfg.workers,
+        augment or AugmentConfig(),
+        cfg.seed,
+        semantic=module.semantic,
     )
     if _is_launcher_process():
         os.environ[RUN_DIR_ENV] = str(out)  # DDP child ranks inherit the folder chosen here

@@ -1,7 +1,12 @@
 """Model size and cost: params, gradients, GFLOPs in our convention and the paper's.
 
 Ours: ``torch.utils.flop_counter.FlopCounterMode`` on an eval-mode forward of a batch-1
-``imgsz × imgsz`` input (2 × multiply-adds of convolutions and matmuls).
+``imgsz × imgsz`` input (2 × multiply-adds of convolutions and matmuls). Matmuls include
+MSNET's attention products ``q @ kᵀ`` and ``attn @ v``: its attention is written with plain
+``torch.matmul`` (no fused attention kernel), which dispatches to ``aten.bmm``, an op the
+counter counts, so no extra hook is needed (``tests/test_msnet.py`` checks the count against
+the closed form). Softmax, LayerNorm, GELU and resizing are not counted (as activations and
+BatchNorm are not).
 Paper convention (the thop-based counter the substation paper used): the same, except that
 every ConvTranspose2d is counted as ``out_elems · c_in/g · k²`` multiply-adds instead of
 ``in_elems · c_out/g · k²``, and every BatchNorm2d adds 4 operations per output element

@@ -50,6 +50,10 @@ def build_from_spec(spec: ModelSpec, fused: bool = False) -> nn.Module:
         from slimseg.models.yolo import YOLO
 
         return YOLO(spec, deploy=fused)
+    if spec.family == "msnet":
+        from slimseg.models.msnet import MSNet
+
+        return MSNet(spec, deploy=fused)
     from slimseg.models.darknet_yolov3 import Darknet19YOLOv3
 
     kwargs = {"anchors": spec.anchors} if spec.anchors is not None else {}

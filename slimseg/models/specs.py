@@ -14,8 +14,8 @@ from typing import Any
 from slimseg.errors import SlimsegError
 from slimseg.utils.yaml_io import read_yaml
 
-FAMILIES = ("yolov8", "darknet-yolov3")
-TASKS = ("segment", "detect")
+FAMILIES = ("yolov8", "darknet-yolov3", "msnet")
+TASKS = ("segment", "detect", "semantic")
 HEAD_KINDS = ("decoupled", "shared-rep", "yolov3")
 NECKS = ("c2f", "slim")
 
@@ -46,6 +46,51 @@ class HeadSpec:
 
 
 @dataclass(frozen=True)
+class MSNetSpec:
+    """MSNET (VTD-SLAM) sizes; see :mod:`slimseg.models.msnet.model` for the design.
+
+    Per pyramid level C2..C5 (strides 4, 8, 16, 32): ``channels`` of the convolutional map,
+    ``embed_dims``/``depths``/``heads`` of its PEncoder (transformer width, blocks, heads).
+    Tokens are patches of ``max(1, token_stride / level stride)`` pixels of the level's map;
+    position embeddings are learned for a ``pos_imgsz`` square input and interpolated to
+    other sizes. ``hidden``: width of the head (class queries, pixel features);
+    ``decoder_layers``/``decoder_heads``: its Transformer decoder.
+    """
+
+    stem_channels: int
+    channels: tuple[int, ...]
+    embed_dims: tuple[int, ...]
+    depths: tuple[int, ...]
+    heads: tuple[int, ...]
+    hidden: int
+    decoder_layers: int
+    decoder_heads: int
+    mlp_ratio: float = 2.0
+    token_stride: int = 32
+    pos_imgsz: int = 640
+    dropout: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("channels", "embed_dims", "depths", "heads"):
+            values = getattr(self, name)
+            if len(values) != 4 or min(values) < 1:
+                raise SpecError(f"msnet.{name}: need 4 positive values (C2..C5), got {values}")
+        for dim, heads in zip(self.embed_dims, self.heads, strict=True):
+            if dim % heads:
+                raise SpecError(f"msnet.embed_dims {dim} is not divisible by heads {heads}")
+        if self.hidden % self.decoder_heads:
+            raise SpecError(
+                f"msnet.hidden {self.hidden} is not divisible by decoder_heads {self.decoder_heads}"
+            )
+        if self.token_stride not in (4, 8, 16, 32):
+            raise SpecError(f"msnet.token_stride must be 4, 8, 16 or 32, got {self.token_stride}")
+        if self.pos_imgsz % 32 or self.pos_imgsz < 32:
+            raise SpecError(f"msnet.pos_imgsz must be a multiple of 32, got {self.pos_imgsz}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise SpecError(f"msnet.dropout must be in [0, 1), got {self.dropout}")
+
+
+@dataclass(frozen=True)
 class ModelSpec:
     """Everything needed to build a network; stored with its hash in checkpoints and exports."""
 
@@ -58,6 +103,7 @@ class ModelSpec:
     head: HeadSpec = field(default_factory=HeadSpec)
     anchors: tuple[tuple[tuple[int, int], ...], ...] | None = None
     description: str = ""
+    msnet: MSNetSpec | None = None  # family "msnet" only
 
     def __post_init__(self) -> None:
         checks = (
@@ -73,10 +119,23 @@ class ModelSpec:
             raise SpecError(f"{self.name}: num_classes must be >= 1, got {self.num_classes}")
         if self.family == "yolov8" and self.scale is None:
             raise SpecError(f"{self.name}: yolov8 specs need a 'scale' section")
+        if (self.family == "msnet") != (self.msnet is not None):
+            raise SpecError(
+                f"{self.name}: an 'msnet' section is required for family msnet and only there"
+            )
+        if (self.family == "msnet") != (self.task == "semantic"):
+            raise SpecError(f"{self.name}: task 'semantic' goes with family 'msnet' (and only it)")
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict (tuples become lists)."""
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        """Plain JSON-able dict (tuples become lists).
+
+        ``msnet`` is left out when unset, so specs (and hashes, checkpoints) of the other
+        families are exactly what they were before the field existed.
+        """
+        data = json.loads(json.dumps(dataclasses.asdict(self)))
+        if data.get("msnet") is None:
+            data.pop("msnet", None)
+        return data
 
     @property
     def hash(self) -> str:
