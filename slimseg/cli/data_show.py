@@ -9,7 +9,8 @@ from slimseg.data.augment import load_augment_config
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
-from slimseg.data.visualize import draw_sample, tile, write_png
+from slimseg.data.visualize import draw_sample, tile
+from slimseg.utils.atomic import write_png
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

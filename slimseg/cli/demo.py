@@ -11,7 +11,6 @@ from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
 from slimseg.data.synth import generate
-from slimseg.data.visualize import write_png
 from slimseg.deploy.checkpoint import load_weights
 from slimseg.engine.config import load_train_config
 from slimseg.engine.evaluate import evaluate_dataset
@@ -20,6 +19,7 @@ from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.plots import plot_results
 from slimseg.eval.semantic_metrics import format_semantic_table
 from slimseg.models.registry import CONFIG_DIR
+from slimseg.utils.atomic import write_png
 
 DEMO_RECIPE = CONFIG_DIR.parent / "train" / "cpu-demo.yaml"
 

@@ -13,8 +13,6 @@ Every file is written to a temporary name, then renamed into place.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
 from collections.abc import Iterator
@@ -25,9 +23,10 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.data.sample import Sample
-from slimseg.data.visualize import draw_class_map, draw_sample, write_png
+from slimseg.data.visualize import draw_class_map, draw_sample
 from slimseg.deploy.predictor import BACKENDS, Prediction, Predictor, combined_mask
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import write_json, write_png
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 STAGES = ("preprocess", "inference", "postprocess")
@@ -124,19 +123,6 @@ def open_source(
     return _video_frames(path), max(count, 0), True
 
 
-def _write_gray_png(path: Path, gray: np.ndarray) -> None:
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    if not cv2.imwrite(str(tmp), gray):
-        raise OSError(f"could not write {path}")
-    os.replace(tmp, path)
-
-
-def _write_json(path: Path, payload: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(payload) + "\n")
-    os.replace(tmp, path)
-
-
 def save_prediction(
     out_dir: Path,
     stem: str,
@@ -159,7 +145,7 @@ def save_prediction(
     )
     sample = Sample(image=image, boxes=pred.boxes, classes=pred.classes, masks=masks)
     write_png(out_dir / f"{stem}_overlay.png", draw_sample(sample, names))
-    _write_gray_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
+    write_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
     payload = {"image": source}
     if frame is not None:
         payload["frame"] = frame
@@ -170,7 +156,7 @@ def save_prediction(
             "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
         }
     )
-    _write_json(out_dir / f"{stem}.json", payload)
+    write_json(out_dir / f"{stem}.json", payload)
 
 
 def _save_semantic(
@@ -184,8 +170,8 @@ def _save_semantic(
 ) -> None:
     assert pred.class_map is not None
     write_png(out_dir / f"{stem}_overlay.png", draw_class_map(image, pred.class_map, names))
-    _write_gray_png(out_dir / f"{stem}_classes.png", pred.class_map)
-    _write_gray_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
+    write_png(out_dir / f"{stem}_classes.png", pred.class_map)
+    write_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
     ids, counts = np.unique(pred.class_map, return_counts=True)
     payload: dict = {"image": source}
     if frame is not None:
@@ -200,7 +186,7 @@ def _save_semantic(
             "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
         }
     )
-    _write_json(out_dir / f"{stem}.json", payload)
+    write_json(out_dir / f"{stem}.json", payload)
 
 
 def run(args: argparse.Namespace) -> int:
