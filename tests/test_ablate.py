@@ -17,7 +17,7 @@ import pytest
 
 from slimseg.ablate.config import load_ablation_config
 from slimseg.ablate.report import markdown, paper_key, write_reports
-from slimseg.ablate.sweep import prepare_sweep_dir
+from slimseg.ablate.sweep import prepare_sweep_dir, run_sweep
 from slimseg.cli.ablate import ABLATION_DIR
 from slimseg.cli.main import main
 from slimseg.errors import SlimsegError
@@ -199,3 +199,12 @@ def test_killed_sweep_resumes_keeping_finished_rows(tmp_path: Path) -> None:
     assert (second / "model.onnx").is_file() and (out / "results.png").is_file()
     # the finished sweep rerun trains nothing
     assert main(["ablate", "--config", str(config), "--out", str(out), "--quiet"]) == 0
+
+
+def test_bad_data_config_fails_before_writing(tmp_path: Path) -> None:
+    data = tmp_path / "data.yaml"
+    data.write_text("path: nowhere\ntrain: {images: a, annotations: a.json}\n")
+    cfg = load_ablation_config(tiny_config(tmp_path), data=str(data))
+    with pytest.raises(SlimsegError, match="nowhere"):
+        run_sweep(cfg, tmp_path / "out", progress=False)
+    assert not (tmp_path / "out").exists()

@@ -104,6 +104,8 @@ def run_sweep(
     """Every variant of ``cfg`` trained, evaluated and measured; returns the rows in order."""
     from slimseg.engine.train import train  # Lightning import is slow: only when training
 
+    if cfg.data_path is not None:
+        load_data_config(cfg.data_path)  # a bad data config fails before anything is written
     prepare_sweep_dir(cfg, out)
     data_yaml = sweep_data(cfg, out, progress)
     data_cfg = load_data_config(data_yaml)
