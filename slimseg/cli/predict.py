@@ -134,58 +134,33 @@ def save_prediction(
 ) -> None:
     """Write ``<stem>_overlay.png``, ``<stem>_mask.png`` and ``<stem>.json`` atomically
     (semantic predictions: also ``<stem>_classes.png``)."""
-    if pred.class_map is not None:
-        _save_semantic(out_dir, stem, source, image, pred, names, frame)
-        return
     h, w = pred.image_hw
-    masks = (
-        pred.masks.astype(np.uint8)
-        if pred.masks is not None
-        else np.zeros((len(pred), h, w), np.uint8)
-    )
-    sample = Sample(image=image, boxes=pred.boxes, classes=pred.classes, masks=masks)
-    write_png(out_dir / f"{stem}_overlay.png", draw_sample(sample, names))
-    write_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
-    payload = {"image": source}
-    if frame is not None:
-        payload["frame"] = frame
-    payload.update(
-        {
-            "size": [h, w],
-            "detections": pred.detections(),
-            "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
-        }
-    )
-    write_json(out_dir / f"{stem}.json", payload)
-
-
-def _save_semantic(
-    out_dir: Path,
-    stem: str,
-    source: str,
-    image: np.ndarray,
-    pred: Prediction,
-    names: list[str],
-    frame: int | None,
-) -> None:
-    assert pred.class_map is not None
-    write_png(out_dir / f"{stem}_overlay.png", draw_class_map(image, pred.class_map, names))
-    write_png(out_dir / f"{stem}_classes.png", pred.class_map)
-    write_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
-    ids, counts = np.unique(pred.class_map, return_counts=True)
-    payload: dict = {"image": source}
-    if frame is not None:
-        payload["frame"] = frame
-    payload.update(
-        {
-            "size": list(pred.image_hw),
+    if pred.class_map is not None:
+        overlay = draw_class_map(image, pred.class_map, names)
+        write_png(out_dir / f"{stem}_classes.png", pred.class_map)
+        ids, counts = np.unique(pred.class_map, return_counts=True)
+        body: dict = {
             "class_pixels": {
                 ("background" if i == 0 else names[i - 1]): int(n)
                 for i, n in zip(ids.tolist(), counts.tolist(), strict=True)
-            },
-            "timings_ms": {k: round(v, 3) for k, v in pred.timings.items()},
+            }
         }
-    )
+    else:
+        masks = (
+            pred.masks.astype(np.uint8)
+            if pred.masks is not None
+            else np.zeros((len(pred), h, w), np.uint8)
+        )
+        sample = Sample(image=image, boxes=pred.boxes, classes=pred.classes, masks=masks)
+        overlay = draw_sample(sample, names)
+        body = {"detections": pred.detections()}
+    write_png(out_dir / f"{stem}_overlay.png", overlay)
+    write_png(out_dir / f"{stem}_mask.png", combined_mask(pred))
+    payload: dict = {"image": source}
+    if frame is not None:
+        payload["frame"] = frame
+    payload |= {"size": [h, w], **body}
+    payload["timings_ms"] = {k: round(v, 3) for k, v in pred.timings.items()}
     write_json(out_dir / f"{stem}.json", payload)
 
 

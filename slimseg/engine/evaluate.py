@@ -71,9 +71,7 @@ def semantic_batch(
                 instances_to_semantic(masks, d.classes.cpu().numpy(), d.scores.cpu().numpy())
             )
         maps = torch.from_numpy(np.stack(maps_np))
-    if timings is not None:
-        timings["inference"] = timings.get("inference", 0.0) + t1 - t0
-        timings["postprocess"] = timings.get("postprocess", 0.0) + time.perf_counter() - t1
+    _add_timings(timings, t0, t1)
     return maps
 
 
@@ -125,10 +123,15 @@ def detect_batch(
         pred = yolov3_to_rows(pred)
     dets = non_max_suppression(pred, model.num_classes, conf=conf, iou=iou, max_det=max_det)
     frames = batch_to_frame_detections(dets, proto, batch["meta"], rle=True)
+    _add_timings(timings, t0, t1)
+    return frames
+
+
+def _add_timings(timings: dict[str, float] | None, t0: float, t1: float) -> None:
+    """Accumulate ``inference`` (t0→t1) and ``postprocess`` (t1→now) seconds."""
     if timings is not None:
         timings["inference"] = timings.get("inference", 0.0) + t1 - t0
         timings["postprocess"] = timings.get("postprocess", 0.0) + time.perf_counter() - t1
-    return frames
 
 
 def evaluate(
