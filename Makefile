@@ -26,6 +26,12 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
 
+bench: $(STAMP)  ## every benchmark, one after the other (ratios are measured within each run)
+	$(BIN)/slimseg bench --model yolov8s-seg yolov8s-seg-gs-rep --imgsz 640
+	$(BIN)/python benchmarks/train_throughput.py
+	$(BIN)/python benchmarks/masking_logic.py
+	$(BIN)/python benchmarks/restoration.py
+
 reference: $(STAMP)  ## regenerate tests/reference/complexity.json; review the diff like code
 	$(BIN)/python tools/gen_complexity_reference.py
 

@@ -18,11 +18,12 @@ import pytest
 from slimseg.ablate.config import load_ablation_config
 from slimseg.ablate.report import markdown, paper_key, write_reports
 from slimseg.ablate.sweep import prepare_sweep_dir, run_sweep
-from slimseg.cli.ablate import ABLATION_DIR
 from slimseg.cli.main import main
 from slimseg.errors import SlimsegError
+from slimseg.utils.shipped import shipped_dir
 
-RECIPE = ABLATION_DIR.parent / "train" / "cpu-demo.yaml"
+ABLATION_DIR = shipped_dir("ablation")
+RECIPE = shipped_dir("train") / "cpu-demo.yaml"
 
 
 def tiny_config(tmp_path: Path, epochs: int = 4, **extra: str) -> Path:

@@ -23,6 +23,7 @@ from slimseg.models.msnet.attention import Attention
 from slimseg.models.msnet.backbone import resize_pos_embed
 from slimseg.models.registry import get_spec
 from slimseg.models.specs import SpecError, load_spec
+from slimseg.utils.shipped import shipped_dir
 
 # measured with slimseg.eval.complexity.measure (nc 20, 640 x 640, batch 1), then pinned
 PINNED = {
@@ -117,7 +118,7 @@ def test_loss_decreases_on_generated_data() -> None:
 
 
 def test_spec_fields_are_strict(tmp_path: Path) -> None:
-    text = Path("configs/models/msnet-t.yaml").read_text()
+    text = (shipped_dir("models") / "msnet-t.yaml").read_text()
     bad = tmp_path / "bad.yaml"
     bad.write_text(text.replace("hidden: 64", "hidden: 64\n  width: 2"))
     with pytest.raises(SpecError, match=r"width.*valid fields"):
@@ -128,7 +129,7 @@ def test_spec_fields_are_strict(tmp_path: Path) -> None:
     bad.write_text(text.replace("task: semantic", "task: segment"))
     with pytest.raises(SpecError, match="semantic"):
         load_spec(bad)
-    yolo = Path("configs/models/yolov8n.yaml").read_text()
+    yolo = (shipped_dir("models") / "yolov8n.yaml").read_text()
     bad.write_text(yolo + "msnet: " + text.split("msnet:")[1].split("description")[0])
     with pytest.raises(SpecError, match="msnet"):
         load_spec(bad)

@@ -21,8 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from slimseg.engine.config import TrainConfig, load_train_config
+from slimseg.errors import SlimsegError
 from slimseg.models.registry import list_models
 from slimseg.models.specs import SpecError, spec_from_mapping
+from slimseg.utils.shipped import resolve_config, shipped_names
 from slimseg.utils.yaml_io import read_yaml
 
 SYNTH = "synth"
@@ -93,7 +95,7 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
     """Read a sweep YAML; ``data`` (a data YAML path) replaces its ``data`` field.
 
     Relative paths in the file (``data``, ``train.recipe``) resolve against its folder."""
-    path = Path(path)
+    path = resolve_config(path, "ablation", "ablation config")
     raw = read_yaml(path, "ablation config")
     if not isinstance(raw, dict):
         raise SpecError(f"{path}: expected a mapping with name, variants, data, train")
@@ -102,9 +104,16 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
     if not isinstance(train_raw, dict) or "recipe" not in train_raw:
         raise SpecError(f"{path}: field 'train' needs a mapping with 'recipe' (a train YAML)")
     train_raw = dict(train_raw)
-    recipe = _relative(path, str(train_raw.pop("recipe")))
-    if not recipe.is_file():
-        raise SpecError(f"{path}: train.recipe {recipe} does not exist")
+    recipe_value = str(train_raw.pop("recipe"))
+    recipe = _relative(path, recipe_value)
+    if not recipe.is_file():  # a shipped recipe's name (``cpu-demo``) also works
+        try:
+            recipe = resolve_config(recipe_value, "train", "train recipe")
+        except SlimsegError:
+            shipped = ", ".join(shipped_names("train"))
+            raise SpecError(
+                f"{path}: train.recipe {recipe} does not exist (shipped recipes: {shipped})"
+            ) from None
     base = dataclasses.asdict(load_train_config(recipe))
     train = spec_from_mapping(TrainConfig, base | train_raw, f"{path}: train")
     if data is not None:

@@ -8,14 +8,11 @@ import time
 from pathlib import Path
 
 from slimseg.ablate.config import load_ablation_config
-from slimseg.errors import SlimsegError
-from slimseg.models.registry import CONFIG_DIR
-
-ABLATION_DIR = CONFIG_DIR.parent / "ablation"
+from slimseg.utils.shipped import shipped_names
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    shipped = ", ".join(sorted(p.stem for p in ABLATION_DIR.glob("*.yaml")))
+    shipped = ", ".join(shipped_names("ablation"))
     p = sub.add_parser(
         "ablate",
         help="train and compare variants under one recipe and seed (the paper's Table II)",
@@ -23,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "GFLOPs, onnxruntime latency, training images/s) every variant of a sweep config; "
         "write OUT/results.csv, results.md (with the paper's Table II beside ours) and "
         "results.png. Interrupted sweeps resume: rerun the same command. Shipped configs "
-        f"(configs/ablation): {shipped}.",
+        f"(slimseg/configs/ablation): {shipped}.",
     )
     p.add_argument("--config", required=True, help="sweep YAML, or the name of a shipped one")
     p.add_argument("--out", default=None, help="sweep folder (default runs/ablate/<name>)")
@@ -35,22 +32,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def resolve_config_path(value: str) -> Path:
-    """A path to a YAML, or the stem of a shipped config in ``configs/ablation``."""
-    path = Path(value)
-    if path.is_file():
-        return path
-    shipped = ABLATION_DIR / f"{value}.yaml"
-    if shipped.is_file():
-        return shipped
-    names = ", ".join(sorted(p.stem for p in ABLATION_DIR.glob("*.yaml")))
-    raise SlimsegError(f"--config {value}: no such file or shipped sweep; shipped: {names}")
-
-
 def run(args: argparse.Namespace) -> int:
     from slimseg.ablate.sweep import run_sweep
 
-    cfg = load_ablation_config(resolve_config_path(args.config), data=args.data)
+    cfg = load_ablation_config(args.config, data=args.data)
     launch = {"accelerator": args.accelerator, "devices": args.devices}
     launch |= {"num_nodes": args.num_nodes}
     launch = {k: v for k, v in launch.items() if v is not None}

@@ -18,10 +18,9 @@ from slimseg.engine.preview import prediction_grid
 from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.plots import plot_results
 from slimseg.eval.semantic_metrics import format_semantic_table
-from slimseg.models.registry import CONFIG_DIR
 from slimseg.utils.atomic import write_png
 
-DEMO_RECIPE = CONFIG_DIR.parent / "train" / "cpu-demo.yaml"
+DEMO_RECIPE = "cpu-demo"  # slimseg/configs/train/cpu-demo.yaml
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

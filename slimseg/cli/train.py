@@ -21,8 +21,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--model", required=True, help="variant name (slimseg info) or spec YAML")
     p.add_argument("--data", required=True, help="dataset config YAML")
-    p.add_argument("--config", default=None, help="recipe YAML (configs/train/*.yaml)")
-    p.add_argument("--augment", default=None, help="augmentation YAML (configs/data/augment.yaml)")
+    p.add_argument(
+        "--config",
+        default=None,
+        help="recipe YAML, or a shipped name: default, cpu-demo, msnet-cpu",
+    )
+    p.add_argument(
+        "--augment",
+        default=None,
+        help="augmentation YAML, or the shipped 'augment' (the default values)",
+    )
     p.add_argument("--imgsz", type=int, default=None)
     p.add_argument("--epochs", type=int, default=None)
     p.add_argument("--batch", type=int, default=None)

@@ -19,6 +19,7 @@ import numpy as np
 from slimseg.data.letterbox import PAD_VALUE, letterbox_image, letterbox_mask, letterbox_params
 from slimseg.data.sample import Sample
 from slimseg.models.specs import spec_from_mapping
+from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
 
@@ -40,6 +41,7 @@ def load_augment_config(path: str | Path | None) -> AugmentConfig:
     """Read an augmentation YAML (None → defaults)."""
     if path is None:
         return AugmentConfig()
+    path = resolve_config(path, "data", "augmentation config")
     data = read_yaml(path, "augmentation config") or {}
     return spec_from_mapping(AugmentConfig, data, str(path))
 

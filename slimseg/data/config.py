@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
 _TOP_KEYS = {"path", "train", "val", "names", "mobility"}
@@ -133,7 +134,7 @@ def _prior(v: Any, src: Path, field: str) -> float:
 
 def load_data_config(path: str | Path) -> DataConfig:
     """Load and validate a dataset yaml (schema in the module docstring)."""
-    src = Path(path).expanduser().resolve()
+    src = resolve_config(path, "data", "data config").resolve()
     raw = read_yaml(src, "data config")
     if not isinstance(raw, Mapping):
         raise SlimsegError(

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_json
+from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
 
@@ -64,7 +65,7 @@ class SubsetStats:
 
 def load_class_list(path: str | Path) -> list[ClassSpec]:
     """Read a classes file (``classes: [{name, coco_id, mobility}, ...]``)."""
-    path = Path(path)
+    path = resolve_config(path, "data", "classes file")
     raw = read_yaml(path, "classes file")
     items = raw.get("classes") if isinstance(raw, dict) else None
     if not isinstance(items, list) or not items:

@@ -8,6 +8,7 @@ from typing import Any
 
 from slimseg.errors import SlimsegError
 from slimseg.models.specs import spec_from_mapping
+from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
 OPTIMIZERS = ("sgd", "adamw")
@@ -60,5 +61,6 @@ def load_train_config(path: str | Path | None) -> TrainConfig:
     """Read a recipe YAML (None → defaults); unknown fields are named with the valid ones."""
     if path is None:
         return TrainConfig()
+    path = resolve_config(path, "train", "train config")
     data = read_yaml(path, "train config") or {}
     return spec_from_mapping(TrainConfig, data, str(path))

@@ -1,4 +1,4 @@
-"""Model registry: variant name → spec (from ``configs/models``), and ``build_model``."""
+"""Model registry: variant name → spec (shipped ``slimseg/configs/models``), ``build_model``."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ from pathlib import Path
 from torch import nn
 
 from slimseg.models.specs import ModelSpec, SpecError, load_spec
-
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "models"
+from slimseg.utils.shipped import shipped_dir
 
 
 @functools.cache
-def _specs(config_dir: Path = CONFIG_DIR) -> dict[str, ModelSpec]:
+def _specs() -> dict[str, ModelSpec]:
+    config_dir = shipped_dir("models")
     specs: dict[str, ModelSpec] = {}
     for path in sorted(config_dir.glob("*.yaml")):
         spec = load_spec(path)
