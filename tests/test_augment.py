@@ -10,6 +10,7 @@ from slimseg.data.collate import downsample_masks, make_collate
 from slimseg.data.dataset import YoloDataset
 from slimseg.data.letterbox import boxes_to_frame, letterbox_image, letterbox_params
 from slimseg.data.sample import Sample
+from slimseg.utils.shipped import shipped_dir
 
 
 def _random_sample(rng: np.random.Generator, h: int, w: int, index: int) -> Sample:
@@ -115,11 +116,10 @@ def test_downsample_masks_is_block_majority() -> None:
 
 
 def test_shipped_augment_yaml_is_the_recipe() -> None:
-    from pathlib import Path
 
     from slimseg.data.augment import load_augment_config
 
-    path = Path(__file__).parents[1] / "configs" / "data" / "augment.yaml"
+    path = shipped_dir("data") / "augment.yaml"
     assert load_augment_config(path) == AugmentConfig()
 
 

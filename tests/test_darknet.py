@@ -20,6 +20,7 @@ from slimseg.models.darknet_weights import (
     save_darknet_weights,
 )
 from slimseg.models.darknet_yolov3 import STANDARD_ANCHORS, Darknet19YOLOv3
+from slimseg.models.registry import build_model
 
 N_CONVS = 41
 N_BACKBONE_CONVS = 18
@@ -47,17 +48,17 @@ def randomize(model: nn.Module, seed: int) -> nn.Module:
     return model
 
 
-def meta_model(num_classes: int, deploy: bool = False) -> Darknet19YOLOv3:
+def meta_model(num_classes: int, fused: bool = False) -> Darknet19YOLOv3:
     """A weightless model for loads that must fail before any tensor is touched."""
     with torch.device("meta"):
-        return Darknet19YOLOv3(num_classes=num_classes, deploy=deploy)
+        return build_model("darknet19-yolov3", num_classes=num_classes, fused=fused)
 
 
 @pytest.fixture(scope="module")
 def model() -> Darknet19YOLOv3:
     """Shared nc=1 model in eval mode; tests must not modify it (copy first)."""
     torch.manual_seed(0)
-    return randomize(Darknet19YOLOv3(num_classes=1), seed=1).eval()
+    return randomize(build_model("darknet19-yolov3", num_classes=1), seed=1).eval()
 
 
 @pytest.fixture(scope="module")
@@ -85,8 +86,8 @@ def test_param_counts(model: Darknet19YOLOv3) -> None:
     assert n_params(model.backbone) == 19_817_376
     assert n_params(model) == 40_756_182
     with torch.device("meta"):  # exact counts without initialising 40 M weights
-        assert n_params(Darknet19YOLOv3(num_classes=20)) == 40_858_497
-        assert n_params(Darknet19YOLOv3(num_classes=80)) == 41_181_597
+        assert n_params(build_model("darknet19-yolov3", num_classes=20)) == 40_858_497
+        assert n_params(build_model("darknet19-yolov3", num_classes=80)) == 41_181_597
 
 
 def test_conv_order_matches_cfg(model: Darknet19YOLOv3) -> None:
@@ -180,7 +181,7 @@ def test_fused_matches_unfused(model: Darknet19YOLOv3, fused: Darknet19YOLOv3) -
 
 
 def test_deploy_loads_fused_state_dict(fused: Darknet19YOLOv3) -> None:
-    deploy = Darknet19YOLOv3(num_classes=1, deploy=True).eval()
+    deploy = build_model("darknet19-yolov3", num_classes=1, fused=True).eval()
     deploy.load_state_dict(fused.state_dict(), strict=True)
     assert n_params(deploy) == n_params(fused) == 40_740_534
     x = torch.rand(1, 3, 64, 64)
@@ -204,7 +205,7 @@ def test_weights_round_trip(
     assert read_darknet_header(path) == (version, seen, hdr_bytes)
     bn_channels = sum(m.num_features for m in model.modules() if isinstance(m, nn.BatchNorm2d))
     assert path.stat().st_size == hdr_bytes + 4 * (40_756_182 + 2 * bn_channels)
-    fresh = Darknet19YOLOv3(num_classes=1)
+    fresh = build_model("darknet19-yolov3", num_classes=1)
     assert load_darknet_weights(fresh, path) == N_CONVS
     assert_state_equal(fresh.state_dict(), model.state_dict())
 
@@ -212,7 +213,9 @@ def test_weights_round_trip(
 def test_backbone_only_file(model: Darknet19YOLOv3, tmp_path: Path) -> None:
     path = tmp_path / "darknet19.conv.23"
     assert save_darknet_weights(model, path, cutoff=N_BACKBONE_CONVS) == N_BACKBONE_CONVS
-    target = Darknet19YOLOv3(num_classes=1)  # default init differs from the fixture everywhere
+    target = build_model(
+        "darknet19-yolov3", num_classes=1
+    )  # default init differs from the fixture everywhere
     head_before = {k: v.clone() for k, v in target.state_dict().items() if "backbone" not in k}
     assert load_darknet_weights(target, path) == N_BACKBONE_CONVS
     state, ref = target.state_dict(), model.state_dict()
@@ -232,7 +235,7 @@ def _prefix_file(src: Path, dst: Path, n_bytes: int, extra: bytes = b"") -> Path
 def test_truncated_mid_layer(model: Darknet19YOLOv3, weights_file: Path, tmp_path: Path) -> None:
     conv0 = 4 * (4 * 32 + 32 * 3 * 3 * 3)
     path = _prefix_file(weights_file, tmp_path / "cut.weights", 20 + conv0 + 400)
-    target = Darknet19YOLOv3(num_classes=1)
+    target = build_model("darknet19-yolov3", num_classes=1)
     before = copy.deepcopy(target.state_dict())
     with pytest.raises(DarknetWeightsError, match="conv 1") as err:
         load_darknet_weights(target, path)
@@ -270,7 +273,7 @@ def test_short_header(tmp_path: Path) -> None:
 
 def test_fused_model_rejected(fused: Darknet19YOLOv3, weights_file: Path, tmp_path: Path) -> None:
     with pytest.raises(DarknetWeightsError, match="fused"):
-        load_darknet_weights(meta_model(1, deploy=True), weights_file)
+        load_darknet_weights(meta_model(1, fused=True), weights_file)
     with pytest.raises(DarknetWeightsError, match="fused"):
         save_darknet_weights(fused, tmp_path / "f.weights")
     assert not list(tmp_path.iterdir())

@@ -49,7 +49,7 @@ def test_repconv_fused_kernel_reproduces_branches() -> None:
     rep = randomize_batchnorm(RepConv(4, 4, identity=True)).double().eval()
     assert rep.identity is not None
     rep.reparameterize()
-    assert rep.deployed and not hasattr(rep, "branch3")
+    assert rep.is_fused and not hasattr(rep, "branch3")
     assert [n for n, _ in rep.named_parameters()] == ["conv.weight", "conv.bias"]
 
 
@@ -112,3 +112,31 @@ def test_model_fuse_method_returns_new_fused_model(name: str) -> None:
     assert fused is not model and not fused.training
     assert any(isinstance(m, nn.BatchNorm2d) for m in model.modules())
     assert not any(isinstance(m, nn.BatchNorm2d) for m in fused.modules())
+
+
+def test_every_family_has_a_builder() -> None:
+    from slimseg.models.registry import BUILDERS
+    from slimseg.models.specs import FAMILIES
+
+    assert set(BUILDERS) == set(FAMILIES)
+
+
+@pytest.mark.parametrize("name", ["yolov8n-seg-gs-rep", "darknet19-yolov3", "msnet-t"])
+def test_fused_state_is_the_blocks_own(name: str) -> None:
+    from slimseg.models.base import ZooModel
+
+    model = build_model(name, num_classes=2)
+    assert isinstance(model, ZooModel) and model.spec.name == name
+    assert not model.is_fused
+    assert model.fuse().is_fused and build_model(name, num_classes=2, fused=True).is_fused
+    assert not model.is_fused  # fuse() works on a copy
+
+
+def test_reparameterize_refused_in_training_mode() -> None:
+    rep = RepConv(4, 4).train()
+    with pytest.raises(RuntimeError, match="training mode"):
+        rep.reparameterize()
+    conv = ConvBNAct(4, 4, 3).train()
+    with pytest.raises(RuntimeError, match="eval"):
+        conv.reparameterize()
+    assert not rep.is_fused and not conv.is_fused

@@ -10,6 +10,7 @@ import torch
 
 from slimseg.losses.yolov3 import YOLOv3Loss, assign_targets, wh_iou
 from slimseg.models.darknet_yolov3 import STANDARD_ANCHORS, STRIDES, Darknet19YOLOv3
+from slimseg.models.registry import build_model
 
 SIZE = 64  # input side; grids 8×8, 4×4, 2×2
 NC = 2
@@ -25,7 +26,7 @@ def box(cx: float, cy: float, w: float, h: float, b: int = 0, c: int = 0) -> lis
 @pytest.fixture(scope="module")
 def model() -> Darknet19YOLOv3:
     torch.manual_seed(0)
-    return Darknet19YOLOv3(num_classes=NC).train()
+    return build_model("darknet19-yolov3", num_classes=NC).train()
 
 
 def zero_outputs(batch: int = 2, fill_obj: float = 0.0) -> list[torch.Tensor]:

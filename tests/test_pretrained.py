@@ -21,8 +21,9 @@ from slimseg.deploy.pretrained import (
     rows_for_names,
 )
 from slimseg.errors import SlimsegError
+from slimseg.utils.shipped import shipped_dir
 
-COCO20 = Path(__file__).resolve().parents[1] / "configs" / "data" / "coco20.yaml"
+COCO20 = shipped_dir("data") / "coco20.yaml"
 
 # Our module prefix → reference layer prefix, written from the documented reference layout
 # (architecture.md §1.1), independently of slimseg.deploy.pretrained.

@@ -13,9 +13,9 @@ from slimseg.cli import data_coco
 from slimseg.data.config import load_data_config
 from slimseg.data.subset import build_subset, load_class_list
 from slimseg.errors import SlimsegError
+from slimseg.utils.shipped import shipped_dir
 
-REPO = Path(__file__).resolve().parents[1]
-COCO20 = REPO / "configs" / "data" / "coco20.yaml"
+COCO20 = shipped_dir("data") / "coco20.yaml"
 PAPER_ORDER = [
     "person", "bicycle", "car", "motorcycle", "bird", "cat", "dog", "backpack", "umbrella",
     "handbag", "suitcase", "sports ball", "bottle", "chair", "tv", "laptop", "mouse",
@@ -142,7 +142,7 @@ def test_coco_subset_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
 
 
 def test_example_config_loads_subset(tmp_path: Path) -> None:
-    raw = yaml.safe_load((REPO / "configs" / "data" / "coco20-example.yaml").read_text())
+    raw = yaml.safe_load((shipped_dir("data") / "coco20-example.yaml").read_text())
     assert set(raw) == {"path", "train", "val", "names"} and raw["names"] == PAPER_ORDER
     raw["path"] = str(tmp_path)
     for split in ("train", "val"):

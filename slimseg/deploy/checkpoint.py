@@ -19,6 +19,7 @@ from torch import nn
 
 from slimseg import __version__
 from slimseg.errors import SlimsegError
+from slimseg.models.base import ZooModel
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
 from slimseg.utils.atomic import atomic_path
@@ -42,7 +43,7 @@ class WeightsInfo:
     train_config: dict[str, Any] = field(default_factory=dict)
 
 
-def save_weights(path: str | Path, model: nn.Module, info: WeightsInfo) -> Path:
+def save_weights(path: str | Path, model: ZooModel, info: WeightsInfo) -> Path:
     """Write ``model``'s state dict with ``info`` atomically (temp file, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -56,7 +57,7 @@ def save_weights(path: str | Path, model: nn.Module, info: WeightsInfo) -> Path:
         "epoch": info.epoch,
         "metrics": info.metrics,
         "train_config": info.train_config,
-        "fused": not any(isinstance(m, nn.BatchNorm2d) for m in model.modules()),
+        "fused": model.is_fused,
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
     }
     with atomic_path(path) as tmp:

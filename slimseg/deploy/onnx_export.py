@@ -23,6 +23,7 @@ from torch import nn
 from slimseg.deploy.metadata import build_metadata, to_metadata_props
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.errors import SlimsegError
+from slimseg.models.base import ZooModel
 from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
 
 MIN_OPSET = 17
@@ -52,14 +53,10 @@ class ExportReport:
     parity: dict[str, float] = field(default_factory=dict)
 
 
-def output_names(model: nn.Module) -> list[str]:
+def output_names(model: ZooModel) -> list[str]:
     if model.spec.task == "semantic":
         return ["logits"]
-    return (
-        ["output0", "output1"]
-        if model.spec.task == "segment" and hasattr(model, "proto")
-        else ["output0"]
-    )
+    return ["output0", "output1"] if model.spec.task == "segment" else ["output0"]
 
 
 def _parity_inputs(imgsz: tuple[int, int], seed: int = 0) -> list[np.ndarray]:
@@ -91,12 +88,12 @@ def _iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return inter / (area_a[:, None] + area_b[None] - inter + 1e-9)
 
 
-def _rows(model: nn.Module, pred: np.ndarray) -> torch.Tensor:
+def _rows(model: ZooModel, pred: np.ndarray) -> torch.Tensor:
     t = torch.from_numpy(pred).float()
     return yolov3_to_rows(t) if model.spec.family == "darknet-yolov3" else t
 
 
-def check_fp32_parity(model: nn.Module, ref: list[np.ndarray], got: list[np.ndarray]) -> dict:
+def check_fp32_parity(model: ZooModel, ref: list[np.ndarray], got: list[np.ndarray]) -> dict:
     """Max abs differences (boxes px, scores, mask terms); raises ExportParityError."""
     nc = model.num_classes
     ref_rows, got_rows = _rows(model, ref[0]).numpy(), _rows(model, got[0]).numpy()
@@ -220,7 +217,7 @@ def _toposort(graph: onnx.GraphProto) -> None:
 
 
 def export_onnx(
-    model: nn.Module,
+    model: ZooModel,
     out: str | Path,
     imgsz: tuple[int, int] = (640, 640),
     names: list[str] | None = None,
@@ -238,7 +235,7 @@ def export_onnx(
         raise SlimsegError(f"--imgsz {h}x{w}: both sides must be multiples of 32")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fused = model.fuse() if hasattr(model, "fuse") else model
+    fused = model.fuse()
     fused = fused.float().eval().requires_grad_(False)
     outputs = output_names(fused)
     axes = None

@@ -26,6 +26,7 @@ from torch import nn
 from slimseg.errors import SlimsegError
 from slimseg.layers.conv import ConvBNAct
 from slimseg.layers.csp import SPPF, C2f
+from slimseg.models.base import ZooModel
 from slimseg.models.heads.decode import DistributionFocalDecode
 from slimseg.models.heads.decoupled import DecoupledDetect
 from slimseg.models.heads.masks import MaskCoefficients, Proto
@@ -184,9 +185,8 @@ def is_reference_state_dict(state: Mapping[str, object]) -> bool:
     return bool(state) and all(isinstance(k, str) and _REF_KEY.match(k) for k in state)
 
 
-def _variant_name(model: nn.Module) -> str:
-    spec = getattr(model, "spec", None)
-    return getattr(spec, "name", None) or type(model).__name__
+def _variant_name(model: ZooModel) -> str:
+    return model.spec.name
 
 
 def _get_module(model: nn.Module, path: str) -> nn.Module | None:
@@ -228,7 +228,7 @@ def _target(model: nn.Module, layer: int, rest: str, variant: str) -> tuple[str 
 
 def map_reference_state_dict(
     state: Mapping[str, torch.Tensor],
-    model: nn.Module,
+    model: ZooModel,
     class_rows: Sequence[int] | None = None,
     *,
     skip_classes: bool = False,
@@ -243,7 +243,7 @@ def map_reference_state_dict(
     at its initialisation (the model's classes are not the reference's).
     """
     variant = _variant_name(model)
-    if any(isinstance(m, ConvBNAct) and m.is_fused for m in model.modules()):
+    if model.is_fused:
         raise SlimsegError(
             f"{variant} is fused (BatchNorm folded); load pretrained weights into the "
             "unfused model, then fuse it"
@@ -253,8 +253,8 @@ def map_reference_state_dict(
     report = MappingReport(
         variant=variant, total=len(state), class_rows=rows, model_tensors=len(ours)
     )
-    nc = getattr(model, "num_classes", None)
-    if rows is not None and nc is not None and len(rows) != nc:
+    nc = model.num_classes
+    if rows is not None and len(rows) != nc:
         raise SlimsegError(f"{len(rows)} class rows given for the {nc}-class {variant}")
     mapped: dict[str, torch.Tensor] = {}
     row_index = torch.tensor(rows, dtype=torch.long) if rows is not None else None
@@ -354,7 +354,7 @@ def read_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
 
 
 def load_pretrained(
-    path: str | Path, model: nn.Module, names: Sequence[str] | None = None
+    path: str | Path, model: ZooModel, names: Sequence[str] | None = None
 ) -> MappingReport:
     """Load a reference YOLOv8(-seg) state dict file into ``model`` (non-strict); the report.
 

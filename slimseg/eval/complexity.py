@@ -23,6 +23,7 @@ from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
 from slimseg.layers.fuse import fuse_model
+from slimseg.models.base import ZooModel
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ def measure_flops(model: nn.Module, imgsz: tuple[int, int] = (640, 640)) -> tupl
     return ours, ours + extra / 1e9
 
 
-def measure(model: nn.Module, imgsz: int | tuple[int, int] = 640) -> Complexity:
+def measure(model: ZooModel, imgsz: int | tuple[int, int] = 640) -> Complexity:
     """Params, gradients and GFLOPs of ``model`` as built and of its fused copy."""
     size = (imgsz, imgsz) if isinstance(imgsz, int) else tuple(imgsz)
     params, grads = count_params(model)
@@ -103,7 +104,7 @@ def measure(model: nn.Module, imgsz: int | tuple[int, int] = 640) -> Complexity:
     fused = fuse_model(model)
     fused_params, _ = count_params(fused)
     fused_gflops, _ = measure_flops(fused, size)
-    dead = model.dead_conv_params() if hasattr(model, "dead_conv_params") else 0
+    dead = model.dead_conv_params()
     return Complexity(
         params=params,
         gradients=grads,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from slimseg.layers.fuse import fold_batchnorm
+from slimseg.layers.fuse import Reparameterizable, fold_batchnorm
 
 # Activation names accepted by specs and layers; None means identity (a linear layer).
 ACTIVATIONS = {
@@ -28,11 +28,11 @@ def make_activation(name: str | None) -> nn.Module:
     return ACTIVATIONS[name]()
 
 
-class ConvBNAct(nn.Module):
+class ConvBNAct(Reparameterizable):
     """Conv2d (no bias) → BatchNorm2d → activation; fused form: Conv2d (bias) → activation.
 
     Shapes: ``[B, c_in, H, W] → [B, c_out, H', W']`` with ``H' = floor((H + 2p - k) / s) + 1``.
-    ``deploy=True`` builds the fused form directly so fused checkpoints load.
+    ``fused=True`` builds the fused form directly so fused checkpoints load.
     """
 
     def __init__(
@@ -46,13 +46,13 @@ class ConvBNAct(nn.Module):
         act: str | None = "silu",
         bn_eps: float = BN_EPS,
         bn_momentum: float = BN_MOMENTUM,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         padding = k // 2 if p is None else p
-        self.conv = nn.Conv2d(c_in, c_out, k, s, padding, groups=groups, bias=deploy)
+        self.conv = nn.Conv2d(c_in, c_out, k, s, padding, groups=groups, bias=fused)
         self.bn: nn.Module = (
-            nn.Identity() if deploy else nn.BatchNorm2d(c_out, eps=bn_eps, momentum=bn_momentum)
+            nn.Identity() if fused else nn.BatchNorm2d(c_out, eps=bn_eps, momentum=bn_momentum)
         )
         self.act = make_activation(act)
 
@@ -63,14 +63,11 @@ class ConvBNAct(nn.Module):
     def is_fused(self) -> bool:
         return not isinstance(self.bn, nn.BatchNorm2d)
 
-    @torch.no_grad()
-    def reparameterize(self) -> None:
-        """Fold the BatchNorm into the convolution in place (no-op when already fused)."""
-        if self.is_fused:
-            return
+    def _reparameterize(self) -> None:
+        """Fold the BatchNorm into the convolution in place."""
         weight, bias = fold_batchnorm(self.conv.weight, self.conv.bias, self.bn)
         old = self.conv
-        fused = nn.Conv2d(
+        conv = nn.Conv2d(
             old.in_channels,
             old.out_channels,
             old.kernel_size,
@@ -80,7 +77,7 @@ class ConvBNAct(nn.Module):
             groups=old.groups,
             bias=True,
         ).to(weight.device, weight.dtype)
-        fused.weight.copy_(weight)
-        fused.bias.copy_(bias)
-        self.conv = fused
+        conv.weight.copy_(weight)
+        conv.bias.copy_(bias)
+        self.conv = conv
         self.bn = nn.Identity()

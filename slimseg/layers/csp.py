@@ -12,12 +12,12 @@ class Bottleneck(nn.Module):
     """3×3 conv → 3×3 conv with an optional residual. ``[B, c_in, H, W] → [B, c_out, H, W]``."""
 
     def __init__(
-        self, c_in: int, c_out: int, shortcut: bool = True, e: float = 1.0, deploy: bool = False
+        self, c_in: int, c_out: int, shortcut: bool = True, e: float = 1.0, fused: bool = False
     ) -> None:
         super().__init__()
         hidden = int(c_out * e)
-        self.cv1 = ConvBNAct(c_in, hidden, 3, deploy=deploy)
-        self.cv2 = ConvBNAct(hidden, c_out, 3, deploy=deploy)
+        self.cv1 = ConvBNAct(c_in, hidden, 3, fused=fused)
+        self.cv2 = ConvBNAct(hidden, c_out, 3, fused=fused)
         self.add = shortcut and c_in == c_out
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -40,14 +40,14 @@ class C2f(nn.Module):
         n: int = 1,
         shortcut: bool = False,
         e: float = 0.5,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         self.hidden = int(c_out * e)
-        self.cv1 = ConvBNAct(c_in, 2 * self.hidden, 1, deploy=deploy)
-        self.cv2 = ConvBNAct((2 + n) * self.hidden, c_out, 1, deploy=deploy)
+        self.cv1 = ConvBNAct(c_in, 2 * self.hidden, 1, fused=fused)
+        self.cv2 = ConvBNAct((2 + n) * self.hidden, c_out, 1, fused=fused)
         self.blocks = nn.ModuleList(
-            Bottleneck(self.hidden, self.hidden, shortcut, e=1.0, deploy=deploy) for _ in range(n)
+            Bottleneck(self.hidden, self.hidden, shortcut, e=1.0, fused=fused) for _ in range(n)
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -63,11 +63,11 @@ class SPPF(nn.Module):
     Shapes: ``[B, c_in, H, W] → [B, c_out, H, W]``.
     """
 
-    def __init__(self, c_in: int, c_out: int, k: int = 5, deploy: bool = False) -> None:
+    def __init__(self, c_in: int, c_out: int, k: int = 5, fused: bool = False) -> None:
         super().__init__()
         hidden = c_in // 2
-        self.cv1 = ConvBNAct(c_in, hidden, 1, deploy=deploy)
-        self.cv2 = ConvBNAct(4 * hidden, c_out, 1, deploy=deploy)
+        self.cv1 = ConvBNAct(c_in, hidden, 1, fused=fused)
+        self.cv2 = ConvBNAct(4 * hidden, c_out, 1, fused=fused)
         self.pool = nn.MaxPool2d(k, 1, k // 2)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

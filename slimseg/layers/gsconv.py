@@ -30,14 +30,14 @@ class GSConv(nn.Module):
         k: int = 1,
         s: int = 1,
         act: str | None = "silu",
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         if c_out % 2:
             raise ValueError(f"GSConv needs an even number of output channels, got {c_out}")
         half = c_out // 2
-        self.dense = ConvBNAct(c_in, half, k, s, act=act, deploy=deploy)
-        self.depthwise = ConvBNAct(half, half, 5, 1, groups=half, act=act, deploy=deploy)
+        self.dense = ConvBNAct(c_in, half, k, s, act=act, fused=fused)
+        self.depthwise = ConvBNAct(half, half, 5, 1, groups=half, act=act, fused=fused)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = self.dense(x)
@@ -50,14 +50,14 @@ class GSBottleneck(nn.Module):
     Shapes: ``[B, c_in, H, W] → [B, c_out, H, W]``.
     """
 
-    def __init__(self, c_in: int, c_out: int, e: float = 0.5, deploy: bool = False) -> None:
+    def __init__(self, c_in: int, c_out: int, e: float = 0.5, fused: bool = False) -> None:
         super().__init__()
         hidden = int(c_out * e)
         self.lighting = nn.Sequential(
-            GSConv(c_in, hidden, 1, 1, deploy=deploy),
-            GSConv(hidden, c_out, 3, 1, act=None, deploy=deploy),
+            GSConv(c_in, hidden, 1, 1, fused=fused),
+            GSConv(hidden, c_out, 3, 1, act=None, fused=fused),
         )
-        self.shortcut = ConvBNAct(c_in, c_out, 1, 1, act=None, deploy=deploy)
+        self.shortcut = ConvBNAct(c_in, c_out, 1, 1, act=None, fused=fused)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.lighting(x) + self.shortcut(x)
@@ -72,17 +72,17 @@ class VoVGSCSP(nn.Module):
     """
 
     def __init__(
-        self, c_in: int, c_out: int, n: int = 1, e: float = 0.5, deploy: bool = False
+        self, c_in: int, c_out: int, n: int = 1, e: float = 0.5, fused: bool = False
     ) -> None:
         super().__init__()
         hidden = int(c_out * e)
         self.hidden = hidden
-        self.cv1 = ConvBNAct(c_in, hidden, 1, deploy=deploy)
-        self.cv2 = ConvBNAct(c_in, hidden, 1, deploy=deploy)
+        self.cv1 = ConvBNAct(c_in, hidden, 1, fused=fused)
+        self.cv2 = ConvBNAct(c_in, hidden, 1, fused=fused)
         self.gsb = nn.Sequential(
-            *(GSBottleneck(hidden, hidden, e=1.0, deploy=deploy) for _ in range(n))
+            *(GSBottleneck(hidden, hidden, e=1.0, fused=fused) for _ in range(n))
         )
-        self.cv3 = ConvBNAct(2 * hidden, c_out, 1, deploy=deploy)
+        self.cv3 = ConvBNAct(2 * hidden, c_out, 1, fused=fused)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.cv3(torch.cat((self.cv2(x), self.gsb(self.cv1(x))), dim=1))

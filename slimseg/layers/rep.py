@@ -7,14 +7,14 @@ import torch.nn.functional as F
 from torch import nn
 
 from slimseg.layers.conv import BN_EPS, BN_MOMENTUM, ConvBNAct, make_activation
-from slimseg.layers.fuse import fold_batchnorm
+from slimseg.layers.fuse import Reparameterizable, fold_batchnorm
 
 
-class RepConv(nn.Module):
-    """Training: act(BN(conv3×3(x)) + BN(conv1×1(x)) [+ BN(x)]); deploy: act(conv3×3(x) + b).
+class RepConv(Reparameterizable):
+    """Training: act(BN(conv3×3(x)) + BN(conv1×1(x)) [+ BN(x)]); fused: act(conv3×3(x) + b).
 
     Shapes: ``[B, c_in, H, W] → [B, c_out, H/s, W/s]``. The identity branch exists only when
-    ``identity=True``, ``c_in == c_out`` and ``s == 1``. ``deploy=True`` builds the fused form.
+    ``identity=True``, ``c_in == c_out`` and ``s == 1``. ``fused=True`` builds the fused form.
     """
 
     def __init__(
@@ -25,13 +25,13 @@ class RepConv(nn.Module):
         groups: int = 1,
         act: str | None = "silu",
         identity: bool = False,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         self.c_in, self.c_out, self.stride, self.groups = c_in, c_out, s, groups
         self.act = make_activation(act)
-        self.deployed = deploy
-        if deploy:
+        self._fused = fused
+        if fused:
             self.conv = nn.Conv2d(c_in, c_out, 3, s, 1, groups=groups, bias=True)
             return
         self.branch3 = ConvBNAct(c_in, c_out, 3, s, groups=groups, act=None)
@@ -42,8 +42,12 @@ class RepConv(nn.Module):
             else None
         )
 
+    @property
+    def is_fused(self) -> bool:
+        return self._fused
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if self.deployed:
+        if self._fused:
             return self.act(self.conv(x))
         y = self.branch3(x) + self.branch1(x)
         if self.identity is not None:
@@ -66,11 +70,8 @@ class RepConv(nn.Module):
             weight, bias = weight + wi, bias + bi
         return weight, bias
 
-    @torch.no_grad()
-    def reparameterize(self) -> None:
-        """Merge the branches into one 3×3 conv in place (no-op when already fused)."""
-        if self.deployed:
-            return
+    def _reparameterize(self) -> None:
+        """Merge the branches into one 3×3 conv in place."""
         weight, bias = self.fused_kernel()
         conv = nn.Conv2d(self.c_in, self.c_out, 3, self.stride, 1, groups=self.groups, bias=True)
         conv = conv.to(weight.device, weight.dtype)
@@ -78,4 +79,4 @@ class RepConv(nn.Module):
         conv.bias.copy_(bias)
         del self.branch3, self.branch1, self.identity
         self.conv = conv
-        self.deployed = True
+        self._fused = True

@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from slimseg.models.heads.decode import anchor_points
+from slimseg.models.heads.decode import YOLO_STRIDES, anchor_points
 from slimseg.models.yolo import RawOutputs
 from slimseg.ops.assign import Assignment, task_aligned_assign
 from slimseg.ops.boxes import box_ciou_pairwise, box_to_distances, distances_to_box
@@ -71,7 +71,7 @@ class YOLOv8Loss(nn.Module):
     def __init__(
         self,
         num_classes: int,
-        strides: tuple[int, ...] = (8, 16, 32),
+        strides: tuple[int, ...] = YOLO_STRIDES,
         reg_max: int = 16,
         gains: LossGains | None = None,
         topk: int = 10,

@@ -12,7 +12,7 @@ Partial files (e.g. ``darknet19_448.conv.23`` = the 18 backbone convs) load up t
 complete conv; the file size is validated before any tensor is touched, so a failed load
 leaves the model unchanged.
 
-Fused models (built with ``deploy=True`` or returned by ``fuse_model``) are rejected by both
+Fused models (built with ``fused=True`` or returned by ``fuse_model``) are rejected by both
 functions: a ``.weights`` file stores BatchNorm statistics that a fused conv no longer has.
 Load into an unfused model, then call ``fuse_model``.
 """
@@ -51,7 +51,7 @@ def _conv_tensors(conv: ConvBNAct | nn.Conv2d, where: str = "") -> list[torch.Te
         if not isinstance(conv.bn, nn.BatchNorm2d):
             raise DarknetWeightsError(
                 f"{where}model is fused (BatchNorm folded) but darknet .weights hold BatchNorm "
-                "statistics; use an unfused model (deploy=False) and call fuse_model() afterwards"
+                "statistics; use an unfused model (fused=False) and call fuse_model() afterwards"
             )
         bn = conv.bn
         return [bn.bias, bn.weight, bn.running_mean, bn.running_var, conv.conv.weight]

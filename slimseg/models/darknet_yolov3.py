@@ -22,7 +22,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from slimseg.layers.conv import ConvBNAct
-from slimseg.layers.fuse import fuse_model
+from slimseg.models.base import ZooModel
+from slimseg.models.heads.decode import YOLO_STRIDES as STRIDES
+from slimseg.models.specs import ModelSpec
 
 # (w, h) in input pixels, one tuple per level, ordered stride 8, 16, 32 (yolov3.cfg masks
 # 0,1,2 | 3,4,5 | 6,7,8).
@@ -31,7 +33,6 @@ STANDARD_ANCHORS: tuple[tuple[tuple[int, int], ...], ...] = (
     ((30, 61), (62, 45), (59, 119)),
     ((116, 90), (156, 198), (373, 326)),
 )
-STRIDES: tuple[int, int, int] = (8, 16, 32)
 
 DARKNET_BN_EPS = 1e-12
 DARKNET_BN_MOMENTUM = 0.01
@@ -48,7 +49,7 @@ _DARKNET19_STAGES: tuple[tuple[int | str, ...], ...] = (
 )
 
 
-def _dn_conv(c_in: int, c_out: int, k: int, bn_eps: float, deploy: bool) -> ConvBNAct:
+def _dn_conv(c_in: int, c_out: int, k: int, bn_eps: float, fused: bool) -> ConvBNAct:
     """Darknet ``[convolutional] batch_normalize=1 pad=1 activation=leaky`` (stride 1)."""
     return ConvBNAct(
         c_in,
@@ -58,7 +59,7 @@ def _dn_conv(c_in: int, c_out: int, k: int, bn_eps: float, deploy: bool) -> Conv
         act="leaky",
         bn_eps=bn_eps,
         bn_momentum=DARKNET_BN_MOMENTUM,
-        deploy=deploy,
+        fused=fused,
     )
 
 
@@ -71,7 +72,7 @@ class Darknet19(nn.Module):
 
     out_channels: tuple[int, int, int] = (256, 512, 1024)
 
-    def __init__(self, bn_eps: float = DARKNET_BN_EPS, deploy: bool = False) -> None:
+    def __init__(self, bn_eps: float = DARKNET_BN_EPS, fused: bool = False) -> None:
         super().__init__()
         stages: list[nn.Sequential] = []
         c_in = 3
@@ -82,7 +83,7 @@ class Darknet19(nn.Module):
                     layers.append(nn.MaxPool2d(2, 2))
                 else:
                     c_out, k = item  # type: ignore[misc]
-                    layers.append(_dn_conv(c_in, c_out, k, bn_eps, deploy))
+                    layers.append(_dn_conv(c_in, c_out, k, bn_eps, fused))
                     c_in = c_out
             stages.append(nn.Sequential(*layers))
         self.stage1, self.stage2, self.stage3 = stages
@@ -106,17 +107,17 @@ class YOLOv3Block(nn.Module):
     """
 
     def __init__(
-        self, c_in: int, c: int, n_out: int, bn_eps: float = DARKNET_BN_EPS, deploy: bool = False
+        self, c_in: int, c: int, n_out: int, bn_eps: float = DARKNET_BN_EPS, fused: bool = False
     ) -> None:
         super().__init__()
         self.convs = nn.Sequential(
-            _dn_conv(c_in, c, 1, bn_eps, deploy),
-            _dn_conv(c, 2 * c, 3, bn_eps, deploy),
-            _dn_conv(2 * c, c, 1, bn_eps, deploy),
-            _dn_conv(c, 2 * c, 3, bn_eps, deploy),
-            _dn_conv(2 * c, c, 1, bn_eps, deploy),
+            _dn_conv(c_in, c, 1, bn_eps, fused),
+            _dn_conv(c, 2 * c, 3, bn_eps, fused),
+            _dn_conv(2 * c, c, 1, bn_eps, fused),
+            _dn_conv(c, 2 * c, 3, bn_eps, fused),
+            _dn_conv(2 * c, c, 1, bn_eps, fused),
         )
-        self.out_conv = _dn_conv(c, 2 * c, 3, bn_eps, deploy)
+        self.out_conv = _dn_conv(c, 2 * c, 3, bn_eps, fused)
         self.pred = nn.Conv2d(2 * c, n_out, 1, 1, 0, bias=True)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -124,7 +125,7 @@ class YOLOv3Block(nn.Module):
         return branch, self.pred(self.out_conv(branch))
 
 
-class Darknet19YOLOv3(nn.Module):
+class Darknet19YOLOv3(ZooModel):
     """YOLOv3 detector on a Darknet-19 backbone, darknet-compatible layer for layer.
 
     Input ``[B, 3, H, W]`` with ``H``, ``W`` multiples of 32 (RGB, 0–1).
@@ -139,19 +140,18 @@ class Darknet19YOLOv3(nn.Module):
       level (stride 8, 16, 32) → anchor → cell (row-major). Darknet decoding:
       ``xy = (cell + σ(t_xy))·stride``, ``wh = exp(t_wh)·anchor``. No NMS.
 
-    ``anchors``: per level ``((w, h), …)`` in input pixels, levels ordered stride 8, 16, 32;
-    every level must have the same number of anchors. ``deploy=True`` builds the BN-fused
-    structure that ``fuse_model(model).state_dict()`` loads into.
+    ``spec.anchors``: per level ``((w, h), …)`` in input pixels, levels ordered stride 8, 16,
+    32 (``None``: YOLOv3's standard anchors); every level must have the same number of anchors.
+    ``fused=True`` builds the BN-fused structure that ``fuse_model(model).state_dict()`` loads
+    into.
     """
 
     def __init__(
-        self,
-        num_classes: int = 1,
-        anchors: tuple[tuple[tuple[int, int], ...], ...] = STANDARD_ANCHORS,
-        deploy: bool = False,
-        bn_eps: float = DARKNET_BN_EPS,
+        self, spec: ModelSpec, fused: bool = False, bn_eps: float = DARKNET_BN_EPS
     ) -> None:
-        super().__init__()
+        super().__init__(spec)
+        num_classes = spec.num_classes
+        anchors = STANDARD_ANCHORS if spec.anchors is None else spec.anchors
         if num_classes < 1:
             raise ValueError(f"num_classes must be >= 1, got {num_classes}")
         if len(anchors) != len(STRIDES):
@@ -159,7 +159,6 @@ class Darknet19YOLOv3(nn.Module):
         na = len(anchors[0])
         if na < 1 or any(len(level) != na for level in anchors):
             raise ValueError(f"every level needs the same (>0) number of anchors: {anchors}")
-        self.num_classes = num_classes
         self.num_anchors = na
         self.num_outputs = 5 + num_classes  # per anchor: tx, ty, tw, th, obj, classes
         self.strides: tuple[int, int, int] = STRIDES
@@ -171,12 +170,12 @@ class Darknet19YOLOv3(nn.Module):
 
         n_out = na * self.num_outputs
         c3, c4, c5 = Darknet19.out_channels
-        self.backbone = Darknet19(bn_eps, deploy)
-        self.head_p5 = YOLOv3Block(c5, 512, n_out, bn_eps, deploy)
-        self.lateral_p5 = _dn_conv(512, 256, 1, bn_eps, deploy)
-        self.head_p4 = YOLOv3Block(256 + c4, 256, n_out, bn_eps, deploy)
-        self.lateral_p4 = _dn_conv(256, 128, 1, bn_eps, deploy)
-        self.head_p3 = YOLOv3Block(128 + c3, 128, n_out, bn_eps, deploy)
+        self.backbone = Darknet19(bn_eps, fused)
+        self.head_p5 = YOLOv3Block(c5, 512, n_out, bn_eps, fused)
+        self.lateral_p5 = _dn_conv(512, 256, 1, bn_eps, fused)
+        self.head_p4 = YOLOv3Block(256 + c4, 256, n_out, bn_eps, fused)
+        self.lateral_p4 = _dn_conv(256, 128, 1, bn_eps, fused)
+        self.head_p3 = YOLOv3Block(128 + c3, 128, n_out, bn_eps, fused)
         self._init_pred_biases()
 
     @torch.no_grad()
@@ -193,10 +192,6 @@ class Darknet19YOLOv3(nn.Module):
             bias[:, :4] = 0.0
             bias[:, 4] = math.log(8.0 / (image_size / stride) ** 2)
             bias[:, 5:] = math.log(0.6 / max(self.num_classes - 0.99, 0.01))
-
-    def fuse(self) -> Darknet19YOLOv3:
-        """A fused copy (BatchNorm folded into the convs) in eval mode; ``self`` is untouched."""
-        return fuse_model(self)
 
     def darknet_convs(self) -> list[ConvBNAct | nn.Conv2d]:
         """All 41 convolutions in darknet cfg order (the order of a ``.weights`` file).

@@ -5,9 +5,11 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from torch import nn
-
+from slimseg.models.base import ZooModel
+from slimseg.models.darknet_yolov3 import Darknet19YOLOv3
+from slimseg.models.msnet import MSNet
 from slimseg.models.specs import ModelSpec, SpecError, load_spec
+from slimseg.models.yolo import YOLO
 from slimseg.utils.shipped import shipped_dir
 
 
@@ -44,25 +46,24 @@ def get_spec(name: str | Path, num_classes: int | None = None) -> ModelSpec:
     return spec.with_classes(num_classes)
 
 
-def build_from_spec(spec: ModelSpec, fused: bool = False) -> nn.Module:
-    """Instantiate the network a spec describes; ``fused=True`` builds the deploy form."""
-    if spec.family == "yolov8":
-        from slimseg.models.yolo import YOLO
-
-        return YOLO(spec, deploy=fused)
-    if spec.family == "msnet":
-        from slimseg.models.msnet import MSNet
-
-        return MSNet(spec, deploy=fused)
-    from slimseg.models.darknet_yolov3 import Darknet19YOLOv3
-
-    kwargs = {"anchors": spec.anchors} if spec.anchors is not None else {}
-    model = Darknet19YOLOv3(num_classes=spec.num_classes, deploy=fused, **kwargs)
-    model.spec = spec
-    return model
+# spec.family → the class that builds it (each takes ``(spec, fused=...)``).
+BUILDERS: dict[str, type[ZooModel]] = {
+    "yolov8": YOLO,
+    "msnet": MSNet,
+    "darknet-yolov3": Darknet19YOLOv3,
+}
 
 
-def build_model(name: str | Path, num_classes: int | None = None, fused: bool = False) -> nn.Module:
+def build_from_spec(spec: ModelSpec, fused: bool = False) -> ZooModel:
+    """Instantiate the network a spec describes; ``fused=True`` builds the fused form."""
+    if spec.family not in BUILDERS:
+        raise SpecError(
+            f"{spec.name}: family {spec.family!r} has no builder; valid: {', '.join(BUILDERS)}"
+        )
+    return BUILDERS[spec.family](spec, fused=fused)
+
+
+def build_model(name: str | Path, num_classes: int | None = None, fused: bool = False) -> ZooModel:
     """Build variant ``name`` (see ``list_models()``) with ``num_classes`` classes.
 
     ``fused=True`` builds the inference (BN-folded, RepConv-merged) structure, into which

@@ -7,9 +7,10 @@ from typing import NamedTuple
 import torch
 from torch import nn
 
-from slimseg.layers.fuse import fuse_model
 from slimseg.models.backbones.csp_darknet import CSPDarknet
+from slimseg.models.base import ZooModel
 from slimseg.models.heads.decode import (
+    YOLO_STRIDES,
     DistributionFocalDecode,
     anchor_points,
     distances_to_xywh,
@@ -20,8 +21,6 @@ from slimseg.models.heads.shared_rep import SharedRepDetect
 from slimseg.models.necks.pan import PAN
 from slimseg.models.scaling import Scaler
 from slimseg.models.specs import ModelSpec
-
-STRIDES = (8, 16, 32)
 
 
 class RawOutputs(NamedTuple):
@@ -37,7 +36,7 @@ class RawOutputs(NamedTuple):
     proto: torch.Tensor | None
 
 
-class YOLO(nn.Module):
+class YOLO(ZooModel):
     """YOLOv8 family network built from a ``ModelSpec``.
 
     Eval forward on ``[B, 3, H, W]`` (H, W multiples of 32) returns the deployment layout:
@@ -47,20 +46,19 @@ class YOLO(nn.Module):
     Training forward returns ``RawOutputs``.
     """
 
-    def __init__(self, spec: ModelSpec, deploy: bool = False) -> None:
-        super().__init__()
-        assert spec.scale is not None
-        self.spec = spec
-        self.strides = STRIDES
-        self.num_classes = spec.num_classes
+    def __init__(self, spec: ModelSpec, fused: bool = False) -> None:
+        super().__init__(spec)
+        if spec.scale is None:
+            raise ValueError(f"{spec.name}: a yolov8 spec needs a 'scale' section")
+        self.strides = YOLO_STRIDES
         self.reg_max = spec.head.reg_max
         scaler = Scaler(spec.scale.depth, spec.scale.width, spec.scale.max_channels)
-        self.backbone = CSPDarknet(scaler, deploy=deploy)
-        self.neck = PAN(self.backbone.out_channels, scaler, kind=spec.neck, deploy=deploy)
+        self.backbone = CSPDarknet(scaler, fused=fused)
+        self.neck = PAN(self.backbone.out_channels, scaler, kind=spec.neck, fused=fused)
         chans = self.neck.out_channels
         head = spec.head
         if head.kind == "decoupled":
-            self.detect: nn.Module = DecoupledDetect(chans, spec.num_classes, head.reg_max, deploy)
+            self.detect: nn.Module = DecoupledDetect(chans, spec.num_classes, head.reg_max, fused)
         elif head.kind == "shared-rep":
             self.detect = SharedRepDetect(
                 chans,
@@ -68,15 +66,15 @@ class YOLO(nn.Module):
                 scaler.channels(head.hidden),
                 share_repconv=head.share_repconv,
                 reg_max=head.reg_max,
-                deploy=deploy,
+                fused=fused,
             )
         else:
             raise ValueError(f"{spec.name}: head kind {head.kind!r} is not a YOLOv8 head")
         self.segment = spec.task == "segment"
         if self.segment:
-            self.mask_coeffs = MaskCoefficients(chans, head.num_masks, deploy=deploy)
+            self.mask_coeffs = MaskCoefficients(chans, head.num_masks, fused=fused)
             self.proto = Proto(
-                chans[0], scaler.channels(head.proto_channels), head.num_masks, deploy
+                chans[0], scaler.channels(head.proto_channels), head.num_masks, fused
             )
         self.dfl = DistributionFocalDecode(head.reg_max)
         self.detect.init_biases(self.strides)
@@ -109,10 +107,6 @@ class YOLO(nn.Module):
             return raw
         pred = self.decode(raw)
         return (pred, raw.proto) if self.segment else pred
-
-    def fuse(self) -> YOLO:
-        """A fused copy (Conv+BN folded, RepConv merged) in eval mode; ``self`` is untouched."""
-        return fuse_model(self)
 
     def dead_conv_params(self) -> int:
         """Parameters the original code defines but never uses (the slim-neck's ``res`` conv)."""

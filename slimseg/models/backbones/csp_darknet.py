@@ -17,27 +17,27 @@ class CSPDarknet(nn.Module):
     ``(c3, c4, c5) = self.out_channels`` (s scale: 128, 256, 512).
     """
 
-    def __init__(self, scaler: Scaler, deploy: bool = False) -> None:
+    def __init__(self, scaler: Scaler, fused: bool = False) -> None:
         super().__init__()
         c64, c128, c256, c512, c1024 = (scaler.channels(c) for c in (64, 128, 256, 512, 1024))
         r3, r6 = scaler.repeats(3), scaler.repeats(6)
         self.stem = nn.Sequential(
-            ConvBNAct(3, c64, 3, 2, deploy=deploy),
-            ConvBNAct(c64, c128, 3, 2, deploy=deploy),
-            C2f(c128, c128, r3, shortcut=True, deploy=deploy),
+            ConvBNAct(3, c64, 3, 2, fused=fused),
+            ConvBNAct(c64, c128, 3, 2, fused=fused),
+            C2f(c128, c128, r3, shortcut=True, fused=fused),
         )
         self.stage3 = nn.Sequential(
-            ConvBNAct(c128, c256, 3, 2, deploy=deploy),
-            C2f(c256, c256, r6, shortcut=True, deploy=deploy),
+            ConvBNAct(c128, c256, 3, 2, fused=fused),
+            C2f(c256, c256, r6, shortcut=True, fused=fused),
         )
         self.stage4 = nn.Sequential(
-            ConvBNAct(c256, c512, 3, 2, deploy=deploy),
-            C2f(c512, c512, r6, shortcut=True, deploy=deploy),
+            ConvBNAct(c256, c512, 3, 2, fused=fused),
+            C2f(c512, c512, r6, shortcut=True, fused=fused),
         )
         self.stage5 = nn.Sequential(
-            ConvBNAct(c512, c1024, 3, 2, deploy=deploy),
-            C2f(c1024, c1024, r3, shortcut=True, deploy=deploy),
-            SPPF(c1024, c1024, 5, deploy=deploy),
+            ConvBNAct(c512, c1024, 3, 2, fused=fused),
+            C2f(c1024, c1024, r3, shortcut=True, fused=fused),
+            SPPF(c1024, c1024, 5, fused=fused),
         )
         self.out_channels = (c256, c512, c1024)
 

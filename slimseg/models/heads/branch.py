@@ -7,10 +7,10 @@ from torch import nn
 from slimseg.layers.conv import ConvBNAct
 
 
-def conv_branch(c_in: int, width: int, c_out: int, deploy: bool = False) -> nn.Sequential:
+def conv_branch(c_in: int, width: int, c_out: int, fused: bool = False) -> nn.Sequential:
     """``[B, c_in, H, W] → [B, c_out, H, W]`` through 3×3 (width), 3×3 (width), 1×1 (c_out)."""
     return nn.Sequential(
-        ConvBNAct(c_in, width, 3, deploy=deploy),
-        ConvBNAct(width, width, 3, deploy=deploy),
+        ConvBNAct(c_in, width, 3, fused=fused),
+        ConvBNAct(width, width, 3, fused=fused),
         nn.Conv2d(width, c_out, 1),
     )

@@ -5,6 +5,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+# Output strides of every YOLO head in the zoo (P3, P4, P5), finest first.
+YOLO_STRIDES: tuple[int, int, int] = (8, 16, 32)
+
 
 def anchor_points(
     sizes: list[tuple[int, int]], strides: tuple[int, ...], like: torch.Tensor

@@ -28,13 +28,13 @@ class DecoupledDetect(nn.Module):
         in_channels: tuple[int, ...],
         num_classes: int,
         reg_max: int = 16,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         c_box = max(16, in_channels[0] // 4, 4 * reg_max)
         c_cls = max(in_channels[0], min(num_classes, 100))
-        self.box = nn.ModuleList(conv_branch(c, c_box, 4 * reg_max, deploy) for c in in_channels)
-        self.cls = nn.ModuleList(conv_branch(c, c_cls, num_classes, deploy) for c in in_channels)
+        self.box = nn.ModuleList(conv_branch(c, c_box, 4 * reg_max, fused) for c in in_channels)
+        self.cls = nn.ModuleList(conv_branch(c, c_cls, num_classes, fused) for c in in_channels)
         self.num_classes = num_classes
 
     def forward(self, feats: list[torch.Tensor]) -> list[torch.Tensor]:

@@ -15,12 +15,12 @@ class Proto(nn.Module):
     ``[B, c_in, H, W]`` (P3) → ``[B, num_masks, 2H, 2W]`` (a quarter of the input size).
     """
 
-    def __init__(self, c_in: int, hidden: int, num_masks: int = 32, deploy: bool = False) -> None:
+    def __init__(self, c_in: int, hidden: int, num_masks: int = 32, fused: bool = False) -> None:
         super().__init__()
-        self.cv1 = ConvBNAct(c_in, hidden, 3, deploy=deploy)
+        self.cv1 = ConvBNAct(c_in, hidden, 3, fused=fused)
         self.upsample = nn.ConvTranspose2d(hidden, hidden, 2, 2, 0, bias=True)
-        self.cv2 = ConvBNAct(hidden, hidden, 3, deploy=deploy)
-        self.cv3 = ConvBNAct(hidden, num_masks, 1, deploy=deploy)
+        self.cv2 = ConvBNAct(hidden, hidden, 3, fused=fused)
+        self.cv3 = ConvBNAct(hidden, num_masks, 1, fused=fused)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.cv3(self.cv2(self.upsample(self.cv1(x))))
@@ -32,10 +32,10 @@ class MaskCoefficients(nn.Module):
     Per-level inputs ``[B, c_i, H_i, W_i]`` → ``[B, num_masks, A]`` with ``A = Σ H_i·W_i``.
     """
 
-    def __init__(self, in_channels: tuple[int, ...], num_masks: int, deploy: bool = False) -> None:
+    def __init__(self, in_channels: tuple[int, ...], num_masks: int, fused: bool = False) -> None:
         super().__init__()
         width = max(in_channels[0] // 4, num_masks)
-        self.branches = nn.ModuleList(conv_branch(c, width, num_masks, deploy) for c in in_channels)
+        self.branches = nn.ModuleList(conv_branch(c, width, num_masks, fused) for c in in_channels)
         self.num_masks = num_masks
 
     def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:

@@ -25,13 +25,13 @@ class SharedRepDetect(nn.Module):
         hidden: int,
         share_repconv: bool = True,
         reg_max: int = 16,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         levels = len(in_channels)
-        self.stems = nn.ModuleList(ConvBNAct(c, hidden, 3, deploy=deploy) for c in in_channels)
+        self.stems = nn.ModuleList(ConvBNAct(c, hidden, 3, fused=fused) for c in in_channels)
         n_rep = 1 if share_repconv else levels
-        self.rep = nn.ModuleList(RepConv(hidden, hidden, deploy=deploy) for _ in range(n_rep))
+        self.rep = nn.ModuleList(RepConv(hidden, hidden, fused=fused) for _ in range(n_rep))
         self.box = nn.Conv2d(hidden, 4 * reg_max, 1)
         self.cls = nn.Conv2d(hidden, num_classes, 1)
         self.box_scale = nn.Parameter(torch.ones(levels))

@@ -88,12 +88,12 @@ class DualPyramidLevel(nn.Module):
         pos_hw: tuple[int, int],
         mlp_ratio: float,
         dropout: float,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
-        self.down = ConvBNAct(c_in, c_out, 3, 2, deploy=deploy)
+        self.down = ConvBNAct(c_in, c_out, 3, 2, fused=fused)
         self.encoder = PEncoder(c_out, dim, depth, heads, patch, pos_hw, mlp_ratio, dropout)
-        self.fuse = ConvBNAct(c_out + dim, c_out, 1, deploy=deploy)
+        self.fuse = ConvBNAct(c_out + dim, c_out, 1, fused=fused)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         p = self.down(x)
@@ -115,11 +115,11 @@ class DualPyramidBackbone(nn.Module):
         pos_imgsz: int,
         mlp_ratio: float,
         dropout: float = 0.0,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         self.out_channels = tuple(channels)
-        self.stem = ConvBNAct(3, stem_channels, 3, 2, deploy=deploy)  # C1, stride 2
+        self.stem = ConvBNAct(3, stem_channels, 3, 2, fused=fused)  # C1, stride 2
         levels = []
         c_prev = stem_channels
         for i, stride in enumerate(STRIDES):
@@ -135,12 +135,12 @@ class DualPyramidBackbone(nn.Module):
                     (size, size),
                     mlp_ratio,
                     dropout,
-                    deploy,
+                    fused,
                 )
             )
             c_prev = channels[i]
         self.levels = nn.ModuleList(levels)
-        self.pyramid_fuse = ConvBNAct(sum(channels), channels[-1], 1, deploy=deploy)
+        self.pyramid_fuse = ConvBNAct(sum(channels), channels[-1], 1, fused=fused)
 
     def forward(self, images: torch.Tensor) -> list[torch.Tensor]:
         x = self.stem(images)

@@ -41,12 +41,12 @@ class MultiClassEnhancement(nn.Module):
         pos_hw: tuple[int, int],
         mlp_ratio: float,
         dropout: float = 0.0,
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
-        self.proj = ConvBNAct(c5, hidden, 1, deploy=deploy)
+        self.proj = ConvBNAct(c5, hidden, 1, fused=fused)
         self.class_filters = nn.Conv2d(c5, num_classes, 3, 1, 1)  # one filter per class
-        self.fuse = ConvBNAct(hidden + num_classes, hidden, 1, deploy=deploy)
+        self.fuse = ConvBNAct(hidden + num_classes, hidden, 1, fused=fused)
         self.memory_pos = nn.Parameter(torch.zeros(1, hidden, *pos_hw))
         nn.init.trunc_normal_(self.memory_pos, std=0.02)
         queries = num_classes + 1
@@ -80,10 +80,10 @@ class MultiClassEnhancement(nn.Module):
 class PixelDecoder(nn.Module):
     """``[C2, C3, C4, E]`` → ``[B, D, H/4, W/4]`` (1×1 laterals, upsample, concat, 1×1)."""
 
-    def __init__(self, channels: tuple[int, ...], hidden: int, deploy: bool = False) -> None:
+    def __init__(self, channels: tuple[int, ...], hidden: int, fused: bool = False) -> None:
         super().__init__()
-        self.laterals = nn.ModuleList(ConvBNAct(c, hidden, 1, deploy=deploy) for c in channels)
-        self.mix = ConvBNAct(hidden * len(channels), hidden, 1, deploy=deploy)
+        self.laterals = nn.ModuleList(ConvBNAct(c, hidden, 1, fused=fused) for c in channels)
+        self.mix = ConvBNAct(hidden * len(channels), hidden, 1, fused=fused)
 
     def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
         size = feats[0].shape[2:]
@@ -99,14 +99,14 @@ class PixelDecoder(nn.Module):
 class MultiClassGuidance(nn.Module):
     """Channel and spatial attention, concatenated: ``[B, D, h, w] → [B, D, h, w]``."""
 
-    def __init__(self, hidden: int, reduction: int = 4, deploy: bool = False) -> None:
+    def __init__(self, hidden: int, reduction: int = 4, fused: bool = False) -> None:
         super().__init__()
         mid = max(hidden // reduction, 8)
         self.channel_mlp = nn.Sequential(
             nn.Conv2d(hidden, mid, 1), nn.SiLU(), nn.Conv2d(mid, hidden, 1)
         )
         self.spatial = nn.Conv2d(2, 1, 3, 1, 1)
-        self.mix = ConvBNAct(2 * hidden, hidden, 1, deploy=deploy)
+        self.mix = ConvBNAct(2 * hidden, hidden, 1, fused=fused)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         avg = x.mean(dim=(2, 3), keepdim=True)

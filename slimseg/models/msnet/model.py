@@ -37,23 +37,21 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from slimseg.layers.fuse import fuse_model
-from slimseg.models.msnet.backbone import DualPyramidBackbone
+from slimseg.models.base import ZooModel
+from slimseg.models.msnet.backbone import STRIDES, DualPyramidBackbone
 from slimseg.models.msnet.head import MultiClassEnhancement, MultiClassGuidance, PixelDecoder
 from slimseg.models.specs import ModelSpec
 
 
-class MSNet(nn.Module):
+class MSNet(ZooModel):
     """MSNET built from a ``ModelSpec`` of family ``msnet`` (see the module docstring)."""
 
-    def __init__(self, spec: ModelSpec, deploy: bool = False) -> None:
-        super().__init__()
+    def __init__(self, spec: ModelSpec, fused: bool = False) -> None:
+        super().__init__(spec)
         if spec.msnet is None:
             raise ValueError(f"{spec.name}: not an msnet spec")
         m = spec.msnet
-        self.spec = spec
-        self.num_classes = spec.num_classes
-        self.strides = (4, 8, 16, 32)
+        self.strides = STRIDES
         self.backbone = DualPyramidBackbone(
             m.stem_channels,
             m.channels,
@@ -64,7 +62,7 @@ class MSNet(nn.Module):
             m.pos_imgsz,
             m.mlp_ratio,
             m.dropout,
-            deploy,
+            fused,
         )
         grid = m.pos_imgsz // 32
         self.enhance = MultiClassEnhancement(
@@ -76,10 +74,10 @@ class MSNet(nn.Module):
             (grid, grid),
             m.mlp_ratio,
             m.dropout,
-            deploy,
+            fused,
         )
-        self.pixel_decoder = PixelDecoder((*m.channels[:3], m.hidden), m.hidden, deploy)
-        self.guidance = MultiClassGuidance(m.hidden, deploy=deploy)
+        self.pixel_decoder = PixelDecoder((*m.channels[:3], m.hidden), m.hidden, fused)
+        self.guidance = MultiClassGuidance(m.hidden, fused=fused)
         self.drop = nn.Dropout2d(m.dropout)
         self.class_bias = nn.Parameter(torch.zeros(spec.num_classes + 1))
         self.scale = m.hidden**-0.5
@@ -94,7 +92,3 @@ class MSNet(nn.Module):
         logits = torch.matmul(filters, pixels.reshape(b, d, h * w))  # [B, K+1, h·w]
         logits = logits.reshape(b, -1, h, w) + self.class_bias.reshape(1, -1, 1, 1)
         return F.interpolate(logits, size=images.shape[2:], mode="bilinear", align_corners=False)
-
-    def fuse(self) -> MSNet:
-        """A fused copy (Conv+BN folded) in eval mode; ``self`` is untouched."""
-        return fuse_model(self)

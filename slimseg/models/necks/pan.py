@@ -26,7 +26,7 @@ class PAN(nn.Module):
         in_channels: tuple[int, int, int],
         scaler: Scaler,
         kind: str = "c2f",
-        deploy: bool = False,
+        fused: bool = False,
     ) -> None:
         super().__init__()
         if kind not in NECKS:
@@ -38,13 +38,13 @@ class PAN(nn.Module):
 
         def block(c_in: int, c_out: int) -> nn.Module:
             if kind == "slim":
-                return VoVGSCSP(c_in, c_out, n, deploy=deploy)
-            return C2f(c_in, c_out, n, shortcut=False, deploy=deploy)
+                return VoVGSCSP(c_in, c_out, n, fused=fused)
+            return C2f(c_in, c_out, n, shortcut=False, fused=fused)
 
         def down(c: int) -> nn.Module:
             if kind == "slim":
-                return GSConv(c, c, 3, 2, deploy=deploy)
-            return ConvBNAct(c, c, 3, 2, deploy=deploy)
+                return GSConv(c, c, 3, 2, fused=fused)
+            return ConvBNAct(c, c, 3, 2, fused=fused)
 
         self.upsample = nn.Upsample(scale_factor=2.0, mode="nearest")
         self.top_down4 = block(c5_in + c4_in, c512)
