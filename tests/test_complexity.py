@@ -12,7 +12,7 @@ from slimseg.models.registry import build_model, list_models
 
 REFERENCE = json.loads((Path(__file__).parent / "reference" / "complexity.json").read_text())
 
-# Reference YOLOv8 implementation, measured on this machine (ANCHORS.md).
+# Reference YOLOv8 implementation built from its YAML (docs/counting.md).
 REFERENCE_PARAMS = {
     ("yolov8s-seg", 80): 11_821_056,
     ("yolov8s-seg", 20): 11_797_836,

@@ -57,3 +57,36 @@ def test_distances_round_trip_and_clamp() -> None:
     assert d.tolist()[0] == pytest.approx([3.0, 4.0, 4.0, 14.99])
     unclamped = box_to_distances(pts, box, limit=100.0)
     torch.testing.assert_close(distances_to_box(pts, unclamped), box)
+
+
+def test_one_box_to_pixel_rule_everywhere() -> None:
+    """The scalar rule, the torch mask-crop span and Eq. 4's numpy box masks agree, ties
+    (x.5) included: a pixel is in a box when its centre is."""
+    import numpy as np
+
+    from slimseg.dynamic.fusion import box_masks
+    from slimseg.ops.boxes import box_pixel_bounds
+    from slimseg.ops.masks import _pixel_span
+
+    h, w = 23, 31
+    rng = np.random.default_rng(0)
+    boxes = rng.uniform(-3, 34, (200, 4)).round(1)
+    boxes[:50] = np.floor(boxes[:50]) + 0.5  # exact ties
+    boxes[:, 2:] = np.maximum(boxes[:, 2:], boxes[:, :2])
+    filled = box_masks(boxes, (h, w))
+    t = torch.from_numpy(boxes)
+    c_first, c_count = _pixel_span(t[:, 0], t[:, 2], w)
+    r_first, r_count = _pixel_span(t[:, 1], t[:, 3], h)
+    for i, box in enumerate(boxes):
+        r0, r1, c0, c1 = box_pixel_bounds(box, h, w)
+        ref = np.zeros((h, w), bool)
+        ref[r0:r1, c0:c1] = True
+        assert np.array_equal(ref, filled[i]), box
+        if r1 > r0 and c1 > c0:
+            assert (c0, c1 - c0, r0, r1 - r0) == (
+                int(c_first[i]),
+                int(c_count[i]),
+                int(r_first[i]),
+                int(r_count[i]),
+            ), box
+    assert box_pixel_bounds((2.5, 0.0, 3.5, 1.0), h, w) == (0, 1, 2, 3)  # centre 2.5 is in

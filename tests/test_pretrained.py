@@ -11,7 +11,7 @@ import yaml
 from torch import nn
 
 import slimseg
-from slimseg.deploy.pretrained import (
+from slimseg.engine.pretrained import (
     NO_COUNTERPART,
     SHAPE_MISMATCH,
     coco80_rows_for,
@@ -26,7 +26,7 @@ from slimseg.utils.shipped import shipped_dir
 COCO20 = shipped_dir("data") / "coco20.yaml"
 
 # Our module prefix → reference layer prefix, written from the documented reference layout
-# (architecture.md §1.1), independently of slimseg.deploy.pretrained.
+# (architecture.md §1.1), independently of slimseg.engine.pretrained.
 _PREFIXES = [
     ("backbone.stem.0.", "model.0."),
     ("backbone.stem.1.", "model.1."),

@@ -22,10 +22,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.images import read_rgb
+from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample
 from slimseg.deploy.predictor import BACKENDS, Prediction, Predictor, combined_mask
 from slimseg.errors import SlimsegError
+from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import write_json, write_png
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
@@ -43,8 +46,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--model", required=True, help="model.onnx, weights.pt or checkpoint.ckpt")
     p.add_argument("--source", required=True, help="an image, a folder of images or a video")
-    p.add_argument("--conf", type=float, default=0.25, help="score threshold")
-    p.add_argument("--iou", type=float, default=0.7, help="NMS IoU threshold")
+    p.add_argument("--conf", type=float, default=PREDICT_CONF, help="score threshold")
+    p.add_argument("--iou", type=float, default=NMS_IOU, help="NMS IoU threshold")
     p.add_argument(
         "--imgsz",
         type=int,
@@ -54,21 +57,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--backend", default="auto", choices=BACKENDS)
     p.add_argument("--threads", type=int, default=None, help="intra-op CPU threads")
-    p.add_argument("--max-det", type=int, default=300, help="detections kept per frame")
+    p.add_argument("--max-det", type=int, default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
     p.set_defaults(run=run)
 
 
 def _read_image(path: Path) -> np.ndarray | None:
-    """RGB ``uint8 [h, w, 3]``, or ``None`` if OpenCV cannot decode the file."""
+    """RGB ``uint8 [h, w, 3]`` (the shared image reader), or ``None`` if it cannot be read."""
     try:
-        data = np.fromfile(path, np.uint8)
-    except OSError:
+        return read_rgb(path)
+    except ImageProblem:
         return None
-    if data.size == 0:
-        return None
-    bgr = cv2.imdecode(data, cv2.IMREAD_COLOR)
-    return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def _image_frames(paths: list[Path]) -> Iterator[tuple[str, str, np.ndarray | None]]:

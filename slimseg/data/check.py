@@ -25,24 +25,11 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from slimseg.data.coco import (
-    ERROR,
-    INFO,
-    KINDS,
-    WARNING,
-    CocoIndex,
-    ImageProblem,
-    ImageRecord,
-    LoadReport,
-    build_index,
-    depth_path_for,
-    instance_area,
-    kind_level,
-    load_coco_json,
-    read_depth,
-    read_image_rgb8,
-)
+from slimseg.data.coco_index import CocoIndex, ImageRecord, build_index, load_coco_json
+from slimseg.data.coco_rle import instance_area
 from slimseg.data.config import DataConfig, load_data_config
+from slimseg.data.images import depth_path_for, read_depth, read_image_rgb8
+from slimseg.data.problems import ERROR, INFO, KINDS, WARNING, ImageProblem, LoadReport, kind_level
 from slimseg.errors import SlimsegError
 from slimseg.utils.table import format_table
 

@@ -209,7 +209,7 @@ def coco_subset(
     images_dir: str | Path | None = None,
 ) -> tuple[Path, SubsetStats]:
     """Read ``ann``, build the subset, write ``out_dir/<ann's file name>``; returns path, stats."""
-    from slimseg.data.coco import load_coco_json
+    from slimseg.data.coco_index import load_coco_json
 
     ann = Path(ann).expanduser()
     classes = load_class_list(classes_file)

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import cv2
 
+from slimseg.data.images import decode_file
 from slimseg.errors import SlimsegError
 
 VOC_CLASSES = (
@@ -155,7 +156,7 @@ def voc_to_coco(
             w = int(_number(size, "width", xml)) if _text(size, "width") else 0
             h = int(_number(size, "height", xml)) if _text(size, "height") else 0
             if w <= 0 or h <= 0:
-                img = cv2.imread(str(root / rel), cv2.IMREAD_UNCHANGED)
+                img = decode_file(root / rel, cv2.IMREAD_UNCHANGED)
                 if img is None:
                     raise SlimsegError(f"{xml}: no <size> and image {root / rel} unreadable")
                 h, w = img.shape[:2]

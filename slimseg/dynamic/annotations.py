@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from pycocotools import mask as mask_utils
 
-from slimseg.data.coco import segm_to_rle
+from slimseg.data.coco_rle import segm_to_rle
 from slimseg.deploy.predictor import Prediction
 from slimseg.errors import SlimsegError
 

@@ -1,4 +1,4 @@
-"""YOLO-SLAM depth-RANSAC (SEEDS.md §2, Algorithm 1): which keypoints in a person box are dynamic.
+"""YOLO-SLAM depth-RANSAC (docs/papers.md §4): which keypoints in a person box are dynamic.
 
 Inside a detection box the keypoints are a mix of points on the person and points on the
 background seen around them. Depth-RANSAC repeatedly draws 2 points with valid depth, collects

@@ -1,4 +1,4 @@
-"""Multi-view motion check (VTD-SLAM, SEEDS.md §3): which segmented objects really move?
+"""Multi-view motion check (VTD-SLAM, docs/papers.md §6): which segmented objects really move?
 
 Between the previous and the current frame:
 

@@ -1,4 +1,4 @@
-"""Training recipe: a frozen dataclass loaded from ``configs/train/*.yaml``."""
+"""Training recipe: a frozen dataclass loaded from a YAML (shipped: ``slimseg/configs/train``)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from typing import Any
 
 from slimseg.errors import SlimsegError
 from slimseg.models.specs import spec_from_mapping
+from slimseg.ops.nms import EVAL_CONF, MAX_DET, NMS_IOU
 from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
@@ -16,7 +17,7 @@ OPTIMIZERS = ("sgd", "adamw")
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Everything about how a model is trained (YOLOv8 recipe defaults, see ANCHORS.md)."""
+    """Everything about how a model is trained (YOLOv8 recipe defaults, docs/architecture.md §6)."""
 
     epochs: int = 100
     batch: int = 16
@@ -39,9 +40,9 @@ class TrainConfig:
     workers: int = 2
     threads: int = 0  # torch intra-op threads on CPU (0 = all cores)
     sync_bn: bool = False  # SyncBatchNorm under DDP
-    conf: float = 0.001  # validation score threshold
-    iou: float = 0.7  # validation NMS IoU
-    max_det: int = 300
+    conf: float = EVAL_CONF  # validation score threshold
+    iou: float = NMS_IOU  # validation NMS IoU
+    max_det: int = MAX_DET
     val_every: int = 1  # validate every N epochs (make epochs a multiple to score the last)
 
     def __post_init__(self) -> None:

@@ -12,6 +12,7 @@ from slimseg.data.dataset import YoloDataset
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample, tile
 from slimseg.engine.evaluate import detect_batch, is_semantic
+from slimseg.ops.nms import NMS_IOU, PREDICT_CONF
 from slimseg.ops.semantic import logits_to_frame
 
 
@@ -21,7 +22,7 @@ def prediction_grid(
     names: list[str],
     count: int = 8,
     columns: int = 4,
-    conf: float = 0.25,
+    conf: float = PREDICT_CONF,
 ) -> np.ndarray:
     """RGB grid of ``model``'s detections (score ≥ ``conf``) on the first ``count`` frames.
 
@@ -58,7 +59,7 @@ def _panels(
             class_map = logits_to_frame(logits[i], meta["letterbox"], source.shape[:2])
             out.append((i, source, draw_class_map(source, class_map.numpy(), names)))
         return out
-    frames = detect_batch(model, batch, conf=conf, iou=0.7, max_det=100)
+    frames = detect_batch(model, batch, conf=conf, iou=NMS_IOU, max_det=100)
     for i, det in enumerate(frames):
         source = dataset.base[i].image
         h, w = source.shape[:2]

@@ -33,9 +33,9 @@ from slimseg.deploy.checkpoint import (
     load_weights,
     save_weights,
 )
-from slimseg.deploy.pretrained import load_pretrained
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.module import DetectorModule
+from slimseg.engine.pretrained import load_pretrained
 from slimseg.errors import SlimsegError
 from slimseg.models.registry import get_spec
 from slimseg.utils.atomic import atomic_path

@@ -32,7 +32,7 @@ from pycocotools import mask as mask_utils
 from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
-from slimseg.data.coco import segm_to_rle
+from slimseg.data.coco_rle import segm_to_rle
 from slimseg.errors import SlimsegError
 from slimseg.eval.postprocess import FrameDetections
 from slimseg.utils.table import format_table

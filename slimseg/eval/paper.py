@@ -1,4 +1,4 @@
-"""Published numbers we compare against (data, quoted from the papers; see SEEDS.md)."""
+"""Published numbers we compare against (data, quoted from the papers; see docs/papers.md §1)."""
 
 from __future__ import annotations
 

@@ -42,6 +42,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from slimseg.ops.boxes import xywh_to_xyxy
+
 # Decoded sizes are only needed (without gradient) for the ignore mask; cap exp() there.
 _MAX_LOG_WH = 10.0
 
@@ -314,6 +316,6 @@ class YOLOv3Loss:
         xy = (p[:, :, 0:2].permute(0, 1, 3, 4, 2).sigmoid() + grid) * stride  # [B, na, h, w, 2]
         log_wh = p[:, :, 2:4].permute(0, 1, 3, 4, 2).clamp(max=_MAX_LOG_WH)
         wh = log_wh.exp() * anchors[level].view(1, na, 1, 1, 2)
-        boxes = torch.cat((xy - wh / 2, xy + wh / 2), -1).reshape(b, na * h * w, 4)
+        boxes = xywh_to_xyxy(torch.cat((xy, wh), -1)).reshape(b, na * h * w, 4)
         best = _max_iou(boxes, gt_boxes, gt_valid)  # [B, na·h·w]
         return (best > self.ignore_iou).view(b, na, h, w)

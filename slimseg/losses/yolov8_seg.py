@@ -1,6 +1,6 @@
 """YOLOv8 detection / instance-segmentation loss.
 
-Terms (each normalised as in the reference recipe, see ANCHORS.md):
+Terms (each normalised as in the reference recipe, docs/architecture.md §6):
 - ``box``: (1 − CIoU) between predicted and assigned boxes, weighted by the soft class target;
 - ``dfl``: distribution focal loss on the 4 side distances (targets clamped to reg_max − 1.01);
 - ``cls``: BCE of class logits against the task-aligned soft targets, / Σ targets;

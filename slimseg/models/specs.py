@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -26,11 +27,22 @@ class SpecError(SlimsegError, ValueError):
 
 @dataclass(frozen=True)
 class ScaleSpec:
-    """YOLOv8 compound scale: repeats ×depth, channels ×width capped at max_channels."""
+    """YOLOv8 compound scale: repeats ×depth, channels ×width capped at max_channels.
+
+    Maps the reference (scale-1.0) channel counts and repeats to this scale
+    (``docs/architecture.md`` §2)."""
 
     depth: float
     width: float
     max_channels: int = 1024
+
+    def channels(self, c: int) -> int:
+        """``ceil_to_8(min(c, max_channels) · width)``."""
+        return int(math.ceil(min(c, self.max_channels) * self.width / 8) * 8)
+
+    def repeats(self, n: int) -> int:
+        """``max(round(n · depth), 1)``."""
+        return max(round(n * self.depth), 1)
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,6 @@ from slimseg.models.heads.decoupled import DecoupledDetect
 from slimseg.models.heads.masks import MaskCoefficients, Proto
 from slimseg.models.heads.shared_rep import SharedRepDetect
 from slimseg.models.necks.pan import PAN
-from slimseg.models.scaling import Scaler
 from slimseg.models.specs import ModelSpec
 
 
@@ -52,7 +51,7 @@ class YOLO(ZooModel):
             raise ValueError(f"{spec.name}: a yolov8 spec needs a 'scale' section")
         self.strides = YOLO_STRIDES
         self.reg_max = spec.head.reg_max
-        scaler = Scaler(spec.scale.depth, spec.scale.width, spec.scale.max_channels)
+        scaler = spec.scale
         self.backbone = CSPDarknet(scaler, fused=fused)
         self.neck = PAN(self.backbone.out_channels, scaler, kind=spec.neck, fused=fused)
         chans = self.neck.out_channels

@@ -24,6 +24,13 @@ from torchvision.ops import batched_nms
 
 from slimseg.ops.boxes import xywh_to_xyxy
 
+# Detection-style thresholds, one home (``docs/conventions.md`` §6). SLAM-facing thresholds
+# for dynamic masking are a separate family (``slimseg.dynamic``).
+EVAL_CONF = 0.001  # mAP evaluation: keep nearly everything, COCOeval ranks it
+PREDICT_CONF = 0.25  # predictions shown or saved
+NMS_IOU = 0.7  # suppress overlaps strictly above this IoU
+MAX_DET = 300  # detections kept per image
+
 
 @dataclass(eq=False)
 class Detections:
@@ -54,9 +61,9 @@ def yolov3_to_rows(pred: torch.Tensor) -> torch.Tensor:
 def non_max_suppression(
     pred: torch.Tensor,
     nc: int,
-    conf: float = 0.001,
-    iou: float = 0.7,
-    max_det: int = 300,
+    conf: float = EVAL_CONF,
+    iou: float = NMS_IOU,
+    max_det: int = MAX_DET,
     agnostic: bool = False,
     max_candidates: int = 30000,
 ) -> list[Detections]:

@@ -7,7 +7,7 @@ from torch import nn
 
 from slimseg.layers.conv import ConvBNAct
 from slimseg.layers.csp import SPPF, C2f
-from slimseg.models.scaling import Scaler
+from slimseg.models.specs import ScaleSpec
 
 
 class CSPDarknet(nn.Module):
@@ -17,7 +17,7 @@ class CSPDarknet(nn.Module):
     ``(c3, c4, c5) = self.out_channels`` (s scale: 128, 256, 512).
     """
 
-    def __init__(self, scaler: Scaler, fused: bool = False) -> None:
+    def __init__(self, scaler: ScaleSpec, fused: bool = False) -> None:
         super().__init__()
         c64, c128, c256, c512, c1024 = (scaler.channels(c) for c in (64, 128, 256, 512, 1024))
         r3, r6 = scaler.repeats(3), scaler.repeats(6)

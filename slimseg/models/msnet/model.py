@@ -1,4 +1,4 @@
-"""MSNET, VTD-SLAM's Vision-Transformer semantic segmenter (SEEDS.md §3), as a zoo family.
+"""MSNET, VTD-SLAM's Vision-Transformer semantic segmenter (docs/papers.md §5), as a zoo family.
 
 ``images [B, 3, H, W]`` (RGB in [0, 1], H and W multiples of 32) → per-pixel class logits
 ``[B, K + 1, H, W]``: channel 0 is background, channel ``k + 1`` is class ``k`` of the

@@ -8,8 +8,7 @@ from torch import nn
 from slimseg.layers.conv import ConvBNAct
 from slimseg.layers.csp import C2f
 from slimseg.layers.gsconv import GSConv, VoVGSCSP
-from slimseg.models.scaling import Scaler
-from slimseg.models.specs import NECKS
+from slimseg.models.specs import NECKS, ScaleSpec
 
 
 class PAN(nn.Module):
@@ -24,7 +23,7 @@ class PAN(nn.Module):
     def __init__(
         self,
         in_channels: tuple[int, int, int],
-        scaler: Scaler,
+        scaler: ScaleSpec,
         kind: str = "c2f",
         fused: bool = False,
     ) -> None:

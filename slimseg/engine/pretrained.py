@@ -1,7 +1,9 @@
 """Initialise slimseg YOLOv8 models from reference (ultralytics-layout) YOLOv8-seg state dicts.
 
+Training-time initialisation (``slimseg train --weights``): it lives with the trainer.
+
 The reference network is one ``nn.Sequential`` whose tensors are named ``model.{i}.…`` by
-layer index (see ``/work/shared/research/architecture.md`` §1.1). Layers are matched by
+layer index (``docs/architecture.md`` §1). Layers are matched by
 *structure*: each reference layer index has a fixed place in our backbone / neck / head, and
 its tensors are copied only when our module there is of the same kind (a reference C2f never
 feeds a VoVGSCSP, a decoupled head never feeds the shared RepConv head) and every shape

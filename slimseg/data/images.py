@@ -1,0 +1,94 @@
+"""The one image reader: image and depth files → arrays, with errors that name the file.
+
+Images are decoded from the file's bytes (``np.fromfile`` + ``cv2.imdecode``, so any path
+works), as stored (``cv2.IMREAD_UNCHANGED``; EXIF orientation is *not* applied: COCO
+annotations refer to the stored pixel grid), then converted to ``uint8 [H, W, 3]`` RGB:
+grayscale replicated, alpha dropped (no compositing), 16-bit mapped by ``round(v / 257)``.
+Depth maps are TUM's ``uint16`` (5000 = 1 m).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slimseg.data.problems import ImageProblem
+
+
+def decode_file(path: Path, flags: int) -> np.ndarray | None:
+    """``cv2.imdecode`` of the file's bytes with ``flags``; None if unreadable or empty."""
+    try:
+        buf = np.fromfile(path, dtype=np.uint8)
+    except OSError:
+        return None
+    if buf.size == 0:
+        return None
+    return cv2.imdecode(buf, flags)
+
+
+def _read_unchanged(path: Path, what: str, missing: str, unreadable: str) -> np.ndarray:
+    """Decode ``path`` as stored (any depth/channels); ImageProblem of kind ``missing`` or
+    ``unreadable`` with the same messages for images and depth maps."""
+    if not path.is_file():
+        raise ImageProblem(missing, f"{path}: {what} file not found")
+    array = decode_file(path, cv2.IMREAD_UNCHANGED)
+    if array is None:
+        raise ImageProblem(unreadable, f"{path}: corrupt or unreadable {what} file")
+    return array
+
+
+def read_image_rgb8(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """Read an image file as ``uint8 [H, W, 3]`` RGB.
+
+    Returns the image and the conversion kinds applied (``grayscale_image``, ``rgba_image``,
+    ``16bit_image``). Raises :class:`ImageProblem` (``missing_image`` / ``unreadable_image``).
+    """
+    path = Path(path)
+    img = _read_unchanged(path, "image", "missing_image", "unreadable_image")
+    notes: list[str] = []
+    if img.dtype == np.uint16:
+        img = np.round(img.astype(np.float32) / 257.0).astype(np.uint8)
+        notes.append("16bit_image")
+    elif img.dtype != np.uint8:
+        raise ImageProblem(
+            "unreadable_image", f"{path}: unsupported pixel type {img.dtype} (need 8/16-bit)"
+        )
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 3 and img.shape[2] == 2:  # gray + alpha
+        img = img[:, :, 0]
+        notes.append("rgba_image")
+    if img.ndim == 2:
+        notes.append("grayscale_image")
+        return np.ascontiguousarray(np.repeat(img[:, :, None], 3, axis=2)), notes
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise ImageProblem("unreadable_image", f"{path}: unsupported image shape {img.shape}")
+    if img.shape[2] == 4:
+        notes.append("rgba_image")
+        img = img[:, :, :3]
+    return np.ascontiguousarray(img[:, :, ::-1]), notes
+
+
+def read_depth(path: str | Path, height: int, width: int) -> np.ndarray:
+    """Read a depth map as ``uint16 [H, W]``; raises :class:`ImageProblem` on any mismatch."""
+    path = Path(path)
+    depth = _read_unchanged(path, "depth", "missing_depth", "bad_depth")
+    if depth.dtype != np.uint16 or depth.ndim != 2 or depth.shape != (height, width):
+        raise ImageProblem(
+            "bad_depth",
+            f"{path}: depth must be 16-bit single-channel {width}x{height}, got {depth.dtype} "
+            f"{depth.shape}",
+        )
+    return depth
+
+
+def depth_path_for(depth_dir: Path, file_name: str) -> Path:
+    """The depth file of an image: same relative path, ``.png`` suffix, under ``depth_dir``."""
+    return depth_dir / Path(file_name).with_suffix(".png")
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """An image file as ``uint8 [H, W, 3]`` RGB (conversions as :func:`read_image_rgb8`)."""
+    return read_image_rgb8(path)[0]
