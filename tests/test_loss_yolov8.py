@@ -63,3 +63,55 @@ def test_detect_only_model(batch: tuple[dict, int]) -> None:
     model = build_model("yolov8n", num_classes=nc).train()
     loss, terms = YOLOv8Loss(nc)(model(data["images"]), data["targets"])
     assert set(terms) == {"box", "cls", "dfl"} and torch.isfinite(loss)
+
+
+def test_loss_values_on_a_hand_checked_case() -> None:
+    """One anchor, one box, one class, one prototype: every term computed by hand.
+
+    Level: stride 8, a 1×1 map (input 8×8), anchor centre (4, 4) px; GT box (0, 0, 8, 8) px =
+    (0, 0, 1, 1) in stride units, side distances 0.5. All box/class logits 0: the DFL
+    distribution over reg_max = 4 bins is uniform, expected distance 1.5, predicted box
+    (-1, -1, 2, 2): concentric squares, IoU = CIoU = 1/9. Class score σ(0) = 0.5; the only
+    candidate is assigned with soft target IoU·align / (align + 1e-9), align = σ^0.5·IoU^6
+    (the assigner's eps matters here: align is only 1.3e-6).
+    """
+    import math
+
+    from slimseg.models.yolo import RawOutputs
+
+    reg_max, nc = 4, 1
+    feats = [torch.zeros(1, 4 * reg_max + nc, 1, 1)]
+    coeffs = torch.ones(1, 1, 1)  # [B, nm, A]
+    proto = torch.tensor([[[[2.0, -2.0], [0.0, 0.0]]]])  # [B, nm, 2, 2] (stride 4)
+    gt_mask = torch.tensor([[[1.0, 0.0], [0.0, 1.0]]])  # [M, 2, 2]
+    targets = torch.tensor([[0.0, 0.0, 0.0, 0.0, 8.0, 8.0]])
+    loss_fn = YOLOv8Loss(nc, strides=(8,), reg_max=reg_max)
+    total, terms = loss_fn(RawOutputs(feats, coeffs, proto), targets, gt_mask)
+
+    align = math.sqrt(0.5) * (1 / 9) ** 6
+    target_score = (1 / 9) * align / (align + 1e-9)
+    cls = math.log(2)  # BCE(0, t) = log 2 for any t; / max(Σ targets, 1) = 1
+    box = (1 - 1 / 9) * target_score  # (1 − CIoU) · weight / 1
+    dfl = math.log(4) * target_score  # CE of a uniform 4-bin distribution, either bin
+    sp = lambda x: math.log1p(math.exp(x))  # noqa: E731  softplus
+    seg = (sp(-2) + sp(-2) + sp(0) + sp(0)) / 4  # BCE over the 2×2 crop / box area 4 / 1 fg
+    expected = {"box": box, "cls": cls, "dfl": dfl, "seg": seg}
+    for k, v in expected.items():
+        assert terms[k].item() == pytest.approx(v, rel=1e-5), k
+    assert total.item() == pytest.approx(7.5 * box + 0.5 * cls + 1.5 * dfl + 7.5 * seg, rel=1e-5)
+
+
+def test_loss_without_targets_is_the_background_bce() -> None:
+    """No boxes: only the class term, Σ softplus(logit) over every anchor and class."""
+    from slimseg.models.yolo import RawOutputs
+
+    torch.manual_seed(0)
+    reg_max, nc = 4, 3
+    feats = [torch.randn(2, 4 * reg_max + nc, 2, 2), torch.randn(2, 4 * reg_max + nc, 1, 1)]
+    loss_fn = YOLOv8Loss(nc, strides=(8, 16), reg_max=reg_max)
+    total, terms = loss_fn(RawOutputs(feats, None, None), torch.zeros(0, 6))
+    logits = torch.cat([f[:, 4 * reg_max :].reshape(2, nc, -1) for f in feats], 2)
+    cls = torch.nn.functional.softplus(logits).sum().item()
+    assert terms["cls"].item() == pytest.approx(cls, rel=1e-6)
+    assert terms["box"].item() == terms["dfl"].item() == 0.0
+    assert total.item() == pytest.approx(0.5 * cls * 2, rel=1e-6)  # × batch size 2
