@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slimseg.dynamic.pipeline import MODES, orb_keypoints, process_frame
+from slimseg.dynamic.pipeline import (
+    MODES,
+    FrameInputs,
+    FrameSettings,
+    orb_keypoints,
+    process_frame,
+)
 
 HW = (60, 80)
 MOBILITY = np.array([1.0, 0.25], np.float32)  # person, chair
@@ -29,15 +35,8 @@ def _frame() -> tuple[np.ndarray, ...]:
 def test_modes_on_a_person_and_a_chair(mode: str) -> None:
     kps, boxes, classes, masks, depth = _frame()
     r = process_frame(
-        kps,
-        boxes,
-        classes,
-        masks,
-        MOBILITY,
-        HW,
-        mode,
-        depth,
-        min_static=10,
+        inputs=FrameInputs(kps, boxes, classes, masks, HW, depth_m=depth),
+        settings=FrameSettings(MOBILITY, mode, min_static=10),
         rng=np.random.default_rng(0),
     )
     on_person = (kps[:, 0] >= 8) & (kps[:, 0] < 30) & (kps[:, 1] >= 10) & (kps[:, 1] < 50)
@@ -56,7 +55,10 @@ def test_fusion_replaces_a_mask_too_thin_for_its_box() -> None:
     kps, boxes, classes, masks, _ = _frame()
     masks[0] = False
     masks[0, 10:12, 10:20] = True  # 20 px of a 1200-px box: s_o < 0.25
-    r = process_frame(kps, boxes, classes, masks, MOBILITY, HW, "fusion", min_static=10)
+    r = process_frame(
+        inputs=FrameInputs(kps, boxes, classes, masks, HW),
+        settings=FrameSettings(MOBILITY, "fusion", min_static=10),
+    )
     assert r.dynamic_frame and r.used_seg == [False, True]
 
 
