@@ -11,6 +11,7 @@ from slimseg.dynamic.pipeline import (
     FrameSettings,
     orb_keypoints,
     process_frame,
+    process_modes,
 )
 
 HW = (60, 80)
@@ -67,3 +68,21 @@ def test_orb_finds_corners() -> None:
     img[30:90, 40:120] = 255
     img[50:70, 60:100] = 0
     assert len(orb_keypoints(img, 200)) > 4
+
+
+def test_process_modes_equals_one_mode_at_a_time() -> None:
+    kps, boxes, classes, masks, depth = _frame()
+    inputs = FrameInputs(kps, boxes, classes, masks, HW, depth_m=depth)
+    settings = FrameSettings(MOBILITY, min_static=10)
+    together = process_modes(
+        inputs=inputs, settings=settings, modes=MODES, rng=np.random.default_rng(0)
+    )
+    rng = np.random.default_rng(0)
+    for mode in MODES:
+        alone = process_frame(
+            inputs=inputs, settings=FrameSettings(MOBILITY, mode, min_static=10), rng=rng
+        )
+        assert np.array_equal(together[mode].dynamic, alone.dynamic), mode
+        assert np.array_equal(together[mode].mask, alone.mask) and together[mode].seconds > 0
+    with pytest.raises(ValueError, match="unknown mode"):
+        process_modes(inputs=inputs, settings=settings, modes=["segm"])

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -231,3 +233,23 @@ def test_ground_truth_masks_lower_orbslam3_ate(xyz_seq: Path, vocab: Path, tmp_p
     dense = json.loads(capsys.readouterr().out)[0]
     assert dense["condition"] == "oracle" and dense["scored_runs"] == 1
     assert dense["ate_rmse"] < rows["still (floor)"]["ate_rmse"]
+
+
+def test_core_imports_without_the_slam_extra(tmp_path: Path) -> None:
+    """With pyorbslam3 and evo unimportable, the CLI loads and slam-eval says how to fix it."""
+    code = (
+        "import sys; sys.modules['pyorbslam3'] = None; sys.modules['evo'] = None\n"
+        "from slimseg.cli.main import main\n"
+        "assert not any(m.split('.')[0] in ('evo', 'pyorbslam3') and sys.modules[m] "
+        "for m in list(sys.modules))\n"
+        f"sys.exit(main(['slam-eval', '--sequence', {str(tmp_path)!r}, '--out', 'x']))\n"
+    )
+    (tmp_path / "rgb.txt").write_text("1.0 rgb/1.png\n")
+    (tmp_path / "depth.txt").write_text("1.0 depth/1.png\n")
+    (tmp_path / "groundtruth.txt").write_text("1.0 0 0 0 0 0 0 1\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "slimseg slam-eval: error: trajectory scoring needs the optional evo package: "
+        "pip install 'slimseg[slam]' (GPL-3.0)"
+    ]

@@ -38,7 +38,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         f"(default: {DEFAULT_MODES} with --model, raw,gt,oracle,masks with --masks, else "
         "raw,gt,oracle; gt/oracle are skipped where the sequence lacks dynamic/ or background/)",
     )
-    p.add_argument("--restore", action="store_true", help="also each mask's restored frames")
+    p.add_argument(
+        "--restore",
+        nargs="?",
+        const="all",
+        default=None,
+        metavar="CONDITIONS",
+        help="also evaluate PatchMatch-restored frames of the masked conditions (all, or a "
+        "comma list such as gt,fusion)",
+    )
     p.add_argument("--engine", choices=("orbslam3", "dense"), default="orbslam3")
     p.add_argument("--runs", type=int, default=3, help="ORB-SLAM3 runs per condition")
     p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
@@ -78,6 +86,20 @@ def parse_modes(text: str | None, have_model: bool, have_masks: bool) -> list[st
     return names
 
 
+def _restore_list(text: str | None, names: list[str]) -> tuple[str, ...]:
+    """Masked conditions to restore: ``all`` of them, or the listed ones (each requested)."""
+    masked = [n for n in names if n not in ("raw", "oracle")]
+    if text is None:
+        return ()
+    if text == "all":
+        return tuple(masked)
+    wanted = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [w for w in wanted if w not in masked]
+    if bad:
+        raise SlimsegError(f"--restore {','.join(bad)}: not among the masked --modes {masked}")
+    return tuple(wanted)
+
+
 def run(args: argparse.Namespace) -> int:
     from slimseg.dynamic.tum import TumSequence
     from slimseg.slam import session
@@ -95,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         names=names,
         model=args.model,
         masks=args.masks,
-        restore=args.restore,
+        restore=_restore_list(args.restore, names),
         engine=args.engine,
         runs=args.runs,
         vocab=args.vocab,

@@ -46,7 +46,8 @@ class Plan:
     names: list[str]
     model: str | None = None
     masks: Path | None = None
-    restore: bool = False
+    restore: tuple[str, ...] = ()
+    """masked condition names (``--modes`` spelling) whose restored frames are evaluated"""
     engine: str = "orbslam3"
     runs: int = 3
     vocab: Path | None = None
@@ -91,10 +92,11 @@ def check_engine(plan: Plan) -> str:
     return check_vocabulary(plan.vocab).label
 
 
-def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> list[Condition]:
-    """The masked conditions in ``plan.names`` order, their masks made or checked."""
+def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[str, Condition]:
+    """The masked conditions by requested name, in ``plan.names`` order, their masks made or
+    checked (``gt`` is left out where the sequence has no ``dynamic/``)."""
     seq = plan.sequence
-    conds: list[Condition] = []
+    conds: dict[str, Condition] = {}
     predictor = None
     for name in plan.names:
         if name == "gt":
@@ -103,18 +105,18 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> list[C
                 say(f"gt: skipped, {folder} does not exist (real sequences have none)")
                 continue
             check_masks(seq, folder)
-            conds.append(Condition("gt", "masked", masks=folder, note="ground-truth dynamic/"))
+            conds[name] = Condition("gt", "masked", masks=folder, note="ground-truth dynamic/")
         elif name == "masks":
             folder = plan.masks / "masks" if (plan.masks / "masks").is_dir() else plan.masks
             check_masks(seq, folder)
-            conds.append(Condition(f"masks ({plan.masks.name})", "masked", masks=folder,
-                                   note=f"read from {folder}"))  # fmt: skip
+            conds[name] = Condition(f"masks ({plan.masks.name})", "masked", masks=folder,
+                                    note=f"read from {folder}")  # fmt: skip
         elif name not in ("raw", "oracle"):
             if predictor is None:
                 from slimseg.deploy.predictor import Predictor
 
                 predictor = Predictor.from_path(plan.model, threads=plan.threads)
-            conds.append(_mode_condition(plan, predictor, name, out, say))
+            conds[name] = _mode_condition(plan, predictor, name, out, say)
     return conds
 
 
@@ -173,9 +175,8 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     conds: list[Condition] = []
     if "raw" in plan.names:
         conds.append(Condition("raw", "raw", note="the sequence's frames"))
-    conds += masked
-    if plan.restore:
-        conds += [restored_condition(plan, c, out, say) for c in masked]
+    conds += list(masked.values())
+    conds += [restored_condition(plan, masked[n], out, say) for n in plan.restore if n in masked]
     if "oracle" in plan.names:
         if (seq.root / "background" / "rgb").is_dir():
             conds.append(Condition("oracle", "replaced", frames=oracle_paths(seq),
