@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from pathlib import Path
 
@@ -130,10 +129,6 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     out = args.out
-    for owned in session.OWNED:  # stale runs of another vocabulary or intrinsics never mix in
-        p = out / owned
-        if p.is_dir():
-            shutil.rmtree(p)
     rows, info = session.run_plan(plan, out, say)
     from slimseg.slam.report import as_json_rows, table_lines
 

@@ -1,4 +1,4 @@
-"""Mobility priors → dynamic keypoints: the substation paper's Eq. 1 and Eq. 3 (SEEDS.md §1)."""
+"""Mobility priors → dynamic keypoints: the substation paper's Eq. 1 and Eq. 3."""
 
 from __future__ import annotations
 

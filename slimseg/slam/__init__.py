@@ -6,7 +6,7 @@
 - :mod:`.conditions`: what each condition feeds an engine (raw, masked, replaced frames);
 - :mod:`.metrics`: ATE/RPE with evo (optional), the standing-still floor;
 - :mod:`.evaluate`, :mod:`.session`: runs per condition, medians; :mod:`.report`: tables, plot;
-- :mod:`.trajectory`: TUM trajectory rows; :mod:`.paper`: published numbers.
+- :mod:`.trajectory`: TUM trajectory rows (published numbers: :mod:`slimseg.eval.paper`).
 
 ``pyorbslam3`` and ``evo`` are GPL-3.0 and live in the ``[slam]`` extra: nothing here imports
 them at module level.

@@ -11,6 +11,7 @@ Output layout under ``out``::
 from __future__ import annotations
 
 import logging
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -162,12 +163,30 @@ def restored_condition(
                      note=f"PatchMatch restoration of the {cond.name} masks")  # fmt: skip
 
 
+def _clean(out: Path, masks: Path | None) -> None:
+    """Delete the previous session's folders under ``out`` (stale runs of another vocabulary
+    or intrinsics never mix into a new table); refuse when ``--masks`` lives inside them."""
+    owned = [out / name for name in OWNED]
+    if masks is not None:
+        m = masks.resolve()
+        for p in owned:
+            if m == p.resolve() or p.resolve() in m.parents:
+                raise SlimsegError(
+                    f"--masks {masks} is inside {p}, which slam-eval --out {out} replaces: "
+                    "copy the masks elsewhere or choose another --out"
+                )
+    for p in owned:
+        if p.is_dir():
+            shutil.rmtree(p)
+
+
 def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[dict], RunInfo]:
     """Everything after option parsing; returns the summary rows and the table's header."""
     seq = plan.sequence
     vocab_label = check_engine(plan)
     say(f"intrinsics: {seq.camera_source} (fx {seq.camera.fx}, fy {seq.camera.fy}, "
         f"cx {seq.camera.cx}, cy {seq.camera.cy})")  # fmt: skip
+    _clean(out, plan.masks)
     gt = read_tum(seq.root / "groundtruth.txt")
     if len(gt) < 3:
         raise SlimsegError(f"{seq.root / 'groundtruth.txt'} has {len(gt)} poses: need 3 or more")
