@@ -30,6 +30,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--model", help="exported .onnx (or weights) for the mask modes")
     src.add_argument("--masks", type=Path, help="a slimseg dynamic output (masks/<ts>.png)")
+    src.add_argument(
+        "--gt-instances",
+        action="store_true",
+        help="mask modes from the sequence's annotations.json instances instead of a model "
+        "(synthetic sequences): the masking logic on perfect detections",
+    )
     p.add_argument(
         "--modes",
         default=None,
@@ -76,7 +82,8 @@ def parse_modes(text: str | None, have_model: bool, have_masks: bool) -> list[st
     wants_model = [n for n in names if n in MODES]
     if wants_model and not have_model:
         raise SlimsegError(
-            f"--modes {','.join(wants_model)} need --model X.onnx (or read masks with --masks)"
+            f"--modes {','.join(wants_model)} need --model X.onnx or --gt-instances (or read "
+            "masks with --masks)"
         )
     if "masks" in names and not have_masks:
         raise SlimsegError("--modes masks needs --masks DIR")
@@ -104,7 +111,9 @@ def run(args: argparse.Namespace) -> int:
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
-    names = parse_modes(args.modes, args.model is not None, args.masks is not None)
+    names = parse_modes(
+        args.modes, args.model is not None or args.gt_instances, args.masks is not None
+    )
     if args.runs < 1:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")
     seq = TumSequence(args.sequence)
@@ -115,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         sequence=seq,
         names=names,
         model=args.model,
+        gt_instances=args.gt_instances,
         masks=args.masks,
         restore=_restore_list(args.restore, names),
         engine=args.engine,

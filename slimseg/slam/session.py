@@ -46,6 +46,7 @@ class Plan:
     sequence: TumSequence
     names: list[str]
     model: str | None = None
+    gt_instances: bool = False
     masks: Path | None = None
     restore: tuple[str, ...] = ()
     """masked condition names (``--modes`` spelling) whose restored frames are evaluated"""
@@ -114,11 +115,19 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
                                     note=f"read from {folder}")  # fmt: skip
         elif name not in ("raw", "oracle"):
             if predictor is None:
-                from slimseg.deploy.predictor import Predictor
-
-                predictor = Predictor.from_path(plan.model, threads=plan.threads)
+                predictor = _predictor(plan)
             conds[name] = _mode_condition(plan, predictor, name, out, say)
     return conds
+
+
+def _predictor(plan: Plan) -> object:
+    if plan.gt_instances:
+        from slimseg.dynamic.annotations import AnnotationInstances
+
+        return AnnotationInstances(plan.sequence.root)
+    from slimseg.deploy.predictor import Predictor
+
+    return Predictor.from_path(plan.model, threads=plan.threads)
 
 
 def _mode_condition(
@@ -133,8 +142,10 @@ def _mode_condition(
     )  # fmt: skip
     ms = sum(rep.ms_per_frame.values())
     say(f"{mode}: masks for {rep.frames} frames in {folder / 'masks'} ({ms:.1f} ms/frame)")
-    note = f"slimseg dynamic --mode {mode} --conf {plan.conf}"
-    return Condition(mode, "masked", masks=folder / "masks", masking_ms=ms, note=note)
+    source = "--gt-instances" if plan.gt_instances else f"--conf {plan.conf}"
+    note = f"slimseg dynamic --mode {mode} {source}"
+    name = f"{mode} (gt instances)" if plan.gt_instances else mode
+    return Condition(name, "masked", masks=folder / "masks", masking_ms=ms, note=note)
 
 
 def restored_condition(
