@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,slam]"
 	touch $(STAMP)
 
 demo: $(STAMP)  ## the main job on the embedded default (no download)
@@ -31,6 +31,7 @@ bench: $(STAMP)  ## every benchmark, one after the other (ratios are measured wi
 	$(BIN)/python benchmarks/train_throughput.py
 	$(BIN)/python benchmarks/masking_logic.py
 	$(BIN)/python benchmarks/restoration.py
+	$(BIN)/python benchmarks/slam_engines.py
 
 reference: $(STAMP)  ## regenerate tests/reference/complexity.json; review the diff like code
 	$(BIN)/python tools/gen_complexity_reference.py

@@ -14,7 +14,13 @@ import time
 
 import numpy as np
 
-from slimseg.dynamic.pipeline import MODES, orb_keypoints, process_frame
+from slimseg.dynamic.pipeline import (
+    MODES,
+    FrameInputs,
+    FrameSettings,
+    orb_keypoints,
+    process_frame,
+)
 
 H, W = 480, 640
 
@@ -51,14 +57,8 @@ def main() -> None:
         for _ in range(50):
             t = time.perf_counter()
             process_frame(
-                kps,
-                boxes,
-                classes,
-                masks,
-                mobility,
-                (H, W),
-                mode,
-                depth,
+                inputs=FrameInputs(kps, boxes, classes, masks, (H, W), depth_m=depth),
+                settings=FrameSettings(mobility, mode),
                 rng=np.random.default_rng(1),
             )
             times.append(time.perf_counter() - t)

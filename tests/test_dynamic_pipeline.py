@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slimseg.dynamic.pipeline import MODES, orb_keypoints, process_frame
+from slimseg.dynamic.pipeline import (
+    MODES,
+    FrameInputs,
+    FrameSettings,
+    orb_keypoints,
+    process_frame,
+    process_modes,
+)
 
 HW = (60, 80)
 MOBILITY = np.array([1.0, 0.25], np.float32)  # person, chair
@@ -29,15 +36,8 @@ def _frame() -> tuple[np.ndarray, ...]:
 def test_modes_on_a_person_and_a_chair(mode: str) -> None:
     kps, boxes, classes, masks, depth = _frame()
     r = process_frame(
-        kps,
-        boxes,
-        classes,
-        masks,
-        MOBILITY,
-        HW,
-        mode,
-        depth,
-        min_static=10,
+        inputs=FrameInputs(kps, boxes, classes, masks, HW, depth_m=depth),
+        settings=FrameSettings(MOBILITY, mode, min_static=10),
         rng=np.random.default_rng(0),
     )
     on_person = (kps[:, 0] >= 8) & (kps[:, 0] < 30) & (kps[:, 1] >= 10) & (kps[:, 1] < 50)
@@ -56,7 +56,10 @@ def test_fusion_replaces_a_mask_too_thin_for_its_box() -> None:
     kps, boxes, classes, masks, _ = _frame()
     masks[0] = False
     masks[0, 10:12, 10:20] = True  # 20 px of a 1200-px box: s_o < 0.25
-    r = process_frame(kps, boxes, classes, masks, MOBILITY, HW, "fusion", min_static=10)
+    r = process_frame(
+        inputs=FrameInputs(kps, boxes, classes, masks, HW),
+        settings=FrameSettings(MOBILITY, "fusion", min_static=10),
+    )
     assert r.dynamic_frame and r.used_seg == [False, True]
 
 
@@ -65,3 +68,21 @@ def test_orb_finds_corners() -> None:
     img[30:90, 40:120] = 255
     img[50:70, 60:100] = 0
     assert len(orb_keypoints(img, 200)) > 4
+
+
+def test_process_modes_equals_one_mode_at_a_time() -> None:
+    kps, boxes, classes, masks, depth = _frame()
+    inputs = FrameInputs(kps, boxes, classes, masks, HW, depth_m=depth)
+    settings = FrameSettings(MOBILITY, min_static=10)
+    together = process_modes(
+        inputs=inputs, settings=settings, modes=MODES, rng=np.random.default_rng(0)
+    )
+    rng = np.random.default_rng(0)
+    for mode in MODES:
+        alone = process_frame(
+            inputs=inputs, settings=FrameSettings(MOBILITY, mode, min_static=10), rng=rng
+        )
+        assert np.array_equal(together[mode].dynamic, alone.dynamic), mode
+        assert np.array_equal(together[mode].mask, alone.mask) and together[mode].seconds > 0
+    with pytest.raises(ValueError, match="unknown mode"):
+        process_modes(inputs=inputs, settings=settings, modes=["segm"])

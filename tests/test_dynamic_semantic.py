@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from slimseg.dynamic.pipeline import process_frame
+from slimseg.dynamic.pipeline import FrameInputs, FrameSettings, process_frame
 from slimseg.dynamic.semantic import class_map_to_instances, instances_of
 
 
@@ -42,7 +42,10 @@ def test_semantic_person_points_become_dynamic() -> None:
     boxes, classes, masks = instances_of(pred)
     rng = np.random.default_rng(0)
     kps = rng.uniform(0, 100, (400, 2)).astype(np.float32)
-    result = process_frame(kps, boxes, classes, masks, np.array([1.0, 0.25]), (100, 100), "seg")
+    result = process_frame(
+        inputs=FrameInputs(kps, boxes, classes, masks, (100, 100)),
+        settings=FrameSettings(np.array([1.0, 0.25]), "seg"),
+    )
     x, y = (np.clip(np.round(kps[:, i]).astype(int), 0, 99) for i in (0, 1))  # as the logic
     on_person = cmap[y, x] == 1
     assert np.array_equal(result.dynamic, on_person)

@@ -18,7 +18,7 @@ from slimseg.dynamic.epipolar import (
     epipolar_distance,
     orb_features,
 )
-from slimseg.dynamic.pipeline import process_frame
+from slimseg.dynamic.pipeline import FrameInputs, FrameSettings, process_frame
 
 H, W = 240, 320
 FB = 12.0  # focal length (px) × baseline (m) of the camera step
@@ -105,19 +105,25 @@ def test_epipolar_modes_keep_only_the_mover_dynamic() -> None:
     mobility = np.array([1.0], np.float32)  # both are people
     boxes = np.array([[50, 50, 116, 140], [193, 57, 253, 147]], np.float32)
     seg = np.stack([masks["static"], masks["mover"]])
-    args = (f1.keypoints, boxes, np.array([0, 0]), seg, mobility, (H, W))
+    args = (f1.keypoints, boxes, np.array([0, 0]), seg, (H, W))
     on_static, on_mover = _on(seg[0], f1.keypoints), _on(seg[1], f1.keypoints)
-    plain = process_frame(*args, "seg", min_static=10)
+    plain = process_frame(
+        inputs=FrameInputs(*args), settings=FrameSettings(mobility, "seg", min_static=10)
+    )
     assert plain.dynamic[on_static].all() and plain.dynamic[on_mover].all()
     for mode in ("semantic+epipolar", "fusion+epipolar"):
         r = process_frame(
-            *args, mode, min_static=10, descriptors=f1.descriptors, previous=PreviousFrame(f0)
+            inputs=FrameInputs(*args, descriptors=f1.descriptors, previous=PreviousFrame(f0)),
+            settings=FrameSettings(mobility, mode, min_static=10),
         )
         assert r.checked == [0, 1]
         assert not r.dynamic[on_static].any()
         assert r.dynamic[on_mover].all()
         assert r.mask[masks["mover"]].all() and not r.mask[masks["static"]].any()
-        first = process_frame(*args, mode, min_static=10, descriptors=f1.descriptors)
+        first = process_frame(
+            inputs=FrameInputs(*args, descriptors=f1.descriptors),
+            settings=FrameSettings(mobility, mode, min_static=10),
+        )
         assert np.array_equal(first.dynamic, plain.dynamic)  # no previous frame: like seg
 
 
@@ -128,16 +134,16 @@ def test_too_few_points_stay_undecided_and_dynamic() -> None:
     r = check_motion(f0, f1, tiny[None])
     assert not r.decided[0] and not r.moving[0]
     out = process_frame(
-        f1.keypoints,
-        np.array([[60, 60, 63, 63]], np.float32),
-        np.array([0]),
-        tiny[None],
-        np.array([1.0], np.float32),
-        (H, W),
-        "semantic+epipolar",
-        min_static=10,
-        descriptors=f1.descriptors,
-        previous=PreviousFrame(f0),
+        inputs=FrameInputs(
+            f1.keypoints,
+            np.array([[60, 60, 63, 63]], np.float32),
+            np.array([0]),
+            tiny[None],
+            (H, W),
+            descriptors=f1.descriptors,
+            previous=PreviousFrame(f0),
+        ),
+        settings=FrameSettings(np.array([1.0], np.float32), "semantic+epipolar", min_static=10),
     )
     on_tiny = _on(tiny, f1.keypoints)
     assert on_tiny.any() and out.dynamic[on_tiny].all()
@@ -162,12 +168,13 @@ def test_bad_input_is_reported() -> None:
         OrbFeatures(np.zeros((3, 2), np.float32), np.zeros((2, 32), np.uint8))
     with pytest.raises(ValueError, match="descriptors="):
         process_frame(
-            f1.keypoints,
-            np.array([[0, 0, 10, 10]], np.float32),
-            np.array([0]),
-            masks["mover"][None],
-            np.array([1.0], np.float32),
-            (H, W),
-            "fusion+epipolar",
-            previous=PreviousFrame(f0),
+            inputs=FrameInputs(
+                f1.keypoints,
+                np.array([[0, 0, 10, 10]], np.float32),
+                np.array([0]),
+                masks["mover"][None],
+                (H, W),
+                previous=PreviousFrame(f0),
+            ),
+            settings=FrameSettings(np.array([1.0], np.float32), "fusion+epipolar"),
         )

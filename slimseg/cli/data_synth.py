@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slimseg.data.synth.presets import PRESETS
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register the ``synth`` subcommand on ``sub`` (sets ``run``)."""
@@ -28,6 +30,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sequences", type=int, default=0, help="TUM-style RGB-D sequences (default 0)")
     p.add_argument(
         "--frames", type=int, default=60, help="frames per sequence at 30 Hz (default 60)"
+    )
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default=None,
+        help="sequences modelled on TUM fr3: walking_xyz (camera moves tens of cm along x/y/z), "
+        "walking_static, walking_halfsphere, sitting_static; 2-3 people close to the camera "
+        "(default: the small-motion sequences)",
     )
     p.add_argument(
         "--seq-size",
@@ -63,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         seq_size=tuple(args.seq_size),
         overwrite=args.overwrite,
         progress=not args.quiet,
+        preset=args.preset,
     )
     print(report.summary())
     return 0

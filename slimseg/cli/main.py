@@ -7,11 +7,24 @@ import sys
 from collections.abc import Sequence
 
 from slimseg import __version__
-from slimseg.cli import ablate, bench, data, demo, dynamic, export, info, predict, train, val
+from slimseg.cli import (
+    ablate,
+    bench,
+    data,
+    demo,
+    dynamic,
+    export,
+    info,
+    predict,
+    slam,
+    slam_eval,
+    train,
+    val,
+)
 from slimseg.errors import SlimsegError
 
 # Each command module exposes ``add_parser(subparsers)`` and ``run(args) -> int``.
-COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic)
+COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic, slam_eval, slam)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -17,6 +17,8 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
 
 from __future__ import annotations
 
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -24,7 +26,12 @@ import numpy as np
 
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.fusion import box_masks, dilate, fuse_seg_box
-from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
+from slimseg.dynamic.threshold import (
+    M_TH_START,
+    adaptive_threshold,
+    is_dynamic_frame,
+    keypoint_mobility,
+)
 
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
 EPIPOLAR_MODES = {"semantic+epipolar": "seg", "fusion+epipolar": "fusion"}
@@ -43,6 +50,8 @@ class FrameResult:
     epipolar: EpipolarResult | None = None
     """epipolar modes: the check's outcome for the detections listed in ``checked``"""
     checked: list[int] = field(default_factory=list)
+    seconds: float = 0.0
+    """time this mode took (the shared epipolar check counts for the first mode needing it)"""
 
     @property
     def counts(self) -> dict[str, int]:
@@ -58,55 +67,105 @@ def orb_keypoints(rgb: np.ndarray, count: int = 1000) -> np.ndarray:
     return np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
 
 
-def process_frame(
-    keypoints: np.ndarray,
-    boxes: np.ndarray,
-    classes: np.ndarray,
-    masks: np.ndarray | None,
-    class_mobility: np.ndarray,
-    hw: tuple[int, int],
-    mode: str = "fusion",
-    depth_m: np.ndarray | None = None,
-    min_static: int = 100,
-    dilation_px: int = 0,
-    dynamic_mobility: float = 0.25,
-    rng: np.random.Generator | None = None,
-    descriptors: np.ndarray | None = None,
-    previous: PreviousFrame | None = None,
-) -> FrameResult:
-    """Classify ``keypoints [N, 2]`` of one ``hw`` frame given detections in frame pixels:
-    ``boxes [M, 4]`` xyxy, ``classes [M]``, ``masks bool [M, H, W]`` (None: detector only),
-    ``class_mobility [K]`` priors; ``depth_m [H, W]`` metres for depth-RANSAC.
+@dataclass(frozen=True)
+class FrameInputs:
+    """What one frame brings, in frame pixels: ``keypoints float32 [N, 2]`` (x, y),
+    detections ``boxes [M, 4]`` xyxy, ``classes int [M]``, ``masks bool [M, H, W]`` (None:
+    detector only), frame size ``hw``; ``depth_m float32 [H, W]`` metres (depth-RANSAC);
+    epipolar modes: ``descriptors uint8 [N, 32]`` (ORB, see ``epipolar.orb_features``) and
+    the ``previous`` frame's features (None on the first frame: no check)."""
 
-    Epipolar modes: ``descriptors uint8 [N, 32]`` are the ORB descriptors of ``keypoints`` (see
-    ``epipolar.orb_features``) and ``previous`` the previous frame's features (None on the
-    first frame: no check, the mode behaves like its base mode)."""
-    if mode not in MODES:
-        raise ValueError(f"unknown mode {mode!r}; valid: {list(MODES)}")
-    mob = np.asarray(class_mobility, np.float32)[np.asarray(classes, int)]
-    boxes = np.asarray(boxes, np.float32).reshape(-1, 4)
-    if mode in ("seg", "fusion", *EPIPOLAR_MODES) and masks is None:
-        raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
-    epi, checked = None, []
-    if mode in EPIPOLAR_MODES:
-        mob, epi, checked = _epipolar_priors(
-            keypoints, descriptors, previous, masks, mob, dynamic_mobility
-        )
-        mode = EPIPOLAR_MODES[mode]
+    keypoints: np.ndarray
+    boxes: np.ndarray
+    classes: np.ndarray
+    masks: np.ndarray | None
+    hw: tuple[int, int]
+    depth_m: np.ndarray | None = None
+    descriptors: np.ndarray | None = None
+    previous: PreviousFrame | None = None
+
+
+@dataclass(frozen=True)
+class FrameSettings:
+    """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
+    ``min_static`` points, ``dilation_px`` around masks, and ``dynamic_mobility``: the prior
+    above which a class counts as dynamic (boxes of depth-RANSAC, epipolar candidates),
+    Eq. 1's starting threshold by default."""
+
+    class_mobility: np.ndarray
+    mode: str = "fusion"
+    min_static: int = 100
+    dilation_px: int = 0
+    dynamic_mobility: float = M_TH_START
+
+
+def process_frame(
+    *, inputs: FrameInputs, settings: FrameSettings, rng: np.random.Generator | None = None
+) -> FrameResult:
+    """Classify the keypoints of one frame with ``settings.mode``; ``rng`` drives
+    depth-RANSAC's sampling. Epipolar modes: see the module docstring."""
+    return process_modes(inputs=inputs, settings=settings, modes=(settings.mode,), rng=rng)[
+        settings.mode
+    ]
+
+
+def process_modes(
+    *,
+    inputs: FrameInputs,
+    settings: FrameSettings,
+    modes: Sequence[str],
+    rng: np.random.Generator | None = None,
+) -> dict[str, FrameResult]:
+    """:func:`process_frame` for several ``modes`` of the same frame (``settings.mode`` is
+    ignored), in the given order; the epipolar check runs once and serves both epipolar
+    modes (its time counts for the first of them). Returns ``{mode: FrameResult}``."""
+    bad = [m for m in modes if m not in MODES]
+    if bad:
+        raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
+    mob = np.asarray(settings.class_mobility, np.float32)[np.asarray(inputs.classes, int)]
+    check = None
+    out = {}
+    for mode in modes:
+        t0 = time.perf_counter()
+        if mode in ("seg", "fusion", *EPIPOLAR_MODES) and inputs.masks is None:
+            raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
+        if mode in EPIPOLAR_MODES:
+            if check is None:
+                check = _epipolar_priors(inputs, mob, settings.dynamic_mobility)
+            priors, epi, checked = check
+            res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng)
+            res.epipolar, res.checked = epi, list(checked)
+        else:
+            res = _one_mode(inputs, settings, mode, mob, rng)
+        res.seconds = time.perf_counter() - t0
+        out[mode] = res
+    return out
+
+
+def _one_mode(
+    inputs: FrameInputs,
+    settings: FrameSettings,
+    mode: str,
+    mob: np.ndarray,
+    rng: np.random.Generator | None,
+) -> FrameResult:
+    keypoints, hw, masks = inputs.keypoints, inputs.hw, inputs.masks
+    boxes = np.asarray(inputs.boxes, np.float32).reshape(-1, 4)
     used_seg: list[bool] = []
     if mode == "box+depth-ransac":
         from slimseg.dynamic.depth_ransac import screen_box_keypoints
 
-        if depth_m is None:
+        if inputs.depth_m is None:
             raise ValueError("mode 'box+depth-ransac' needs a depth image")
-        movers = boxes[mob > dynamic_mobility]
-        dynamic = screen_box_keypoints(keypoints, depth_m, movers, rng=rng)
+        movers = boxes[mob > settings.dynamic_mobility]
+        dynamic = screen_box_keypoints(keypoints, inputs.depth_m, movers, rng=rng)
         region = box_masks(movers, hw).any(0) if len(movers) else np.zeros(hw, bool)
         flag = bool(dynamic.mean() > 0) if len(dynamic) else False
-        return FrameResult(dynamic, _mask(region, dilation_px), None, flag)
+        return FrameResult(dynamic, _mask(region, settings.dilation_px), None, flag)
     regions = box_masks(boxes, hw) if mode == "box" else masks.astype(bool)
-    if dilation_px > 0:  # points near a mask edge belong to the object (ORB patches straddle it)
-        regions = np.stack([dilate(r, dilation_px) for r in regions]) if len(regions) else regions
+    if settings.dilation_px > 0:  # points near a mask edge belong to the object (ORB patches)
+        px = settings.dilation_px
+        regions = np.stack([dilate(r, px) for r in regions]) if len(regions) else regions
     point_mob = keypoint_mobility(keypoints, regions, mob)
     # Eq. 3 counts points inside the detection boxes: a frame whose masks came out too thin is
     # exactly the one that needs the box fallback of Eq. 4
@@ -115,25 +174,24 @@ def process_frame(
         regions, used = fuse_seg_box(regions, boxes)
         used_seg = used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
-    result = adaptive_threshold(point_mob, min_static)
+    result = adaptive_threshold(point_mob, settings.min_static)
     if result.m_th is None:
         region = np.zeros(hw, bool)
     else:
         region = regions[mob > result.m_th].any(0) if len(regions) else np.zeros(hw, bool)
-    return FrameResult(
-        result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg, epi, checked
-    )
+    return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg)
 
 
 def _epipolar_priors(
-    keypoints: np.ndarray,
-    descriptors: np.ndarray | None,
-    previous: PreviousFrame | None,
-    masks: np.ndarray,
-    mob: np.ndarray,
-    dynamic_mobility: float,
+    inputs: FrameInputs, mob: np.ndarray, dynamic_mobility: float
 ) -> tuple[np.ndarray, EpipolarResult | None, list[int]]:
     """Mobility priors with the detections the epipolar check finds static set to 0."""
+    keypoints, descriptors, previous, masks = (
+        inputs.keypoints,
+        inputs.descriptors,
+        inputs.previous,
+        inputs.masks,
+    )
     candidates = np.flatnonzero(mob > dynamic_mobility)
     if previous is None or len(candidates) == 0:
         return mob, None, []

@@ -1,6 +1,6 @@
 """Run the reference masking logic over a TUM RGB-D sequence, optionally scoring it.
 
-Per frame: model → detections in frame pixels → ORB keypoints → ``process_frame`` for the
+Per frame: model → detections in frame pixels → ORB keypoints → ``process_modes`` for the
 chosen mode → ``masks/<rgb timestamp>.png`` (uint8, 255 = dynamic; the offline mask-cache
 convention of DynaSLAM-style runtimes) and a CSV row. When the sequence has ground-truth
 ``dynamic/`` masks (the synthetic generator writes them), every mode is scored on the same
@@ -28,10 +28,19 @@ from tqdm import tqdm
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
-from slimseg.dynamic.pipeline import EPIPOLAR_MODES, MODES, FrameResult, process_frame
+from slimseg.dynamic.pipeline import (
+    EPIPOLAR_MODES,
+    MODES,
+    FrameInputs,
+    FrameResult,
+    FrameSettings,
+    process_modes,
+)
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.utils.atomic import write_png
+
+BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
 
 
 @dataclass
@@ -90,6 +99,9 @@ def run_sequence(
     step = max(len(seq.frames) // 6, 1)
     gt_instances = isinstance(predictor, AnnotationInstances)
     previous: PreviousFrame | None = None
+    settings = FrameSettings(
+        class_mobility=mobility, mode=mode, min_static=min_static, dilation_px=dilation_px
+    )
     for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
         rgb, depth, stamp = seq.load(i)
         t0 = time.perf_counter()
@@ -99,10 +111,17 @@ def run_sequence(
         kps = feats.keypoints
         hw = rgb.shape[:2]
         boxes, classes, masks = instances_of(pred)  # semantic maps: one object per component
-        args = (kps, boxes, classes, masks, mobility, hw)
-        extra = {"rng": rng, "descriptors": feats.descriptors, "previous": previous}
-        result = process_frame(*args, mode, depth, min_static, dilation_px, **extra)
-        t_logic += time.perf_counter() - t1
+        t_prep = time.perf_counter() - t1
+        inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors, previous)
+        modes = [mode]
+        if report.scores:  # every mode on the same detections and keypoints
+            modes += [m for m in MODES if m != mode and (masks is not None or m in BOX_MODES)]
+        count_epi = gt_instances and previous is not None and pred.masks is not None
+        if count_epi and mode not in EPIPOLAR_MODES and "semantic+epipolar" not in modes:
+            modes.append("semantic+epipolar")
+        results = process_modes(inputs=inputs, settings=settings, modes=modes, rng=rng)
+        result = results[mode]
+        t_logic += t_prep + result.seconds  # the chosen mode only, not the scoring of the rest
         t_model += t1 - t0
         name = mask_name(stamp)
         write_png(out / "masks" / name, result.mask)
@@ -123,22 +142,15 @@ def run_sequence(
                 report.skipped.append(str(gt_dir / name))
             else:
                 truth = _at(gt > 0, kps)
-                for m in MODES:
-                    if m == mode:
-                        dyn = result.dynamic
-                    elif m in ("seg", "fusion", *EPIPOLAR_MODES) and masks is None:
-                        continue
-                    else:
-                        dyn = process_frame(
-                            *args, m, depth, min_static, dilation_px, **extra
-                        ).dynamic
+                for m, res in results.items():
                     s = report.scores[m]
-                    s.tp += int((dyn & truth).sum())
-                    s.fp += int((dyn & ~truth).sum())
-                    s.fn += int((~dyn & truth).sum())
-                    s.tn += int((~dyn & ~truth).sum())
-        if gt_instances and previous is not None and pred.masks is not None:
-            _count_epipolar(report, predictor, stamp, result, args, depth, extra, mode)
+                    s.tp += int((res.dynamic & truth).sum())
+                    s.fp += int((res.dynamic & ~truth).sum())
+                    s.fn += int((~res.dynamic & truth).sum())
+                    s.tn += int((~res.dynamic & ~truth).sum())
+        if count_epi:
+            epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
+            _count_epipolar(report, predictor, stamp, results[epi_mode])
         if epipolar_depth:
             cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
             previous = PreviousFrame(feats, depth, cam)
@@ -156,18 +168,10 @@ def run_sequence(
 
 
 def _count_epipolar(
-    report: SequenceReport,
-    instances: AnnotationInstances,
-    stamp: float,
-    result: FrameResult,
-    args: tuple,
-    depth: np.ndarray,
-    extra: dict,
-    mode: str,
+    report: SequenceReport, instances: AnnotationInstances, stamp: float, result: FrameResult
 ) -> None:
-    """Tally the epipolar decisions of this frame's instances against their ``moving`` flag."""
-    if mode not in EPIPOLAR_MODES:
-        result = process_frame(*args, "semantic+epipolar", depth, **extra)
+    """Tally an epipolar mode's decisions on this frame's instances against their ``moving``
+    flag (``result``: that mode's outcome, with the check it ran)."""
     epi = result.epipolar
     if epi is None:
         return

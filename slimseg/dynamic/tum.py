@@ -14,6 +14,7 @@ at most once, pairs further apart than ``max_dt`` (0.02 s) dropped.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,12 +22,15 @@ import cv2
 import numpy as np
 import yaml
 
+from slimseg.dynamic.intrinsics import CALIBRATIONS, DEFAULT, TUM_DEPTH_SCALE, calibration_for
 from slimseg.errors import SlimsegError
+
+log = logging.getLogger(__name__)
 
 Stamped = tuple[float, str]
 
-# TUM freiburg1 defaults (the TUM "Intrinsic Camera Calibration" page; depth factor 5000).
-TUM_FR1 = {"fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3, "depth_scale": 5000.0}
+# TUM freiburg1: the fallback for a folder whose name and files say nothing (see intrinsics)
+TUM_FR1 = {**CALIBRATIONS["tum-fr1"], "depth_scale": TUM_DEPTH_SCALE}
 MAX_DT = 0.02  # s, associate.py's default max_difference
 
 
@@ -188,8 +192,10 @@ class TumSequence:
     """A TUM-layout RGB-D sequence folder.
 
     ``frames``: associated ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs (paths relative
-    to ``root``); ``camera``: :class:`Camera` from ``camera.yaml`` if present, else TUM fr1
-    defaults (fx 517.3, fy 516.5, cx 318.6, cy 255.3, depth scale 5000). Raises
+    to ``root``); ``camera``: :class:`Camera` from ``camera.yaml`` if present, else the
+    published calibration the folder name points at (``freiburg3`` → TUM fr3, ``bonn`` →
+    Bonn; :mod:`slimseg.dynamic.intrinsics`), else TUM fr1; ``camera_source`` says which
+    (``"camera.yaml"``, ``"tum-fr3 (folder name)"``, ``"tum-fr1 (default)"``). Raises
     ``SlimsegError`` when a list is missing or malformed or no frame pair associates.
     """
 
@@ -210,7 +216,15 @@ class TumSequence:
                 f"{len(lists['depth.txt'])} depth entries, no pair within {max_dt} s"
             )
         cam = self.root / "camera.yaml"
-        self.camera = read_camera(cam) if cam.is_file() else Camera(**TUM_FR1)
+        if cam.is_file():
+            self.camera, self.camera_source = read_camera(cam), "camera.yaml"
+        else:
+            key = calibration_for(self.root)
+            source = f"{key} (folder name)" if key else f"{DEFAULT} (default)"
+            key = key or DEFAULT
+            self.camera = Camera(**CALIBRATIONS[key], depth_scale=TUM_DEPTH_SCALE)
+            self.camera_source = source
+            log.info("sequence %s: intrinsics %s", self.root, source)
 
     def __len__(self) -> int:
         return len(self.frames)

@@ -25,3 +25,20 @@ TABLE2 = {
 }
 TABLE2_NUM_CLASSES = 20
 TABLE2_IMGSZ = 640
+
+
+# Substation paper, Table III: ATE RMSE / std (m) on TUM fr3 dynamic sequences, real
+# recordings, official ORB vocabulary. sequence -> (ORB-SLAM3 rmse, std, method rmse, std)
+TABLE3_ATE: dict[str, tuple[float, float, float, float]] = {
+    "fr3/walking_xyz": (0.2686, 0.1095, 0.0179, 0.0084),
+    "fr3/walking_static": (0.0174, 0.0103, 0.0081, 0.0034),
+    "fr3/walking_half": (0.1759, 0.0683, 0.0247, 0.0124),
+    "fr3/walking_rpy": (0.1507, 0.0681, 0.0816, 0.0470),
+}
+# YOLO-SLAM's ablation on fr3/walking_xyz, ATE RMSE (m): configuration -> value
+YOLO_SLAM_WALKING_XYZ_ATE: dict[str, float] = {
+    "ORB-SLAM2": 0.7521,
+    "boxes only": 0.0159,
+    "depth-RANSAC only": 0.1437,
+    "boxes + depth-RANSAC": 0.0146,
+}

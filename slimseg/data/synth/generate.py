@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES
 from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
+from slimseg.data.synth.presets import PRESETS
 from slimseg.data.synth.scene import STREAM_TRAIN, STREAM_VAL, render_image
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.errors import SlimsegError
@@ -89,6 +90,7 @@ def generate(
     seq_size: tuple[int, int] = (640, 480),
     overwrite: bool = False,
     progress: bool = True,
+    preset: str | None = None,
 ) -> SynthReport:
     """Render and write the dataset into ``out``; returns a :class:`SynthReport`.
 
@@ -96,9 +98,12 @@ def generate(
     ``out/{train,val}/annotations.json`` (COCO, RLE), ``out/sequences/seq_KKK/`` (TUM layout,
     see :mod:`slimseg.data.synth.sequence`) and ``out/data.yaml``, written last. Every file is
     written atomically. ``overwrite`` first deletes only what this function writes
-    (``train/``, ``val/``, ``sequences/``, ``data.yaml``). Raises ``SlimsegError`` on bad input.
+    (``train/``, ``val/``, ``sequences/``, ``data.yaml``). ``preset``: the sequences' camera
+    path and walkers (:mod:`slimseg.data.synth.presets`). Raises ``SlimsegError`` on bad input.
     """
     out = Path(out)
+    if preset is not None and preset not in PRESETS:
+        raise SlimsegError(f"--preset {preset!r}: valid presets are {sorted(PRESETS)}")
     _check(out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite)
     start = time.perf_counter()
     if overwrite and out.is_dir():
@@ -117,7 +122,7 @@ def generate(
             report.images[split] = n
         for s in range(sequences):
             counts = write_sequence(
-                out / "sequences" / f"seq_{s:03d}", seed, s, frames, seq_size, bar.update
+                out / "sequences" / f"seq_{s:03d}", seed, s, frames, seq_size, bar.update, preset
             )
             report.sequence_instances += counts["instances"]
     _write_data_yaml(out, seed, imgsz, sequences)

@@ -28,6 +28,7 @@ import numpy as np
 from slimseg.data.synth.camera import Intrinsics, Pose, Room, project, render_room
 from slimseg.data.synth.categories import BY_NAME, CATEGORIES
 from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
+from slimseg.data.synth.presets import PRESETS, preset_motion
 from slimseg.data.synth.scene import (
     DEPTH_SCALE,
     STREAM_SEQUENCE,
@@ -42,12 +43,14 @@ from slimseg.data.synth.scene import (
     sample_noise,
 )
 from slimseg.data.synth.shapes import Style, sample_style, walking_pose
+from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png, write_text, write_yaml
 
 FPS = 30.0
 T0_US = 1_305_031_102_175_304  # first colour timestamp (microseconds), a TUM-like epoch
 DEPTH_OFFSET_US = 5_000  # depth frames are stamped 5 ms after colour: exercises association
 STREAM_SEQUENCE_NOISE = STREAM_SEQUENCE + 1
+STREAM_SEQUENCE_PRESET = STREAM_SEQUENCE + 2
 
 
 def timestamp(frame: int, offset_us: int = 0) -> str:
@@ -126,10 +129,19 @@ def camera_pose(
     )
 
 
-def build_world(seed: int, index: int, frames: int, width: int = 640, height: int = 480) -> World:
+def build_world(
+    seed: int,
+    index: int,
+    frames: int,
+    width: int = 640,
+    height: int = 480,
+    preset: str | None = None,
+) -> World:
     """Random room, 3-6 static objects (sometimes a standing person), 1-3 walkers, camera path.
 
-    Deterministic in ``(seed, index)``; ``frames`` only bounds the camera path.
+    Deterministic in ``(seed, index, preset)``; ``frames`` only bounds the camera path.
+    ``preset`` (a :data:`~slimseg.data.synth.presets.PRESETS` name) replaces the camera path
+    and the walkers; None keeps the default sequences byte for byte.
     """
     rng = frame_rng(seed, index, STREAM_SEQUENCE)
     k = Intrinsics.tum(width, height)
@@ -189,6 +201,8 @@ def build_world(seed: int, index: int, frames: int, width: int = 640, height: in
                 amplitude=float(rng.uniform(0.35, 0.5)),
             )
         )
+    if preset is not None:
+        motion, drift = _apply_preset(preset, seed, index, things, n_static, floor_y, half_fov)
     poses = [camera_pose(motion, drift, i / FPS) for i in range(frames)]
     room = make_room(rng, k, poses, wall_z, floor_y, clutter=0.6)
     sensor = Sensor(
@@ -201,7 +215,55 @@ def build_world(seed: int, index: int, frames: int, width: int = 640, height: in
         holes=int(rng.integers(0, 3)),
     )
     world = World(k, room, things, sensor, motion, drift, seed, index, frames)
+    if preset is not None:
+        world.meta["preset"] = preset
     return world
+
+
+def _apply_preset(
+    name: str,
+    seed: int,
+    index: int,
+    things: list[Thing],
+    n_static: int,
+    floor_y: float,
+    half_fov: float,
+) -> tuple[dict[str, tuple[float, float, float]], tuple[float, float]]:
+    """Replace the walkers in ``things`` (in place) and return the preset's camera path."""
+    if name not in PRESETS:
+        raise SlimsegError(f"unknown sequence preset {name!r}; valid: {sorted(PRESETS)}")
+    preset = PRESETS[name]
+    rng = frame_rng(seed, index, STREAM_SEQUENCE_PRESET)
+    del things[n_static:]
+    lo_n, hi_n = preset.walkers
+    for j in range(int(rng.integers(lo_n, hi_n + 1))):
+        z = float(rng.uniform(*preset.walker_z))
+        speed = float(rng.uniform(*preset.speed))
+        if preset.pace_m is None:  # cross the whole view, as the default walkers do
+            x, span = 0.0, 2 * (z * half_fov + 0.5)
+        else:  # shift in place around a spot in the central part of the view
+            x, span = float(z * half_fov * rng.uniform(-0.5, 0.5)), preset.pace_m
+        style = sample_style("person", rng).with_params(tilt=float(rng.normal(0, 0.03)))
+        lo, hi = BY_NAME["person"].height_m
+        things.append(
+            Thing(
+                style,
+                x=x,
+                z=z,
+                bottom=floor_y,
+                height=float(rng.uniform(lo, hi)),
+                track_id=n_static + j,
+                moving=True,
+                speed=speed,
+                span=span,
+                offset=float(rng.uniform(0, 2 * span)),
+                sway=float(rng.uniform(0.0, 0.2)),
+                cadence=speed / float(rng.uniform(1.1, 1.5)),
+                phase=float(rng.uniform(0, 2 * np.pi)),
+                amplitude=float(rng.uniform(0.35, 0.5)),
+            )
+        )
+    return preset_motion(preset, rng), (0.0, 0.0)
 
 
 @dataclass
@@ -284,17 +346,19 @@ def write_sequence(
     frames: int,
     size: tuple[int, int] = (640, 480),
     on_frame: Callable[[], None] | None = None,
+    preset: str | None = None,
 ) -> dict[str, int]:
     """Render and write sequence ``index`` into ``folder`` (TUM layout, see module doc).
 
     Returns counts: ``frames``, ``instances`` and per-category annotation counts.
-    ``on_frame`` is called after each frame (progress bars).
+    ``on_frame`` is called after each frame (progress bars). ``preset``: see
+    :mod:`slimseg.data.synth.presets` (None: the default sequences).
     """
-    world = build_world(seed, index, frames, *size)
+    world = build_world(seed, index, frames, *size, preset=preset)
     k = world.k
     for sub in ("rgb", "depth", "dynamic", "background/rgb", "background/depth"):
         (folder / sub).mkdir(parents=True, exist_ok=True)
-    name = f"slimseg_synth_seq_{index:03d}"
+    name = f"slimseg_synth_{preset or 'seq'}_{index:03d}"
     coco = CocoBuilder(f"slimseg synthetic RGB-D sequence {index} (seed {seed})")
     rgb_lines, depth_lines, gt_lines = [], [], []
     counts: dict[str, int] = {"frames": frames}

@@ -1,0 +1,63 @@
+"""``slimseg slam vocab``: build a DBoW2 ORB vocabulary from frames (offline ORB-SLAM3)."""
+
+from __future__ import annotations
+
+import argparse
+import glob
+from pathlib import Path
+
+from slimseg.errors import SlimsegError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "slam",
+        help="SLAM helpers: vocab (DBoW2 ORB vocabulary for ORB-SLAM3)",
+        description="Helpers for the SLAM engines used by slimseg slam-eval.",
+    )
+    actions = p.add_subparsers(dest="action", metavar="<action>", required=True)
+    v = actions.add_parser(
+        "vocab",
+        help="build a DBoW2 text vocabulary from ORB descriptors of frames",
+        description="Cluster the ORB descriptors of the given frames into a k-ary tree of "
+        "binary words (k-majority per level, idf weights) and write it in DBoW2's text format, "
+        "which ORB-SLAM3 loads like ORBvoc.txt. Results made with it are marked non-official.",
+    )
+    v.add_argument("--images", nargs="+", required=True, help="image files or glob patterns")
+    v.add_argument("--out", type=Path, required=True, help="vocabulary text file to write")
+    v.add_argument("--k", type=int, default=10, help="children per node (default 10)")
+    v.add_argument("--levels", type=int, default=4, help="tree depth L (default 4)")
+    v.add_argument("--per-image", type=int, default=1000, help="ORB features per image")
+    v.add_argument("--max-images", type=int, default=300, help="evenly subsample to this many")
+    v.add_argument("--seed", type=int, default=0)
+    v.set_defaults(run=run_vocab)
+
+
+def expand_images(patterns: list[str], max_images: int) -> list[Path]:
+    """Files named or matched by ``patterns`` (sorted, unique), evenly thinned to at most
+    ``max_images``. Raises ``SlimsegError`` when nothing matches."""
+    files: set[Path] = set()
+    for pat in patterns:
+        matches = [pat] if Path(pat).is_file() else glob.glob(pat, recursive=True)
+        files.update(Path(m) for m in matches if Path(m).is_file())
+    if not files:
+        raise SlimsegError(f"--images {' '.join(patterns)} matched no file")
+    paths = sorted(files)
+    if max_images < 1:
+        raise SlimsegError(f"--max-images {max_images} must be at least 1")
+    if len(paths) > max_images:
+        step = len(paths) / max_images
+        paths = [paths[int(i * step)] for i in range(max_images)]
+    return paths
+
+
+def run_vocab(args: argparse.Namespace) -> int:
+    from slimseg.slam.vocab import build_vocabulary
+
+    paths = expand_images(args.images, args.max_images)
+    info = build_vocabulary(paths, args.out, args.k, args.levels, args.per_image, args.seed)
+    print(
+        f"vocabulary {info.path}: {len(paths)} images, {info.nodes} nodes, {info.words} words "
+        f"(k={info.k}, L={info.levels}; non-official: results made with it are marked so)"
+    )
+    return 0

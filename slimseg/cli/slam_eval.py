@@ -1,0 +1,153 @@
+"""``slimseg slam-eval``: ORB-SLAM3 (or dense odometry) with and without the masks, ATE/RPE."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from slimseg.dynamic.pipeline import MODES
+from slimseg.errors import SlimsegError
+
+SPECIAL = ("raw", "gt", "oracle")
+DEFAULT_MODES = "raw,gt,oracle,fusion"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "slam-eval",
+        help="trajectory error (ATE/RPE, evo) of ORB-SLAM3 on raw vs masked RGB-D frames",
+        description="Run ORB-SLAM3 RGB-D (pyorbslam3) or a dense RGB odometry on a TUM-layout "
+        "sequence once per condition - raw frames, each mode's dynamic masks (computed as "
+        "slimseg dynamic does, or read from --masks), ground-truth masks, restored frames "
+        "(--restore), the true static background of a synthetic sequence - and score every "
+        "trajectory with evo against groundtruth.txt. Writes per-run TUM trajectories, "
+        "results.csv, runs.csv, results.md and trajectories.png. Needs pip install "
+        "'slimseg[slam]' (pyorbslam3 and evo, GPL-3.0).",
+    )
+    p.add_argument("--sequence", required=True, type=Path, help="TUM-layout folder")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--model", help="exported .onnx (or weights) for the mask modes")
+    src.add_argument("--masks", type=Path, help="a slimseg dynamic output (masks/<ts>.png)")
+    src.add_argument(
+        "--gt-instances",
+        action="store_true",
+        help="mask modes from the sequence's annotations.json instances instead of a model "
+        "(synthetic sequences): the masking logic on perfect detections",
+    )
+    p.add_argument(
+        "--modes",
+        default=None,
+        help=f"comma list of conditions: raw, gt, oracle and mask modes {', '.join(MODES)} "
+        f"(default: {DEFAULT_MODES} with --model, raw,gt,oracle,masks with --masks, else "
+        "raw,gt,oracle; gt/oracle are skipped where the sequence lacks dynamic/ or background/)",
+    )
+    p.add_argument(
+        "--restore",
+        nargs="?",
+        const="all",
+        default=None,
+        metavar="CONDITIONS",
+        help="also evaluate PatchMatch-restored frames of the masked conditions (all, or a "
+        "comma list such as gt,fusion)",
+    )
+    p.add_argument("--engine", choices=("orbslam3", "dense"), default="orbslam3")
+    p.add_argument("--runs", type=int, default=3, help="ORB-SLAM3 runs per condition")
+    p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--json", action="store_true", help="print the results table as JSON")
+    p.add_argument("--conf", type=float, default=0.25, help="detector confidence (mask modes)")
+    p.add_argument("--keypoints", type=int, default=1000, help="ORB features (mask modes)")
+    p.add_argument("--dilation", type=int, default=2, help="px added around removed regions")
+    p.add_argument("--features", type=int, default=1000, help="ORB-SLAM3 ORB features")
+    p.add_argument(
+        "--no-realtime", action="store_true", help="feed frames as fast as tracking goes"
+    )
+    p.add_argument("--threads", type=int, default=None, help="model threads")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(run=run)
+
+
+def parse_modes(text: str | None, have_model: bool, have_masks: bool) -> list[str]:
+    """Validated condition names in order (duplicates dropped)."""
+    if text is None:
+        text = DEFAULT_MODES if have_model else ("raw,gt,oracle,masks" if have_masks else
+                                                 "raw,gt,oracle")  # fmt: skip
+    names = list(dict.fromkeys(t.strip() for t in text.split(",") if t.strip()))
+    valid = (*SPECIAL, *MODES, "masks")
+    bad = [n for n in names if n not in valid]
+    if bad:
+        raise SlimsegError(f"--modes: unknown {', '.join(bad)}; valid: {', '.join(valid)}")
+    wants_model = [n for n in names if n in MODES]
+    if wants_model and not have_model:
+        raise SlimsegError(
+            f"--modes {','.join(wants_model)} need --model X.onnx or --gt-instances (or read "
+            "masks with --masks)"
+        )
+    if "masks" in names and not have_masks:
+        raise SlimsegError("--modes masks needs --masks DIR")
+    if not names:
+        raise SlimsegError("--modes is empty")
+    return names
+
+
+def _restore_list(text: str | None, names: list[str]) -> tuple[str, ...]:
+    """Masked conditions to restore: ``all`` of them, or the listed ones (each requested)."""
+    masked = [n for n in names if n not in ("raw", "oracle")]
+    if text is None:
+        return ()
+    if text == "all":
+        return tuple(masked)
+    wanted = [t.strip() for t in text.split(",") if t.strip()]
+    bad = [w for w in wanted if w not in masked]
+    if bad:
+        raise SlimsegError(f"--restore {','.join(bad)}: not among the masked --modes {masked}")
+    return tuple(wanted)
+
+
+def run(args: argparse.Namespace) -> int:
+    from slimseg.dynamic.tum import TumSequence
+    from slimseg.slam import session
+
+    say = (lambda s: print(s, file=sys.stderr)) if args.json else print
+    names = parse_modes(
+        args.modes, args.model is not None or args.gt_instances, args.masks is not None
+    )
+    if args.runs < 1:
+        raise SlimsegError(f"--runs {args.runs} must be at least 1")
+    seq = TumSequence(args.sequence)
+    gt_path = args.sequence / "groundtruth.txt"
+    if not gt_path.is_file():
+        raise SlimsegError(f"{gt_path} is missing: a trajectory cannot be scored without it")
+    plan = session.Plan(
+        sequence=seq,
+        names=names,
+        model=args.model,
+        gt_instances=args.gt_instances,
+        masks=args.masks,
+        restore=_restore_list(args.restore, names),
+        engine=args.engine,
+        runs=args.runs,
+        vocab=args.vocab,
+        conf=args.conf,
+        keypoints=args.keypoints,
+        dilation_px=args.dilation,
+        features=args.features,
+        realtime=not args.no_realtime,
+        threads=args.threads,
+        progress=not args.quiet,
+    )
+    out = args.out
+    rows, info = session.run_plan(plan, out, say)
+    from slimseg.slam.report import as_json_rows, table_lines
+
+    say(f"{info.engine} on {seq.root.name}: {info.frames} frames, vocabulary {info.vocabulary}, "
+        f"intrinsics {info.intrinsics}")  # fmt: skip
+    say(table_lines(rows, markdown=False))
+    say(f"written: {out / 'results.md'}, results.csv, runs.csv, trajectories.png")
+    if args.json:
+        print(json.dumps(as_json_rows(rows), indent=1))
+    if not any(r["scored_runs"] for r in rows[:-1]):
+        raise SlimsegError("no condition could be scored (see the status column)")
+    return 0

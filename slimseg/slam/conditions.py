@@ -1,0 +1,124 @@
+"""The frames each evaluated condition hands to a SLAM engine.
+
+Kinds of condition:
+- ``raw``: the sequence's frames;
+- ``masked``: a dynamic mask per frame (``<rgb timestamp>.png``, nonzero = dynamic, as
+  ``slimseg dynamic`` writes them, or the ground-truth ``dynamic/``). ORB-SLAM3 has no mask
+  input, so the region (dilated by ``dilation_px``) is removed from what it sees: the colour is
+  filled by OpenCV's Telea inpainting (no new corners at the mask edge, where a flat fill would
+  create some) and the depth is zeroed (ORB-SLAM3 ignores keypoints without depth for
+  RGB-D). The dense engine also gets the complement as its valid-pixel mask;
+- ``replaced``: whole replacement frames, e.g. ``restored/rgb/<ts>.png`` +
+  ``restored/depth/<ts>.png`` from ``slimseg dynamic --restore``, or a synthetic sequence's
+  true static ``background/`` (the oracle).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from slimseg.dynamic.fusion import dilate
+from slimseg.dynamic.tum import TumSequence, mask_name
+from slimseg.errors import SlimsegError
+from slimseg.slam.engines import EngineFrame
+
+INPAINT_RADIUS_PX = 3
+MASK_DILATION_PX = 2  # as `slimseg dynamic --restore-dilation`'s default
+
+PathsFor = Callable[[int], tuple[Path, Path]]
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One row of the results table. ``kind``: raw | masked | replaced; ``masks``: folder of
+    ``<rgb ts>.png`` masks (masked); ``frames``: ``i → (rgb path, depth path)`` of the
+    replacement frames (replaced); ``masking_ms``: time per frame to make the masks or frames
+    (None: given, e.g. ground truth); ``note``: how they were made."""
+
+    name: str
+    kind: str
+    masks: Path | None = None
+    frames: PathsFor | None = None
+    masking_ms: float | None = None
+    note: str = ""
+
+
+def check_masks(seq: TumSequence, folder: Path) -> None:
+    """Raise ``SlimsegError`` unless ``folder`` holds a mask for every associated frame."""
+    if not folder.is_dir():
+        raise SlimsegError(f"masks folder {folder} does not exist")
+    missing = [mask_name(t) for (t, _), _ in seq.frames if not (folder / mask_name(t)).is_file()]
+    if missing:
+        raise SlimsegError(
+            f"masks folder {folder} lacks {len(missing)} of {len(seq)} frames (e.g. "
+            f"{missing[0]}); make it with slimseg dynamic --sequence {seq.root} --out DIR"
+        )
+
+
+def oracle_paths(seq: TumSequence) -> PathsFor:
+    """A synthetic sequence's true static background: ``background/<rgb path>`` and
+    ``background/<depth path>`` of each frame."""
+    return lambda i: (
+        seq.root / "background" / seq.frames[i][0][1],
+        seq.root / "background" / seq.frames[i][1][1],
+    )
+
+
+def restored_paths(seq: TumSequence, folder: Path) -> PathsFor:
+    """``slimseg dynamic --restore`` output under ``folder``: ``restored/{rgb,depth}/<ts>.png``."""
+    return lambda i: (
+        folder / "rgb" / mask_name(seq.frames[i][0][0]),
+        folder / "depth" / mask_name(seq.frames[i][0][0]),
+    )
+
+
+def condition_frames(
+    seq: TumSequence,
+    cond: Condition,
+    dilation_px: int = MASK_DILATION_PX,
+    limit: int | None = None,
+    progress: bool = False,
+) -> list[EngineFrame]:
+    """Every associated frame of ``seq`` (the first ``limit``) as ``cond`` presents it to an
+    engine (see the module docstring). Missing files raise ``SlimsegError`` naming them."""
+    n = len(seq) if limit is None else min(limit, len(seq))
+    out = []
+    for i in tqdm(range(n), desc=cond.name, unit="frame", disable=not progress):
+        rgb, depth, stamp = seq.load(i)
+        static = None
+        if cond.kind == "masked":
+            path = cond.masks / mask_name(stamp)
+            m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            if m is None:
+                raise SlimsegError(f"missing or unreadable dynamic mask {path}")
+            if m.shape != rgb.shape[:2]:
+                raise SlimsegError(f"mask {path} is {m.shape[::-1]}, frames are {rgb.shape[1::-1]}")
+            region = dilate(m > 0, dilation_px).astype(bool)
+            if region.any():
+                m8 = region.astype(np.uint8) * 255
+                rgb = cv2.inpaint(rgb, m8, INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
+                depth = np.where(region, np.float32(0), depth)
+            static = np.where(region, 0, 255).astype(np.uint8)
+        elif cond.kind == "replaced":
+            rgb, depth = _replacement(seq, cond.frames(i), rgb.shape[:2])
+        out.append(EngineFrame(rgb, depth.astype(np.float32), stamp, static))
+    return out
+
+
+def _replacement(seq: TumSequence, paths: tuple[Path, Path], hw: tuple[int, int]):
+    rgb_path, depth_path = paths
+    bgr = cv2.imread(str(rgb_path), cv2.IMREAD_COLOR)
+    raw = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+    for img, p in ((bgr, rgb_path), (raw, depth_path)):
+        if img is None:
+            raise SlimsegError(f"missing or unreadable replacement frame {p}")
+        if img.shape[:2] != hw:
+            raise SlimsegError(f"replacement frame {p} is not {hw[1]}x{hw[0]}")
+    depth = raw.astype(np.float32) / np.float32(seq.camera.depth_scale)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), depth

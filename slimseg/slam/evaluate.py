@@ -1,0 +1,153 @@
+"""Run an engine on every condition ``runs`` times and score each run against ground truth.
+
+ORB-SLAM3 is multithreaded and not deterministic (the same frames give ATEs tens of percent
+apart), so each condition is tracked ``runs`` times and summarised by the median and the
+spread (min–max); the dense engine is deterministic and runs once. A run that never
+initialises, or keeps fewer than 3 poses, is recorded with its reason instead of a score.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from slimseg.dynamic.tum import TumSequence
+from slimseg.errors import SlimsegError
+from slimseg.slam.conditions import Condition, condition_frames
+from slimseg.slam.engines import EngineRun, run_dense, run_orbslam3
+from slimseg.slam.metrics import TrajectoryScore, score
+from slimseg.slam.trajectory import write_tum
+
+log = logging.getLogger(__name__)
+
+LOST_MARK_FRACTION = 0.1  # a row is marked when the median run lost more than this share
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """``engine``: orbslam3 | dense; ``runs`` per condition (ORB-SLAM3); ``vocab`` /
+    ``settings``: ORB-SLAM3 files; ``realtime``: replay at the frame rate; ``dilation_px``
+    around removed regions; ``limit``: first frames only; ``fps``: the sequence's rate."""
+
+    engine: str = "orbslam3"
+    runs: int = 3
+    vocab: Path | None = None
+    settings: Path | None = None
+    realtime: bool = True
+    dilation_px: int = 2
+    limit: int | None = None
+    fps: float = 30.0
+    progress: bool = True
+
+
+@dataclass
+class RunResult:
+    """One engine run: its trajectory file, tracking counts and score (or ``error``)."""
+
+    index: int
+    frames: int
+    lost: int
+    reinitialised: int
+    tracking_ms: float
+    trajectory: Path | None
+    score: TrajectoryScore | None = None
+    error: str | None = None
+
+
+@dataclass
+class ConditionResult:
+    condition: Condition
+    runs: list[RunResult] = field(default_factory=list)
+
+    @property
+    def scored(self) -> list[RunResult]:
+        return [r for r in self.runs if r.score is not None]
+
+    def median_run(self) -> RunResult | None:
+        """The scored run with the median ATE (the lower middle one for an even count)."""
+        s = sorted(self.scored, key=lambda r: r.score.ate_rmse)
+        return s[(len(s) - 1) // 2] if s else None
+
+    def summary(self) -> dict[str, object]:
+        """Median over scored runs of every error, the ATE spread, and tracking counts."""
+        runs, scored = self.runs, self.scored
+        out: dict[str, object] = {
+            "condition": self.condition.name,
+            "runs": len(runs),
+            "scored_runs": len(scored),
+            "frames": runs[0].frames if runs else 0,
+            "lost_median": _median([r.lost for r in runs]),
+            "lost_max": max((r.lost for r in runs), default=0),
+            "reinitialised": sum(r.reinitialised for r in runs),
+            "tracking_ms": _median([r.tracking_ms for r in runs]),
+            "masking_ms": self.condition.masking_ms,
+        }
+        for key in ("ate_rmse", "ate_std", "rpe_trans_frame", "rpe_rot_frame", "rpe_trans_s",
+                    "rpe_rot_s"):  # fmt: skip
+            out[key] = _median([getattr(r.score, key) for r in scored])
+        ates = [r.score.ate_rmse for r in scored]
+        out["ate_min"] = min(ates) if ates else None
+        out["ate_max"] = max(ates) if ates else None
+        out["status"] = self.status()
+        out["note"] = self.condition.note
+        return out
+
+    def status(self) -> str:
+        """``ok``, ``lost L/N frames`` (median run over the mark), or why nothing scored."""
+        if not self.scored:
+            errors = sorted({r.error for r in self.runs if r.error})
+            return "not scored: " + ("; ".join(errors) or "no run")
+        lost = _median([r.lost for r in self.runs])
+        n = self.runs[0].frames
+        if lost is not None and lost > LOST_MARK_FRACTION * n:
+            return f"lost {int(lost)}/{n} frames"
+        return "ok"
+
+
+def _median(values: list[float]) -> float | None:
+    vals = [v for v in values if v is not None and np.isfinite(v)]
+    return float(statistics.median(vals)) if vals else None
+
+
+def evaluate_condition(
+    seq: TumSequence, cond: Condition, gt: np.ndarray, cfg: EvalSettings, out: Path
+) -> ConditionResult:
+    """Track ``cond``'s frames ``cfg.runs`` times; write ``out/<cond>/run<k>.txt`` (TUM)."""
+    frames = condition_frames(seq, cond, cfg.dilation_px, cfg.limit, cfg.progress)
+    result = ConditionResult(cond)
+    runs = cfg.runs if cfg.engine == "orbslam3" else 1
+    folder = out / _safe(cond.name)
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in tqdm(range(runs), desc=f"{cond.name} runs", disable=not cfg.progress or runs < 2):
+        if cfg.engine == "orbslam3":
+            run = run_orbslam3(
+                frames, cfg.vocab, cfg.settings, cfg.realtime, log_path=folder / "orbslam3.log"
+            )
+        else:
+            run = run_dense(frames, seq.camera)
+        result.runs.append(_scored(run, k, len(frames), gt, cfg.fps, folder))
+    return result
+
+
+def _scored(run: EngineRun, k: int, n: int, gt: np.ndarray, fps: float, folder: Path) -> RunResult:
+    path = None
+    if len(run.trajectory):
+        path = write_tum(folder / f"run{k + 1}.txt", run.trajectory)
+    res = RunResult(k + 1, n, run.lost, run.reinitialised, run.ms_per_frame, path)
+    if not len(run.trajectory):
+        res.error = f"never initialised ({n - run.lost}/{n} frames tracked)"
+        return res
+    try:
+        res.score = score(gt, run.trajectory, fps)
+    except SlimsegError as e:
+        res.error = str(e)
+    return res
+
+
+def _safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name)

@@ -1,0 +1,241 @@
+"""One slam-eval session: make every condition's masks or frames, track, score, report.
+
+Output layout under ``out``::
+
+    masks/<mode>/masks/<ts>.png   the mode's dynamic masks (as ``slimseg dynamic`` writes them)
+    restore/<condition>/restored/{rgb,depth}/<ts>.png   restored frames (``--restore``)
+    trajectories/<condition>/run<k>.txt   TUM trajectory of each run (+ orbslam3.log)
+    orbslam3_settings.yaml   results.csv  runs.csv  results.md  trajectories.png
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slimseg.dynamic.tum import MAX_DT, TumSequence, mask_name
+from slimseg.errors import SlimsegError
+from slimseg.slam.conditions import (
+    Condition,
+    check_masks,
+    oracle_paths,
+    restored_paths,
+)
+from slimseg.slam.evaluate import ConditionResult, EvalSettings, evaluate_condition
+from slimseg.slam.metrics import still_floor
+from slimseg.slam.report import RunInfo, write_report
+from slimseg.slam.settings import OrbSettings, write_settings
+from slimseg.slam.trajectory import read_tum
+
+log = logging.getLogger(__name__)
+
+OWNED = ("masks", "restore", "trajectories")  # folders a new session replaces
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What to evaluate (the CLI's options, validated)."""
+
+    sequence: TumSequence
+    names: list[str]
+    model: str | None = None
+    gt_instances: bool = False
+    masks: Path | None = None
+    restore: tuple[str, ...] = ()
+    """masked condition names (``--modes`` spelling) whose restored frames are evaluated"""
+    engine: str = "orbslam3"
+    runs: int = 3
+    vocab: Path | None = None
+    conf: float = 0.25
+    keypoints: int = 1000
+    dilation_px: int = 2
+    features: int = 1000
+    realtime: bool = True
+    threads: int | None = None
+    progress: bool = True
+
+
+def _fps(seq: TumSequence) -> float:
+    stamps = np.array([t for (t, _), _ in seq.frames])
+    return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
+
+
+def gt_at_frames(gt: np.ndarray, seq: TumSequence, max_dt: float = MAX_DT) -> np.ndarray:
+    """Ground-truth rows ``[K, 8]`` nearest to each frame's RGB stamp (within ``max_dt``)."""
+    stamps = np.array([t for (t, _), _ in seq.frames])
+    j = np.clip(np.searchsorted(gt[:, 0], stamps), 1, len(gt) - 1)
+    j = np.where(np.abs(gt[j - 1, 0] - stamps) < np.abs(gt[j, 0] - stamps), j - 1, j)
+    return gt[j[np.abs(gt[j, 0] - stamps) <= max_dt]]
+
+
+def check_engine(plan: Plan) -> str:
+    """Fail fast on a missing extra or vocabulary; returns the vocabulary label."""
+    from slimseg.slam.metrics import _evo
+
+    _evo()
+    if plan.engine == "dense":
+        return "none (dense engine)"
+    from slimseg.slam.engines import import_pyorbslam3
+    from slimseg.slam.vocab import check_vocabulary
+
+    import_pyorbslam3()
+    if plan.vocab is None:
+        raise SlimsegError(
+            "--engine orbslam3 needs --vocab: the official ORBvoc.txt, or build one offline "
+            "with slimseg slam vocab --images 'SEQ/rgb/*.png' --out voc.txt"
+        )
+    return check_vocabulary(plan.vocab).label
+
+
+def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[str, Condition]:
+    """The masked conditions by requested name, in ``plan.names`` order, their masks made or
+    checked (``gt`` is left out where the sequence has no ``dynamic/``)."""
+    seq = plan.sequence
+    conds: dict[str, Condition] = {}
+    predictor = None
+    for name in plan.names:
+        if name == "gt":
+            folder = seq.root / "dynamic"
+            if not folder.is_dir():
+                say(f"gt: skipped, {folder} does not exist (real sequences have none)")
+                continue
+            check_masks(seq, folder)
+            conds[name] = Condition("gt", "masked", masks=folder, note="ground-truth dynamic/")
+        elif name == "masks":
+            folder = plan.masks / "masks" if (plan.masks / "masks").is_dir() else plan.masks
+            check_masks(seq, folder)
+            conds[name] = Condition(f"masks ({plan.masks.name})", "masked", masks=folder,
+                                    note=f"read from {folder}")  # fmt: skip
+        elif name not in ("raw", "oracle"):
+            if predictor is None:
+                predictor = _predictor(plan)
+            conds[name] = _mode_condition(plan, predictor, name, out, say)
+    return conds
+
+
+def _predictor(plan: Plan) -> object:
+    if plan.gt_instances:
+        from slimseg.dynamic.annotations import AnnotationInstances
+
+        return AnnotationInstances(plan.sequence.root)
+    from slimseg.deploy.predictor import Predictor
+
+    return Predictor.from_path(plan.model, threads=plan.threads)
+
+
+def _mode_condition(
+    plan: Plan, predictor: object, mode: str, out: Path, say: Callable[[str], None]
+) -> Condition:
+    from slimseg.dynamic.sequence_run import run_sequence
+
+    folder = out / "masks" / mode.replace("+", "_")
+    rep = run_sequence(
+        predictor, plan.sequence.root, folder, mode, plan.conf, plan.keypoints,
+        progress=plan.progress,
+    )  # fmt: skip
+    ms = sum(rep.ms_per_frame.values())
+    say(f"{mode}: masks for {rep.frames} frames in {folder / 'masks'} ({ms:.1f} ms/frame)")
+    source = "--gt-instances" if plan.gt_instances else f"--conf {plan.conf}"
+    note = f"slimseg dynamic --mode {mode} {source}"
+    name = f"{mode} (gt instances)" if plan.gt_instances else mode
+    return Condition(name, "masked", masks=folder / "masks", masking_ms=ms, note=note)
+
+
+def restored_condition(
+    plan: Plan, cond: Condition, out: Path, say: Callable[[str], None]
+) -> Condition:
+    """Restore every frame of the sequence from ``cond``'s masks (PatchMatch)."""
+    from slimseg.dynamic.restore_run import restore_sequence
+
+    folder = out / "restore" / cond.name.replace("+", "_").replace(" ", "_")
+
+    def masks(i: int, stamp: float) -> np.ndarray:
+        m = cv2.imread(str(cond.masks / mask_name(stamp)), cv2.IMREAD_GRAYSCALE)
+        if m is None:
+            raise SlimsegError(f"missing or unreadable mask {cond.masks / mask_name(stamp)}")
+        return m
+
+    t0 = time.perf_counter()
+    rep = restore_sequence(
+        plan.sequence.root, masks, folder, plan.dilation_px, keypoints=plan.keypoints,
+        progress=plan.progress,
+    )  # fmt: skip
+    ms = 1000 * (time.perf_counter() - t0) / max(rep.frames, 1) + (cond.masking_ms or 0.0)
+    say(f"{cond.name} restored: {rep.restored}/{rep.frames} frames in {folder / 'restored'}")
+    return Condition(f"{cond.name} restored", "replaced",
+                     frames=restored_paths(plan.sequence, folder / "restored"), masking_ms=ms,
+                     note=f"PatchMatch restoration of the {cond.name} masks")  # fmt: skip
+
+
+def _clean(out: Path, masks: Path | None) -> None:
+    """Delete the previous session's folders under ``out`` (stale runs of another vocabulary
+    or intrinsics never mix into a new table); refuse when ``--masks`` lives inside them."""
+    owned = [out / name for name in OWNED]
+    if masks is not None:
+        m = masks.resolve()
+        for p in owned:
+            if m == p.resolve() or p.resolve() in m.parents:
+                raise SlimsegError(
+                    f"--masks {masks} is inside {p}, which slam-eval --out {out} replaces: "
+                    "copy the masks elsewhere or choose another --out"
+                )
+    for p in owned:
+        if p.is_dir():
+            shutil.rmtree(p)
+
+
+def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[dict], RunInfo]:
+    """Everything after option parsing; returns the summary rows and the table's header."""
+    seq = plan.sequence
+    vocab_label = check_engine(plan)
+    say(f"intrinsics: {seq.camera_source} (fx {seq.camera.fx}, fy {seq.camera.fy}, "
+        f"cx {seq.camera.cx}, cy {seq.camera.cy})")  # fmt: skip
+    _clean(out, plan.masks)
+    gt = read_tum(seq.root / "groundtruth.txt")
+    if len(gt) < 3:
+        raise SlimsegError(f"{seq.root / 'groundtruth.txt'} has {len(gt)} poses: need 3 or more")
+    masked = mask_conditions(plan, out, say)
+    conds: list[Condition] = []
+    if "raw" in plan.names:
+        conds.append(Condition("raw", "raw", note="the sequence's frames"))
+    conds += list(masked.values())
+    conds += [restored_condition(plan, masked[n], out, say) for n in plan.restore if n in masked]
+    if "oracle" in plan.names:
+        if (seq.root / "background" / "rgb").is_dir():
+            conds.append(Condition("oracle", "replaced", frames=oracle_paths(seq),
+                                   note="true static background (synthetic)"))  # fmt: skip
+        else:
+            say("oracle: skipped, the sequence has no background/ (synthetic sequences only)")
+    if not conds:
+        raise SlimsegError("nothing to evaluate: every requested condition was skipped")
+    settings = None
+    if plan.engine == "orbslam3":
+        h, w = seq.load(0)[0].shape[:2]
+        orb = OrbSettings(features=plan.features, fps=_fps(seq))
+        settings = write_settings(out / "orbslam3_settings.yaml", seq.camera, w, h, orb)
+    cfg = EvalSettings(
+        engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
+        realtime=plan.realtime, dilation_px=plan.dilation_px, fps=_fps(seq),
+        progress=plan.progress,
+    )  # fmt: skip
+    results: list[ConditionResult] = []
+    for cond in conds:
+        res = evaluate_condition(seq, cond, gt, cfg, out / "trajectories")
+        s = res.summary()
+        ate = "-" if s["ate_rmse"] is None else f"{s['ate_rmse']:.4f} m"
+        say(f"{cond.name}: ATE {ate} ({s['scored_runs']}/{s['runs']} runs scored), {s['status']}")
+        results.append(res)
+    info = RunInfo(
+        sequence=seq.root, frames=len(seq), engine=plan.engine, vocabulary=vocab_label,
+        intrinsics=seq.camera_source, synthetic=(seq.root / "background").is_dir(),
+        runs=plan.runs,
+    )  # fmt: skip
+    rows = write_report(out, info, results, still_floor(gt_at_frames(gt, seq)))
+    return rows, info
