@@ -26,6 +26,7 @@ from slimseg.deploy.ort_session import cpu_session
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
 from slimseg.ops.semantic import logits_to_frame
+from slimseg.utils.threads import torch_threads
 
 
 def median_ms(fn: Callable[[], object], runs: int, warmup: int) -> float:
@@ -47,8 +48,15 @@ def bench_model(
     warmup: int = 3,
     forms: tuple[str, ...] = ("torch", "torch_fused", "ort_fp32", "ort_fp16"),
 ) -> dict[str, float]:
-    """Milliseconds per form (plus ``postprocess``) for one model."""
-    torch.set_num_threads(threads)
+    """Milliseconds per form (plus ``postprocess``) for one model; torch runs with
+    ``threads`` threads and the process-wide count is restored afterwards."""
+    with torch_threads(threads):
+        return _bench(model, imgsz, threads, runs, warmup, forms)
+
+
+def _bench(
+    model: nn.Module, imgsz: int, threads: int, runs: int, warmup: int, forms: tuple[str, ...]
+) -> dict[str, float]:
     model = model.eval()
     fused = model.fuse()
     x = torch.rand(1, 3, imgsz, imgsz)
