@@ -213,3 +213,13 @@ def test_bad_calibration_input(setup, tmp_path: Path, capsys) -> None:
     assert "--int8-val" in capsys.readouterr().err
     assert _export_int8(setup, out, "--calib", str(empty), "--int8-val", str(setup["data"])) == 2
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_bench_adds_int8_with_ratio(setup, capsys) -> None:
+    argv = ["bench", "--model", "yolov8n-seg", "--imgsz", "64", "--runs", "1", "--warmup", "0"]
+    calib = ["--int8", "--calib", str(setup["images"]), "--calib-images", "2"]
+    assert main([*argv, *calib, "--nc", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "ort_int8/ort_fp32" in out and "2 calibration frames" in out
+    assert main([*argv, "--int8"]) == 2  # --int8 without --calib
