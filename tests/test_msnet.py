@@ -188,6 +188,6 @@ def test_export_parity_tensorrt_ops_and_predictor(tmp_path: Path) -> None:
 
 
 def _torch_runner(model: nn.Module):
-    from slimseg.deploy.predictor import _TorchRunner
+    from slimseg.deploy.runners import TorchRunner
 
-    return _TorchRunner(model.fuse())
+    return TorchRunner(model.fuse())

@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+
+from torch import nn
 
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
 from slimseg.deploy.checkpoint import load_weights
+from slimseg.deploy.onnx_model import OnnxModel
 from slimseg.engine.evaluate import SEMANTIC_CONF, evaluate_dataset, is_semantic
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import format_metrics_table
@@ -19,13 +23,19 @@ from slimseg.eval.semantic_metrics import format_semantic_table
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "val",
-        help="COCO box/mask mAP (or mIoU/MPA) of trained weights on a dataset's val split",
-        description="Evaluate weights (.pt from slimseg train, or its .ckpt) with pycocotools; "
+        help="COCO box/mask mAP (or mIoU/MPA) of weights or an exported ONNX on a val split",
+        description="Evaluate weights (.pt from slimseg train, or its .ckpt) or a file written "
+        "by slimseg export (FP32, FP16 or INT8 .onnx, run by onnxruntime with the same "
+        "letterbox, NMS and masks) with pycocotools; "
         "semantic models (msnet-*) report per-class IoU and pixel accuracy, mIoU and MPA over "
         "the split's confusion matrix. --semantic scores a YOLO segmenter the same way: its "
         "masks (score >= --conf) painted into a class map by ascending confidence.",
     )
-    p.add_argument("--weights", required=True, help="weights/best.pt or checkpoints/last.ckpt")
+    p.add_argument(
+        "--weights",
+        required=True,
+        help="weights/best.pt, checkpoints/last.ckpt or an exported .onnx",
+    )
     p.add_argument("--data", required=True, help="dataset config YAML")
     p.add_argument("--split", default="val", choices=("val", "train"))
     p.add_argument("--imgsz", type=int, default=None, help="default: the training imgsz")
@@ -48,19 +58,38 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def _load(args: argparse.Namespace) -> tuple[nn.Module, int]:
+    """The model to score and its input size: torch weights (fused) or an exported graph."""
+    if Path(args.weights).suffix.lower() != ".onnx":
+        model, info = load_weights(args.weights, fused=True)
+        return model, args.imgsz or int(info.train_config.get("imgsz", 640))
+    graph = OnnxModel(args.weights)
+    static = graph.static_hw
+    if static is not None and static[0] != static[1]:
+        raise SlimsegError(
+            f"{args.weights}: static {static[0]}x{static[1]} input; val letterboxes to a "
+            "square: export with one --imgsz (or --dynamic)"
+        )
+    if static is not None and args.imgsz not in (None, static[0]):
+        raise SlimsegError(
+            f"{args.weights}: the graph has a static {static[0]}x{static[1]} input; drop "
+            f"--imgsz {args.imgsz} or export with --dynamic"
+        )
+    return graph, args.imgsz or (static[0] if static else int(graph.metadata["imgsz"][0]))
+
+
 def run(args: argparse.Namespace) -> int:
-    model, info = load_weights(args.weights, fused=True)
+    model, imgsz = _load(args)
     data_cfg = load_data_config(args.data)
     if len(data_cfg.names) != model.num_classes:
         raise SlimsegError(
             f"{args.data}: {len(data_cfg.names)} classes but {args.weights} predicts "
             f"{model.num_classes}; evaluate on the dataset it was trained for"
         )
-    imgsz = args.imgsz or int(info.train_config.get("imgsz", 640))
     semantic = args.semantic or is_semantic(model)
     if semantic and model.spec.task == "detect":
         raise SlimsegError(
-            f"--semantic: {args.weights} is a detector ({info.spec.name}); it needs masks"
+            f"--semantic: {args.weights} is a detector ({model.spec.name}); it needs masks"
         )
     if semantic and args.save_json:
         raise SlimsegError("--save-json writes COCO detections: not available for mIoU/MPA")
@@ -82,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
             return 0
         how = "" if is_semantic(model) else f", masks with score >= {conf} as a class map"
         print(
-            f"{info.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px{how})"
+            f"{model.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px{how})"
         )
         print(format_semantic_table(result))
         speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
@@ -95,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{info.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px)")
+        print(f"{model.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px)")
         print(format_metrics_table(result, data_cfg.names))
         speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
         print(f"speed per image: {speed}")

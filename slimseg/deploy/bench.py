@@ -1,8 +1,9 @@
 """Latency of one model in every form, measured side by side in one process.
 
 torch unfused, torch fused, onnxruntime FP32 and FP16 (exported with the parity-checked
-exporter into a temporary folder), plus NMS + mask post-processing (semantic models: the
-class map on a 640 × 480 frame, i.e. crop, bilinear resize of the logits and argmax).
+exporter into a temporary folder) and, given calibration frames, INT8 Q/DQ, plus NMS + mask
+post-processing (semantic models: the class map on a 640 × 480 frame, i.e. crop, bilinear
+resize of the logits and argmax).
 Median of ``runs`` timed calls after ``warmup`` untimed ones, batch 1, ``threads`` intra-op
 threads everywhere; onnxruntime sessions never spin idle threads (they would steal the cores
 from the others).
@@ -21,11 +22,14 @@ import torch
 from torch import nn
 
 from slimseg.data.letterbox import letterbox_params
+from slimseg.deploy.calibration import CalibrationSet
+from slimseg.deploy.int8_quantize import quantize_onnx
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
 from slimseg.ops.semantic import logits_to_frame
+from slimseg.utils.threads import torch_threads
 
 
 def median_ms(fn: Callable[[], object], runs: int, warmup: int) -> float:
@@ -39,16 +43,63 @@ def median_ms(fn: Callable[[], object], runs: int, warmup: int) -> float:
     return 1000 * statistics.median(times)
 
 
+FORMS = ("torch", "torch_fused", "ort_fp32", "ort_fp16")
+
+
+def alternating_median_ms(
+    fns: dict[str, Callable[[], object]], runs: int, warmup: int
+) -> dict[str, float]:
+    """Median milliseconds of each function, timed round-robin (one call of each per round)."""
+    for fn in fns.values():
+        for _ in range(warmup):
+            fn()
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(runs):
+        for key, fn in fns.items():
+            start = time.perf_counter()
+            fn()
+            times[key].append(time.perf_counter() - start)
+    return {k: 1000 * statistics.median(v) for k, v in times.items()}
+
+
+def _session_call(path: Path, threads: int, x: torch.Tensor, half: bool) -> Callable[[], object]:
+    session = cpu_session(path, threads)
+    feed = {"images": x.numpy().astype(np.float16 if half else np.float32)}
+    return lambda: session.run(None, feed)
+
+
 def bench_model(
     model: nn.Module,
     imgsz: int = 640,
     threads: int = 2,
     runs: int = 10,
     warmup: int = 3,
-    forms: tuple[str, ...] = ("torch", "torch_fused", "ort_fp32", "ort_fp16"),
+    forms: tuple[str, ...] = FORMS,
+    calib: CalibrationSet | None = None,
+    calib_method: str = "minmax",
 ) -> dict[str, float]:
-    """Milliseconds per form (plus ``postprocess``) for one model."""
-    torch.set_num_threads(threads)
+    """Milliseconds per form (plus ``postprocess``) for one model; torch runs with
+    ``threads`` threads and the process-wide count is restored afterwards.
+
+    ``calib`` (calibration frames) adds ``ort_int8``: the FP32 export quantized as
+    ``slimseg export --int8`` quantizes it (same placement and calibration; no accuracy gate:
+    this measures speed). The onnxruntime forms are timed in alternation, one call each per
+    round, so a load change on the machine hits all of them alike.
+    """
+    with torch_threads(threads):
+        return _bench(model, imgsz, threads, runs, warmup, forms, calib, calib_method)
+
+
+def _bench(
+    model: nn.Module,
+    imgsz: int,
+    threads: int,
+    runs: int,
+    warmup: int,
+    forms: tuple[str, ...],
+    calib: CalibrationSet | None,
+    calib_method: str,
+) -> dict[str, float]:
     model = model.eval()
     fused = model.fuse()
     x = torch.rand(1, 3, imgsz, imgsz)
@@ -60,13 +111,21 @@ def bench_model(
             result["torch_fused"] = median_ms(lambda: fused(x), runs, warmup)
         out = fused(x)
     with tempfile.TemporaryDirectory() as tmp:
+        runs_by_form: dict[str, Callable[[], object]] = {}
+        fp32_path = None
         for form, half in (("ort_fp32", False), ("ort_fp16", True)):
-            if form not in forms:
+            if form not in forms and not (form == "ort_fp32" and calib is not None):
                 continue
             path = export_onnx(model, Path(tmp) / f"{form}.onnx", (imgsz, imgsz), half=half).path
-            session = cpu_session(path, threads)
-            feed = {"images": x.numpy().astype(np.float16 if half else np.float32)}
-            result[form] = median_ms(lambda s=session, f=feed: s.run(None, f), runs, warmup)
+            fp32_path = path if not half else fp32_path
+            if form in forms:
+                runs_by_form[form] = _session_call(path, threads, x, half)
+        if calib is not None:
+            q = Path(tmp) / "ort_int8.onnx"
+            hw = (imgsz, imgsz)
+            quantize_onnx(fp32_path, q, calib, hw, model.spec.family, calib_method, False)
+            runs_by_form["ort_int8"] = _session_call(q, threads, x, False)
+        result.update(alternating_median_ms(runs_by_form, runs, warmup))
     result["postprocess"] = median_ms(lambda: _postprocess(model, out, imgsz), runs, warmup)
     return result
 

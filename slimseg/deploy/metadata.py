@@ -8,18 +8,22 @@ each key.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 from torch import nn
 
 from slimseg import __version__
 from slimseg.data.letterbox import PAD_VALUE
+from slimseg.errors import SlimsegError
 
 # Mobility threshold of SEEDS.md Eq. 1 at its starting value: classes above it are dynamic.
 DEFAULT_MOBILITY_THRESHOLD = 0.25
 # Masks from 1/4-resolution prototypes are soft at the edges: dilate them before dropping
 # keypoints (ORB's 31-px patch straddles the edge otherwise). Pixels at the 640 input.
 RECOMMENDED_MASK_DILATION_PX = 5
+# Keys every slimseg export carries and a runtime cannot do without.
+REQUIRED_METADATA = ("names", "imgsz", "family", "task")
 
 LETTERBOX_RULE = {
     "centered": True,
@@ -123,5 +127,35 @@ def to_metadata_props(meta: dict[str, Any]) -> dict[str, str]:
 
 
 def from_metadata_props(props: dict[str, str]) -> dict[str, Any]:
-    """Inverse of ``to_metadata_props``."""
-    return {key: json.loads(value) for key, value in props.items()}
+    """Inverse of ``to_metadata_props``; a value that is not JSON (another tool's) stays a
+    string, so :func:`read_onnx_metadata` can say what is missing."""
+    meta: dict[str, Any] = {}
+    for key, value in props.items():
+        try:
+            meta[key] = json.loads(value)
+        except (TypeError, ValueError):
+            meta[key] = value
+    return meta
+
+
+def read_onnx_metadata(path: str | Path, props: dict[str, str]) -> dict[str, Any]:
+    """Parse ``metadata_props`` of the ONNX file ``path``; :class:`SlimsegError` unless slimseg
+    wrote them. A missing or malformed ``mobility`` becomes 1.0 per class."""
+    meta = from_metadata_props(props)
+    missing = [k for k in REQUIRED_METADATA if k not in meta]
+    names, imgsz = meta.get("names"), meta.get("imgsz")
+    if (
+        missing
+        or not isinstance(names, list)
+        or not all(isinstance(n, str) for n in names)
+        or not (isinstance(imgsz, list) and len(imgsz) == 2)
+    ):
+        what = f"missing {', '.join(missing)}" if missing else "malformed names/imgsz"
+        raise SlimsegError(
+            f"{path}: no slimseg metadata ({what}): not exported by slimseg export; "
+            "re-export it with `slimseg export --weights W.pt`, or predict from the .pt weights"
+        )
+    mobility = meta.get("mobility")
+    if not isinstance(mobility, list) or len(mobility) != len(names):
+        meta["mobility"] = [1.0] * len(names)
+    return meta

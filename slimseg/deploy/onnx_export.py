@@ -140,15 +140,17 @@ def check_semantic_parity(
     return result
 
 
-def check_fp16_parity(
+def detection_agreement(
     model: nn.Module, ref: list[np.ndarray], got: list[np.ndarray], top: int = 20
 ) -> dict:
-    """FP16 keeps the detections: on every candidate anchor of the FP32 model (best class
-    score ≥ 0.05, or the ``top`` best), the FP16 box has IoU ≥ 0.9 with the FP32 box, the best
-    score differs by ≤ 0.02 and the class is the same (unless two classes are within 0.02).
-    Checked per anchor, before NMS, so near-tied overlapping boxes cannot swap survivors.
-    NMS survivors that also match are reported as ``nms_matched``.
-    """
+    """How closely ``got`` (an FP16 or INT8 graph's outputs) keeps the detections of ``ref``
+    (FP32) on one input ``[1, ...]``: on every candidate anchor of ``ref`` (best class score
+    ≥ 0.05, or the ``top`` best), the box IoU, the best-score difference and whether the class
+    is the same (or two classes are within ``FP16_SCORE_TOL``). Checked per anchor, before
+    NMS, so near-tied overlapping boxes cannot swap survivors. Returns ``checked``,
+    ``matched`` (IoU ≥ ``FP16_MATCH_IOU``, score within ``FP16_SCORE_TOL``, same class),
+    ``min_iou``, ``max_score_diff`` and, when both keep NMS survivors at 0.05, the fraction
+    of ``ref``'s survivors matched (``nms_matched``)."""
     nc = model.num_classes
     r = _rows(model, ref[0])[0].numpy().T  # [A, 4 + nc (+ ...)]
     g = _rows(model, got[0])[0].numpy().T
@@ -171,18 +173,29 @@ def check_fp16_parity(
         "min_iou": float(iou.min()),
         "max_score_diff": float(score_diff.max()),
     }
-    if not ok.all():
-        raise ExportParityError(
-            f"FP16 ONNX changed {int((~ok).sum())} of {len(candidates)} detections (same class, "
-            f"IoU >= {FP16_MATCH_IOU}, |score diff| <= {FP16_SCORE_TOL} required; min IoU "
-            f"{result['min_iou']:.3f}, max score diff {result['max_score_diff']:.3g})"
-        )
     d_ref = non_max_suppression(_rows(model, ref[0]), nc, conf=0.05, max_det=300)[0]
     d_got = non_max_suppression(_rows(model, got[0]), nc, conf=0.05, max_det=300)[0]
     if len(d_ref) and len(d_got):
         m = _iou_matrix(d_ref.boxes.numpy(), d_got.boxes.numpy()) >= FP16_MATCH_IOU
         m &= (d_ref.classes[:, None] == d_got.classes[None, :]).numpy()
         result["nms_matched"] = float(m.any(1).mean())
+    return result
+
+
+def check_fp16_parity(
+    model: nn.Module, ref: list[np.ndarray], got: list[np.ndarray], top: int = 20
+) -> dict:
+    """FP16 keeps the detections: every candidate anchor of the FP32 model matches
+    (:func:`detection_agreement`: IoU ≥ 0.9, score within 0.02, same class); raises
+    :class:`ExportParityError` otherwise."""
+    result = detection_agreement(model, ref, got, top)
+    bad = result["checked"] - result["matched"]
+    if bad:
+        raise ExportParityError(
+            f"FP16 ONNX changed {bad} of {result['checked']} detections (same class, "
+            f"IoU >= {FP16_MATCH_IOU}, |score diff| <= {FP16_SCORE_TOL} required; min IoU "
+            f"{result['min_iou']:.3f}, max score diff {result['max_score_diff']:.3g})"
+        )
     return result
 
 

@@ -52,7 +52,7 @@ def semantic_batch(
     at input resolution, painted by ascending confidence
     (:func:`~slimseg.data.semantic.instances_to_semantic`).
     """
-    images = batch["images"].to(next(model.parameters()).device)
+    images = batch["images"].to(_device(model))
     t0 = time.perf_counter()
     out = model(images)
     t1 = time.perf_counter()
@@ -114,7 +114,7 @@ def detect_batch(
 
     ``timings`` (optional) accumulates ``inference`` and ``postprocess`` seconds.
     """
-    images = batch["images"].to(next(model.parameters()).device)
+    images = batch["images"].to(_device(model))
     t0 = time.perf_counter()
     out = model(images)
     t1 = time.perf_counter()
@@ -125,6 +125,13 @@ def detect_batch(
     frames = batch_to_frame_detections(dets, proto, batch["meta"], rle=True)
     _add_timings(timings, t0, t1)
     return frames
+
+
+def _device(model: nn.Module) -> torch.device:
+    """Where the model's inputs go: its parameters' device (CPU for a graph run by
+    onnxruntime, :class:`~slimseg.deploy.onnx_model.OnnxModel`, which has none)."""
+    first = next(model.parameters(), None)
+    return torch.device("cpu") if first is None else first.device
 
 
 def _add_timings(timings: dict[str, float] | None, t0: float, t1: float) -> None:

@@ -1,0 +1,85 @@
+"""Forward passes behind :class:`~slimseg.deploy.predictor.Predictor`: a fused torch model or an
+onnxruntime session, both mapping a network input ``[B, 3, H, W]`` to ``(pred, proto)``.
+
+``pred``: ``float32 [B, 4 + nc (+ nm), A]`` (``[B, K + 1, H, W]`` logits for semantic models);
+``proto``: ``float32 [B, nm, H/4, W/4]`` or ``None``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from slimseg.utils.threads import torch_threads
+
+# Output names a slimseg export uses, in the order the runners return them.
+OUTPUT_NAMES = ("output0", "output1", "logits")
+
+
+class TorchRunner:
+    """Forward pass of a fused eval-mode torch model, with ``threads`` torch threads for the
+    duration of each call (the process-wide count is restored afterwards)."""
+
+    def __init__(self, model: torch.nn.Module, threads: int | None = None) -> None:
+        self.model = model
+        self.threads = threads
+        self.dtype = np.float32
+        self.batch_size: int | None = None  # any batch
+
+    @torch.inference_mode()
+    def __call__(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+        with torch_threads(self.threads):
+            out = self.model(torch.from_numpy(x))
+        pred, proto = out if isinstance(out, tuple) else (out, None)
+        return pred, proto
+
+
+class OnnxRunner:
+    """Forward pass of an onnxruntime session (CPU provider).
+
+    ``dtype``: the input's (``float16`` for FP16 exports); ``batch_size``: the graph's static
+    batch, ``None`` when dynamic; ``static_hw``: the static input ``(H, W)`` or ``None``.
+    """
+
+    def __init__(self, session: Any) -> None:
+        self.session = session
+        inp = session.get_inputs()[0]
+        self.input_name = inp.name
+        self.dtype = np.float16 if inp.type == "tensor(float16)" else np.float32
+        self.input_shape = list(inp.shape)
+        batch = self.input_shape[0] if self.input_shape else None
+        self.batch_size = batch if isinstance(batch, int) and batch > 0 else None
+        static = self.input_shape[2:4]
+        self.static_hw = (
+            (int(static[0]), int(static[1]))
+            if len(static) == 2 and all(isinstance(d, int) and d > 0 for d in static)
+            else None
+        )
+        names = [o.name for o in session.get_outputs()]
+        self.output_names = [n for n in OUTPUT_NAMES if n in names] or names
+
+    def __call__(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+        outs = self.session.run(self.output_names, {self.input_name: x.astype(self.dtype)})
+        pred = torch.from_numpy(np.asarray(outs[0], np.float32))
+        proto = torch.from_numpy(np.asarray(outs[1], np.float32)) if len(outs) > 1 else None
+        return pred, proto
+
+    def run_chunked(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """:meth:`__call__` for any batch: a static-batch graph runs in chunks of its batch
+        size (the last one zero-padded, the padding dropped from the outputs)."""
+        step = self.batch_size
+        if step is None or len(x) == step:
+            return self(x)
+        preds, protos = [], []
+        for s in range(0, len(x), step):
+            chunk = x[s : s + step]
+            n = len(chunk)
+            if n < step:
+                chunk = np.concatenate([chunk, np.zeros((step - n, *chunk.shape[1:]), x.dtype)])
+            pred, proto = self(chunk)
+            preds.append(pred[:n])
+            if proto is not None:
+                protos.append(proto[:n])
+        return torch.cat(preds), torch.cat(protos) if protos else None
