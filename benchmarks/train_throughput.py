@@ -27,16 +27,16 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import reference_impl  # noqa: E402
+import reference_impl
 
-from slimseg.data.augment import AugmentConfig  # noqa: E402
-from slimseg.data.collate import make_collate  # noqa: E402
-from slimseg.data.config import load_data_config  # noqa: E402
-from slimseg.data.datamodule import SegDataModule  # noqa: E402
-from slimseg.data.synth import generate  # noqa: E402
-from slimseg.engine.config import TrainConfig  # noqa: E402
-from slimseg.engine.train import train  # noqa: E402
-from slimseg.utils.table import format_table  # noqa: E402
+from slimseg.data.augment import AugmentConfig
+from slimseg.data.collate import make_collate
+from slimseg.data.config import load_data_config
+from slimseg.data.datamodule import SegDataModule
+from slimseg.data.synth import generate
+from slimseg.engine.config import TrainConfig
+from slimseg.engine.train import train
+from slimseg.utils.table import format_table
 
 
 class _ClockCallback(L.Callback):
