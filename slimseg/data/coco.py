@@ -192,8 +192,8 @@ def read_image_rgb8(path: str | Path) -> tuple[np.ndarray, list[str]]:
         raise ImageProblem("unreadable_image", f"{path}: unsupported image shape {img.shape}")
     if img.shape[2] == 4:
         notes.append("rgba_image")
-        img = img[:, :, :3]
-    return np.ascontiguousarray(img[:, :, ::-1]), notes
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2RGB), notes
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB), notes  # a plain channel swap, SIMD
 
 
 def read_depth(path: str | Path, height: int, width: int) -> np.ndarray:
@@ -527,6 +527,25 @@ def decode_instance_mask(inst: Instance, height: int, width: int) -> np.ndarray:
         return np.ascontiguousarray(mask_utils.decode(rle), dtype=np.uint8)
 
 
+def decode_instance_masks(insts: Sequence[Instance], height: int, width: int) -> np.ndarray:
+    """``uint8 [N, H, W]``: :func:`decode_instance_mask` of each instance, with one
+    pycocotools call for all RLE instances and a SIMD transpose out of its column-major
+    layout (the same pixels, several times faster than one decode and copy per mask)."""
+    out = np.empty((len(insts), height, width), np.uint8)
+    rle_at = [k for k, inst in enumerate(insts) if inst.segm is not None]
+    for k, inst in enumerate(insts):
+        if inst.segm is None:
+            out[k] = decode_instance_mask(inst, height, width)
+    if rle_at:
+        rles = [segm_to_rle(insts[k].segm, height, width) for k in rle_at]
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)
+            columns = mask_utils.decode(rles).T  # [N, W, H], C-contiguous
+        for j, k in enumerate(rle_at):
+            cv2.transpose(columns[j], dst=out[k])
+    return out
+
+
 def instance_area(inst: Instance, height: int, width: int) -> int:
     """Pixel count of an instance's mask, computed on its RLE (no dense decode)."""
     segm = inst.segm
@@ -535,10 +554,6 @@ def instance_area(inst: Instance, height: int, width: int) -> int:
         return (r1 - r0) * (c1 - c0)
     rle = segm_to_rle(segm, height, width)
     return int(mask_utils.area(rle))
-
-
-def _stack(masks: list[np.ndarray], h: int, w: int) -> np.ndarray:
-    return np.stack(masks).astype(np.uint8) if masks else np.zeros((0, h, w), np.uint8)
 
 
 def _boxes(insts: list[Instance]) -> np.ndarray:
@@ -625,17 +640,15 @@ class CocoDataset:
             for kind in notes:
                 self.report.add(kind, rec.file_name)
 
-        kept: list[Instance] = []
-        masks: list[np.ndarray] = []
-        for inst in rec.instances:
-            m = decode_instance_mask(inst, h, w)
-            if not m.any():
-                if first:
+        decoded = decode_instance_masks(rec.instances, h, w)
+        nonempty = decoded.any(axis=(1, 2))
+        if first:
+            for inst, ok in zip(rec.instances, nonempty, strict=True):
+                if not ok:
                     self.report.add("empty_mask", f"{rec.file_name} (ann {inst.ann_id})")
-                continue
-            kept.append(inst)
-            masks.append(m)
-        crowd_masks = [decode_instance_mask(c, h, w) for c in rec.crowd]
+        kept = [inst for inst, ok in zip(rec.instances, nonempty, strict=True) if ok]
+        masks = decoded if nonempty.all() else decoded[nonempty]
+        crowd_masks = decode_instance_masks(rec.crowd, h, w)
 
         depth = None
         if self.depth_dir is not None:
@@ -651,7 +664,7 @@ class CocoDataset:
             image=image,
             boxes=_boxes(kept),
             classes=np.asarray([i.cls for i in kept], np.int64),
-            masks=_stack(masks, h, w),
+            masks=masks,
             image_id=rec.id,
             path=str(path),
             depth=depth,
@@ -659,7 +672,7 @@ class CocoDataset:
                 "file_name": rec.file_name,
                 "ann_ids": np.asarray([i.ann_id for i in kept], np.int64),
                 "box_masks": np.asarray([i.segm is None for i in kept], bool),
-                "crowd_masks": _stack(crowd_masks, h, w),
+                "crowd_masks": crowd_masks,
                 "crowd_boxes": _boxes(rec.crowd),
                 "crowd_classes": np.asarray([c.cls for c in rec.crowd], np.int64),
                 "converted": notes,
