@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import json
 
+import torch
+
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import YoloDataset
@@ -45,11 +47,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--iou", type=float, default=0.7)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--save-json", default=None, help="also write COCO results json here")
+    p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (network and masks)")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        raise SlimsegError(f"--device {args.device}: no CUDA device is visible to torch")
+    try:
+        device = torch.device(args.device)
+    except RuntimeError:
+        raise SlimsegError(f"--device {args.device!r}: expected cpu, cuda or cuda:N") from None
     model, info = load_weights(args.weights, fused=True)
+    model = model.to(device)
     data_cfg = load_data_config(args.data)
     if len(data_cfg.names) != model.num_classes:
         raise SlimsegError(
