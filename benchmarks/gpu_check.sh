@@ -17,7 +17,7 @@ device=cuda
 if [ "${1:-}" = "--device" ]; then device=${2:?--device needs cpu or cuda}; shift 2; fi
 out=${1:-gpu-check}
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
-py=${PYTHON:-python}
+py=(${PYTHON:-python})
 slimseg=(${SLIMSEG:-slimseg})
 if [ "$device" = cuda ]; then
   imgsz=640 train_images=512 val_images=64 epochs=2 batch=16 workers=8
@@ -53,7 +53,7 @@ step "synthetic set" "${slimseg[@]}" data synth --out "$out/data" --imgsz "$imgs
   --train "$train_images" --val "$val_images" --overwrite --quiet
 data=$out/data/data.yaml
 
-step "train ($model, $epochs epochs, $imgsz px, AMP on $device)" "$py" "$here/gpu_check.py" \
+step "train ($model, $epochs epochs, $imgsz px, on $device; AMP 16-mixed on cuda)" "${py[@]}" "$here/gpu_check.py" \
   train --data "$data" --out "$out/run" --model "$model" --imgsz "$imgsz" --epochs "$epochs" \
   --batch "$batch" --workers "$workers" --train-images "$train_images" --device "$device"
 weights=$out/run/weights/last.pt
@@ -71,7 +71,7 @@ step "export INT8 ONNX" "${slimseg[@]}" export --weights "$weights" --imgsz "$im
 
 if [ "$device" != cuda ]; then
   not_run "TensorRT engines and latency" "cpu dry run"
-  step "onnxruntime CPU latency (FP32)" "$py" "$here/gpu_check.py" ort "$out/fp32.onnx" \
+  step "onnxruntime CPU latency (FP32)" "${py[@]}" "$here/gpu_check.py" ort "$out/fp32.onnx" \
     --device cpu --runs 5 --warmup 1
 elif command -v trtexec >/dev/null; then
   step "TensorRT FP16 engine (trtexec)" "$here/../export/build_engine.sh" "$out/fp32.onnx" \
@@ -83,17 +83,17 @@ elif command -v trtexec >/dev/null; then
   done
 else
   echo "trtexec not on PATH: building with the tensorrt Python package" | tee -a "$log"
-  step "TensorRT FP16 engine (python)" "$py" "$here/gpu_check.py" trt-build "$out/fp32.onnx" \
+  step "TensorRT FP16 engine (python)" "${py[@]}" "$here/gpu_check.py" trt-build "$out/fp32.onnx" \
     "$out/fp16.engine"
-  step "TensorRT INT8 engine (python)" "$py" "$here/gpu_check.py" trt-build "$out/int8.onnx" \
+  step "TensorRT INT8 engine (python)" "${py[@]}" "$here/gpu_check.py" trt-build "$out/int8.onnx" \
     "$out/int8.engine" --int8
   for e in fp16 int8; do
-    step "TensorRT $e latency (python)" "$py" "$here/gpu_check.py" trt-latency "$out/$e.engine"
+    step "TensorRT $e latency (python)" "${py[@]}" "$here/gpu_check.py" trt-latency "$out/$e.engine"
   done
 fi
 if [ "$device" = cuda ]; then
   for e in fp32 fp16; do
-    step "onnxruntime-gpu latency ($e)" "$py" "$here/gpu_check.py" ort "$out/$e.onnx"
+    step "onnxruntime-gpu latency ($e)" "${py[@]}" "$here/gpu_check.py" ort "$out/$e.onnx"
   done
 fi
 
