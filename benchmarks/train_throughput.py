@@ -1,91 +1,171 @@
-"""Training throughput (images/s) of a zoo model on the CPU, measured two ways in one run.
+"""Training throughput (images/s) of slimseg and of the reference implementation, side by side.
 
-1. compute only: forward + loss + backward + optimizer step on pre-collated batches;
-2. full pipeline: the same step fed by the training DataLoader (mosaic, affine, HSV, flip),
-   once per ``--workers`` value (on 2 cores, loading in the main process wins: worker
-   processes compete with the training threads).
+For each image size, one run generates a procedural set and trains one epoch of the model on
+it with each toolkit's own training loop and loader (in the main process, mosaic on, one
+optimizer step per batch), alternating reference, slimseg, reference, slimseg, ... so both
+see the same machine load. Images/s counts the batches after ``--warmup`` (the first ones
+pay for allocator and kernel warm-up). A second table times each toolkit's training data
+pipeline alone (decode, mosaic, affine, HSV, flip, collate), what one loader worker does.
 
-    python benchmarks/train_throughput.py [--model yolov8n-seg] [--imgsz 320] [--batch 8]
+    python benchmarks/train_throughput.py [--model yolov8n-seg] [--imgsz 320 640] [--rounds 2]
 
-The reference YOLOv8 implementation trains yolov8n-seg at 17.3 images/s on this machine kind
-(320 px, batch 8, 2 threads; ANCHORS.md): the last line prints our figures against it.
+Without the reference implementation installed (optional, benchmark-only: see
+``benchmarks/reference_impl.py``), slimseg's figures are printed alone. No figure measured on
+another machine is ever used.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
+import lightning as L
 import torch
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import reference_impl
+
+from slimseg.data.augment import AugmentConfig
+from slimseg.data.collate import make_collate
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
 from slimseg.data.synth import generate
-from slimseg.engine.criterion import build_criterion
-from slimseg.models.registry import build_model
+from slimseg.engine.config import TrainConfig
+from slimseg.engine.train import train
+from slimseg.utils.table import format_table
 
-REFERENCE_IMAGES_PER_S = 17.3
+
+class _ClockCallback(L.Callback):
+    def __init__(self, clock: reference_impl.StepClock) -> None:
+        self.clock = clock
+
+    def on_train_batch_end(self, *args: object) -> None:
+        self.clock.tick()
 
 
-def step_rate(model, criterion, batches, opt, steps: int) -> float:
-    images = 0
+def slimseg_epoch(
+    data_yaml: Path, model: str, imgsz: int, batch: int, threads: int, warmup: int, out: Path
+) -> reference_impl.StepClock:
+    """One epoch of ``slimseg train`` (CPU, loader in the main process, mosaic on)."""
+    clock = reference_impl.StepClock(batch, warmup)
+    cfg = TrainConfig(
+        epochs=1, batch=batch, imgsz=imgsz, workers=0, threads=threads, close_mosaic=0
+    )
+    train(
+        model,
+        data_yaml,
+        cfg,
+        out,
+        accelerator="cpu",
+        progress=False,
+        callbacks=[_ClockCallback(clock)],
+    )
+    return clock
+
+
+def slimseg_loader_rate(data_yaml: Path, imgsz: int, batch: int, images: int) -> float:
+    """Images/s of slimseg's training dataset + collate in this process (one worker)."""
+    dm = SegDataModule(load_data_config(data_yaml), imgsz, batch, 0, AugmentConfig(), seed=0)
+    dm.setup("fit")
+    dataset, collate = dm.train_set, make_collate()
+    n = len(dataset)
     start = time.perf_counter()
-    for i in range(steps):
-        batch = batches[i % len(batches)] if isinstance(batches, list) else next(batches)
-        loss, _ = criterion(model(batch["images"]), batch)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        images += batch["images"].shape[0]
+    for s in range(0, images, batch):
+        collate([dataset[(s + k) % n] for k in range(batch)])
     return images / (time.perf_counter() - start)
+
+
+def _mean(values: list[float]) -> float:
+    return sum(values) / len(values)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default="yolov8n-seg")
-    ap.add_argument("--imgsz", type=int, default=320)
+    ap.add_argument("--imgsz", type=int, nargs="+", default=[320, 640])
     ap.add_argument("--batch", type=int, default=8)
-    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--images", type=int, nargs="+", default=[96, 64], help="per --imgsz")
+    ap.add_argument("--rounds", type=int, default=2, help="alternating runs per toolkit")
+    ap.add_argument("--warmup", type=int, default=2, help="batches left out of the rate")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--workers", type=int, nargs="+", default=[0, 2])
+    ap.add_argument("--loader-images", type=int, default=48)
+    ap.add_argument("--no-reference", action="store_true", help="slimseg figures only")
     args = ap.parse_args()
+    if len(args.images) != len(args.imgsz):
+        ap.error("--images needs one count per --imgsz")
+    ref = None if args.no_reference else reference_impl.load()
     torch.set_num_threads(args.threads)
+    train_rows, loader_rows = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        data = generate(Path(tmp) / "d", 256, 8, args.imgsz, 0, progress=False).data_yaml
-        cfg = load_data_config(data)
-        model = build_model(args.model, num_classes=len(cfg.names)).train()
-        criterion = build_criterion(model)
-        opt = torch.optim.SGD(model.parameters(), lr=1e-3, momentum=0.9)
-        rates = {}
-        for workers in args.workers:
-            dm = SegDataModule(cfg, args.imgsz, args.batch, workers, seed=0)
-            dm.setup("fit")
-            if "compute" not in rates:
-                cached = [b for _, b in zip(range(4), dm.train_dataloader(), strict=False)]
-                step_rate(model, criterion, cached, opt, 3)  # warm up allocator and kernels
-                rates["compute"] = step_rate(model, criterion, cached, opt, args.steps)
-
-            def forever(dm: SegDataModule = dm) -> Iterator[dict]:
-                while True:
-                    yield from dm.train_dataloader()
-
-            rates[workers] = step_rate(model, criterion, forever(), opt, args.steps)
-    compute = rates.pop("compute")
-    print(f"{args.model} {args.imgsz}px batch {args.batch}, {args.threads} threads")
-    print(f"  compute only               {compute:6.1f} images/s")
-    for workers, rate in rates.items():
-        print(
-            f"  full pipeline, {workers} workers  {rate:6.1f} images/s  "
-            f"({rate / compute:.2f} of compute)"
-        )
-    best = max(rates.values())
+        root = Path(tmp)
+        for imgsz, n_images in zip(args.imgsz, args.images, strict=True):
+            data = generate(root / f"d{imgsz}", n_images, 8, imgsz, 0, progress=False).data_yaml
+            ref_data = reference_impl.export_yolo_data(data, root / f"r{imgsz}") if ref else None
+            rates: dict[str, list[float]] = {"reference": [], "slimseg": []}
+            loader: dict[str, list[float]] = {"reference": [], "slimseg": []}
+            for r in range(args.rounds):
+                if ref is not None:
+                    clock = reference_impl.train_epoch(
+                        ref,
+                        ref_data,
+                        args.model,
+                        imgsz,
+                        args.batch,
+                        args.threads,
+                        args.warmup,
+                        root / "ref-runs",
+                    )
+                    rates["reference"].append(clock.images_per_s())
+                    torch.set_num_threads(args.threads)
+                    loader["reference"].append(
+                        reference_impl.loader_rate(
+                            ref, ref_data, imgsz, args.batch, args.loader_images
+                        )
+                    )
+                clock = slimseg_epoch(
+                    data,
+                    args.model,
+                    imgsz,
+                    args.batch,
+                    args.threads,
+                    args.warmup,
+                    root / f"run-{imgsz}-{r}",
+                )
+                rates["slimseg"].append(clock.images_per_s())
+                loader["slimseg"].append(
+                    slimseg_loader_rate(data, imgsz, args.batch, args.loader_images)
+                )
+                print(
+                    f"{imgsz}px round {r + 1}: "
+                    + ", ".join(f"{k} {v[-1]:.2f}" for k, v in rates.items() if v)
+                    + " images/s",
+                    flush=True,
+                )
+            for rows, measured in ((train_rows, rates), (loader_rows, loader)):
+                ours = measured["slimseg"]
+                theirs = measured["reference"]
+                ratio = f"{_mean(ours) / _mean(theirs):.2f}" if theirs else "not installed"
+                rows.append(
+                    [
+                        imgsz,
+                        " / ".join(f"{v:.2f}" for v in theirs) or "-",
+                        " / ".join(f"{v:.2f}" for v in ours),
+                        ratio,
+                    ]
+                )
+    head = ["imgsz", "reference images/s", "slimseg images/s", "slimseg / reference"]
     print(
-        f"  reference implementation (ANCHORS.md): {REFERENCE_IMAGES_PER_S} images/s -> "
-        f"best pipeline / reference {best / REFERENCE_IMAGES_PER_S:.2f}"
+        f"\n{args.model}, batch {args.batch}, {args.threads} threads, CPU, loader in the main "
+        f"process; {args.rounds} alternating runs each (ratio of the means)"
     )
+    print("training loop (one epoch, batches after the first", args.warmup, "):")
+    print(format_table(head, train_rows))
+    print("training data pipeline alone (one loader worker's throughput):")
+    print(format_table(head, loader_rows))
 
 
 if __name__ == "__main__":

@@ -131,3 +131,13 @@ def test_bad_augment_field_is_named(tmp_path) -> None:
     path.write_text("mosaic: 1.0\nflipud: 0.5\n")
     with pytest.raises(SlimsegError, match="flipud"):
         load_augment_config(path)
+
+
+def test_downsample_masks_equals_the_float_block_mean() -> None:
+    rng = np.random.default_rng(3)
+    masks = (rng.random((5, 32, 48)) < rng.random((5, 1, 1))).astype(np.uint8)
+    for ratio in (2, 4, 8):
+        n, h, w = masks.shape
+        blocks = masks.reshape(n, h // ratio, ratio, w // ratio, ratio).astype(np.float32)
+        expected = (blocks.mean(axis=(2, 4)) >= 0.5).astype(np.uint8)
+        np.testing.assert_array_equal(downsample_masks(masks, ratio), expected)

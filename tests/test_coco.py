@@ -290,3 +290,25 @@ def test_not_a_coco_json(tmp_path: Path) -> None:
     (tmp_path / "bad.json").write_text("{")
     with pytest.raises(SlimsegError, match=r"bad\.json: not a readable JSON file"):
         CocoDataset(tmp_path / "images", tmp_path / "bad.json")
+
+
+def test_batched_mask_decode_equals_one_decode_per_instance() -> None:
+    from slimseg.data.coco import Instance, decode_instance_mask, decode_instance_masks
+
+    h, w = 23, 31
+    m = np.zeros((h, w, 2), np.uint8, order="F")
+    m[2:9, 3:20, 0] = 1
+    m[10:22, 0:5, 1] = 1
+    rles = mask_utils.encode(m)
+    insts = [
+        Instance(ann_id=1, cls=0, box=(3.0, 2.0, 20.0, 9.0), segm=rles[0], crowd=False),
+        Instance(
+            ann_id=2, cls=1, box=(4.2, 5.0, 12.7, 19.1), segm=None, crowd=False
+        ),  # box instance
+        Instance(ann_id=3, cls=0, box=(0.0, 10.0, 5.0, 22.0), segm=rles[1], crowd=False),
+    ]
+    out = decode_instance_masks(insts, h, w)
+    assert out.dtype == np.uint8 and out.shape == (3, h, w) and out.flags.c_contiguous
+    for k, inst in enumerate(insts):
+        np.testing.assert_array_equal(out[k], decode_instance_mask(inst, h, w))
+    assert decode_instance_masks([], h, w).shape == (0, h, w)

@@ -174,3 +174,27 @@ def test_init_from_our_weights_reports_what_loaded(run_dir: Path) -> None:
     key = "backbone.stem.0.conv.weight"
     torch.testing.assert_close(target.model.state_dict()[key], source.state_dict()[key])
     torch.testing.assert_close(target.ema.module.state_dict()[key], source.state_dict()[key])
+
+
+def test_cli_train_logs_the_weights_report_and_restores_threads(
+    run_dir: Path, data_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    before = torch.get_num_threads()
+    wanted = 1 if before != 1 else 2
+    argv = ["train", "--model", "yolov8n-seg", "--data", str(data_yaml), "--imgsz", "96"]
+    argv += ["--epochs", "1", "--batch", "4", "--workers", "0", "--threads", str(wanted)]
+    argv += ["--weights", str(run_dir / "weights" / "best.pt"), "--out", str(tmp_path / "r")]
+    assert main([*argv, "--accelerator", "cpu", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "loaded " in out and "tensors from" in out  # the library's logger reaches the user
+    assert torch.get_num_threads() == before
+
+
+def test_float16_precision_on_cpu_is_refused_before_any_write(
+    data_yaml: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    argv = ["train", "--model", "yolov8n-seg", "--data", str(data_yaml), "--precision"]
+    argv += ["16-mixed", "--accelerator", "cpu", "--out", str(tmp_path / "r")]
+    assert main(argv) == 2
+    assert "16-mixed needs a CUDA device" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()

@@ -17,6 +17,7 @@ Resume rule: a variant with ``row.json`` (of this config) is kept; one with a Li
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -43,6 +44,8 @@ from slimseg.models.registry import build_model
 from slimseg.utils.atomic import write_json
 
 ROW_VERSION = 1
+
+logger = logging.getLogger(__name__)
 
 
 def git_sha() -> str:
@@ -83,7 +86,7 @@ def sweep_data(cfg: AblationConfig, out: Path, progress: bool) -> Path:
     data_yaml = out / "data" / "data.yaml"
     if not data_yaml.is_file():
         s = cfg.synth
-        print(f"generating the synthetic set: {s.train_images}+{s.val_images} images")
+        logger.info(f"generating the synthetic set: {s.train_images}+{s.val_images} images")
         generate(out / "data", s.train_images, s.val_images, s.imgsz, s.seed, progress=progress)
     return data_yaml
 
@@ -92,9 +95,12 @@ def run_sweep(
     cfg: AblationConfig,
     out: Path,
     progress: bool = True,
-    log: Callable[[str], None] = print,
+    log: Callable[[str], None] | None = None,
 ) -> list[dict]:
-    """Every variant of ``cfg`` trained, evaluated and measured; returns the rows in order."""
+    """Every variant of ``cfg`` trained, evaluated and measured; returns the rows in order.
+
+    Progress lines go to ``log`` (default: this module's logger at INFO)."""
+    log = log or logger.info
     from slimseg.engine.train import train  # Lightning import is slow: only when training
 
     if cfg.data_path is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from collections.abc import Sequence
 
@@ -27,6 +28,28 @@ from slimseg.errors import SlimsegError
 COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic, slam_eval, slam)
 
 
+class _StdoutHandler(logging.StreamHandler):
+    """Writes each record to the *current* ``sys.stdout`` (which tests may replace)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.setStream(sys.stdout)
+        super().emit(record)
+
+
+_CLI_HANDLER = _StdoutHandler()
+_CLI_HANDLER.setFormatter(logging.Formatter("%(message)s"))
+
+
+def configure_logging() -> None:
+    """The library's INFO lines (``slimseg.*`` loggers) printed as plain lines on stdout;
+    idempotent (one handler however often ``main`` runs in a process)."""
+    root = logging.getLogger("slimseg")
+    if _CLI_HANDLER not in root.handlers:
+        root.addHandler(_CLI_HANDLER)
+    if root.level == logging.NOTSET:
+        root.setLevel(logging.INFO)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="slimseg",
@@ -43,6 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the command; user errors print one line and return 2."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    configure_logging()
     try:
         return int(args.run(args) or 0)
     except SlimsegError as exc:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from slimseg.data.augment import load_augment_config
 from slimseg.engine.config import load_train_config
+from slimseg.engine.precision import PRECISIONS
 from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.semantic_metrics import format_semantic_table
 
@@ -37,6 +38,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr0", type=float, default=None)
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (0 = all cores)")
+    p.add_argument(
+        "--precision",
+        choices=PRECISIONS,
+        default="auto",
+        help="auto: 16-mixed on a GPU when the recipe's amp is on, else 32-true",
+    )
     p.add_argument("--out", default=None, help="run folder (default runs/<model>)")
     p.add_argument("--resume", action="store_true", help="continue OUT from checkpoints/last.ckpt")
     p.add_argument("--weights", default=None, help="initial weights (.pt or .ckpt); shapes matched")
@@ -57,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         lr0=args.lr0,
         workers=args.workers,
         seed=args.seed,
+        threads=args.threads,
     )
     out = Path(args.out) if args.out else Path("runs") / Path(args.model).stem
     devices = int(args.devices) if str(args.devices).isdigit() else args.devices
@@ -72,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         weights=args.weights,
         augment=load_augment_config(args.augment),
         progress=not args.quiet,
+        precision=args.precision,
     )
     if module.trainer.is_global_zero:
         if module.last_metrics and "miou" in module.last_metrics:

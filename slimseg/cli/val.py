@@ -7,6 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
+import torch
 from torch import nn
 
 from slimseg.data.coco import CocoDataset
@@ -55,6 +56,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--iou", type=float, default=0.7)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--save-json", default=None, help="also write COCO results json here")
+    p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (network and masks)")
     p.set_defaults(run=run)
 
 
@@ -79,7 +81,15 @@ def _load(args: argparse.Namespace) -> tuple[nn.Module, int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        raise SlimsegError(f"--device {args.device}: no CUDA device is visible to torch")
+    try:
+        device = torch.device(args.device)
+    except RuntimeError:
+        raise SlimsegError(f"--device {args.device!r}: expected cpu, cuda or cuda:N") from None
     model, imgsz = _load(args)
+    if not isinstance(model, OnnxModel):  # an exported graph runs in onnxruntime on the CPU
+        model = model.to(device)
     data_cfg = load_data_config(args.data)
     if len(data_cfg.names) != model.num_classes:
         raise SlimsegError(

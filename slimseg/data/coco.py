@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from slimseg.data.coco_index import Instance, build_index, load_coco_json
-from slimseg.data.coco_rle import decode_instance_mask
+from slimseg.data.coco_rle import decode_instance_masks
 from slimseg.data.images import depth_path_for, read_depth, read_image_rgb8
 from slimseg.data.problems import ImageProblem, LoadReport
 from slimseg.data.sample import Sample
@@ -54,10 +54,6 @@ from slimseg.errors import SlimsegError
 
 if TYPE_CHECKING:
     from slimseg.data.config import DataConfig
-
-
-def _stack(masks: list[np.ndarray], h: int, w: int) -> np.ndarray:
-    return np.stack(masks).astype(np.uint8) if masks else np.zeros((0, h, w), np.uint8)
 
 
 def _boxes(insts: list[Instance]) -> np.ndarray:
@@ -141,17 +137,15 @@ class CocoDataset:
             for kind in notes:
                 self.report.add(kind, rec.file_name)
 
-        kept: list[Instance] = []
-        masks: list[np.ndarray] = []
-        for inst in rec.instances:
-            m = decode_instance_mask(inst, h, w)
-            if not m.any():
-                if first:
+        decoded = decode_instance_masks(rec.instances, h, w)
+        nonempty = decoded.any(axis=(1, 2))
+        if first:
+            for inst, ok in zip(rec.instances, nonempty, strict=True):
+                if not ok:
                     self.report.add("empty_mask", f"{rec.file_name} (ann {inst.ann_id})")
-                continue
-            kept.append(inst)
-            masks.append(m)
-        crowd_masks = [decode_instance_mask(c, h, w) for c in rec.crowd]
+        kept = [inst for inst, ok in zip(rec.instances, nonempty, strict=True) if ok]
+        masks = decoded if nonempty.all() else decoded[nonempty]
+        crowd_masks = decode_instance_masks(rec.crowd, h, w)
 
         depth = None
         if self.depth_dir is not None:
@@ -167,7 +161,7 @@ class CocoDataset:
             image=image,
             boxes=_boxes(kept),
             classes=np.asarray([i.cls for i in kept], np.int64),
-            masks=_stack(masks, h, w),
+            masks=masks,
             image_id=rec.id,
             path=str(path),
             depth=depth,
@@ -175,7 +169,7 @@ class CocoDataset:
                 "file_name": rec.file_name,
                 "ann_ids": np.asarray([i.ann_id for i in kept], np.int64),
                 "box_masks": np.asarray([i.segm is None for i in kept], bool),
-                "crowd_masks": _stack(crowd_masks, h, w),
+                "crowd_masks": crowd_masks,
                 "crowd_boxes": _boxes(rec.crowd),
                 "crowd_classes": np.asarray([c.cls for c in rec.crowd], np.int64),
                 "converted": notes,

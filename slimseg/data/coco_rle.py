@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 
+import cv2
 import numpy as np
 from pycocotools import mask as mask_utils
 
@@ -41,6 +43,25 @@ def decode_instance_mask(inst: Instance, height: int, width: int) -> np.ndarray:
         # pycocotools' Cython array lacks numpy 2's ``copy`` keyword: harmless, silenced here.
         warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)
         return np.ascontiguousarray(mask_utils.decode(rle), dtype=np.uint8)
+
+
+def decode_instance_masks(insts: Sequence[Instance], height: int, width: int) -> np.ndarray:
+    """``uint8 [N, H, W]``: :func:`decode_instance_mask` of each instance, with one
+    pycocotools call for all RLE instances and a SIMD transpose out of its column-major
+    layout (the same pixels, several times faster than one decode and copy per mask)."""
+    out = np.empty((len(insts), height, width), np.uint8)
+    rle_at = [k for k, inst in enumerate(insts) if inst.segm is not None]
+    for k, inst in enumerate(insts):
+        if inst.segm is None:
+            out[k] = decode_instance_mask(inst, height, width)
+    if rle_at:
+        rles = [segm_to_rle(insts[k].segm, height, width) for k in rle_at]
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)
+            columns = mask_utils.decode(rles).T  # [N, W, H], C-contiguous
+        for j, k in enumerate(rle_at):
+            cv2.transpose(columns[j], dst=out[k])
+    return out
 
 
 def instance_area(inst: Instance, height: int, width: int) -> int:

@@ -16,8 +16,10 @@ def downsample_masks(masks: np.ndarray, ratio: int) -> np.ndarray:
     n, h, w = masks.shape
     if ratio == 1:
         return masks
-    blocks = masks.reshape(n, h // ratio, ratio, w // ratio, ratio).astype(np.float32)
-    return (blocks.mean(axis=(2, 4)) >= 0.5).astype(np.uint8)
+    # integer block sums (exact): mean >= 0.5  <=>  2 * sum >= r * r
+    rows = masks.reshape(n, h // ratio, ratio, w).sum(axis=2, dtype=np.uint16)
+    blocks = rows.reshape(n, h // ratio, w // ratio, ratio).sum(axis=3, dtype=np.uint16)
+    return (2 * blocks >= ratio * ratio).astype(np.uint8)
 
 
 def make_collate(mask_ratio: int = 4, semantic: bool = False) -> Callable[[list[Sample]], dict]:

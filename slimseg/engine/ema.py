@@ -29,12 +29,22 @@ class ModelEMA:
         self.updates += 1
         d = self.current_decay()
         live = model.state_dict()
+        floats, sources, others, copies = [], [], [], []
         for name, value in self.module.state_dict().items():
             src = live[name].detach()
             if value.dtype.is_floating_point:
-                value.mul_(d).add_(src.to(value.dtype), alpha=1 - d)
+                floats.append(value)
+                sources.append(src if src.dtype == value.dtype else src.to(value.dtype))
             else:
-                value.copy_(src)
+                others.append(value)
+                copies.append(src)
+        # the same two element-wise operations as value.mul_(d).add_(src, alpha=1 - d), one
+        # fused kernel launch per group instead of two per tensor
+        if floats:
+            torch._foreach_mul_(floats, d)
+            torch._foreach_add_(floats, sources, alpha=1 - d)
+        for value, src in zip(others, copies, strict=True):
+            value.copy_(src)
 
     def state_dict(self) -> dict:
         return {"module": self.module.state_dict(), "updates": self.updates}

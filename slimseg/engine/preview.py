@@ -59,7 +59,7 @@ def _panels(
             class_map = logits_to_frame(logits[i], meta["letterbox"], source.shape[:2])
             out.append((i, source, draw_class_map(source, class_map.numpy(), names)))
         return out
-    frames = detect_batch(model, batch, conf=conf, iou=NMS_IOU, max_det=100)
+    frames = detect_batch(model, batch, conf=conf, iou=NMS_IOU, max_det=100, mask_limit=None)
     for i, det in enumerate(frames):
         source = dataset.base[i].image
         h, w = source.shape[:2]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import logging
 import os
 import warnings
 from pathlib import Path
@@ -35,10 +36,14 @@ from slimseg.deploy.checkpoint import (
 )
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.module import DetectorModule
+from slimseg.engine.precision import resolve_precision
 from slimseg.engine.pretrained import load_pretrained
 from slimseg.errors import SlimsegError
 from slimseg.models.registry import get_spec
 from slimseg.utils.atomic import atomic_path
+from slimseg.utils.threads import torch_threads
+
+logger = logging.getLogger(__name__)
 
 # Lightning notices that are noise for slimseg runs (short CPU epochs, pytree deprecation).
 QUIET_WARNINGS = (
@@ -175,24 +180,62 @@ def train(
     augment: AugmentConfig | None = None,
     progress: bool = True,
     callbacks: list[L.Callback] | None = None,
+    precision: str = "auto",
 ) -> tuple[DetectorModule, Path]:
     """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder.
 
-    ``callbacks`` are added to the run's own (checkpointing, run writer, progress bar)."""
+    ``callbacks`` are added to the run's own (checkpointing, run writer, progress bar).
+    ``cfg.threads`` (when set) is torch's thread count during the call only. ``precision``:
+    one of :data:`~slimseg.engine.precision.PRECISIONS` (``auto`` follows ``cfg.amp``)."""
+    with torch_threads(cfg.threads):
+        return _train(
+            model,
+            data,
+            cfg,
+            out,
+            resume,
+            devices,
+            num_nodes,
+            accelerator,
+            weights,
+            augment,
+            progress,
+            callbacks,
+            precision,
+        )
+
+
+def _train(
+    model: str,
+    data: str | Path,
+    cfg: TrainConfig,
+    out: Path,
+    resume: bool,
+    devices: int | str,
+    num_nodes: int,
+    accelerator: str,
+    weights: str | None,
+    augment: AugmentConfig | None,
+    progress: bool,
+    callbacks: list[L.Callback] | None,
+    precision: str,
+) -> tuple[DetectorModule, Path]:
     data_cfg = load_data_config(data)
     spec = get_spec(model, len(data_cfg.names))
+    use_gpu = accelerator in ("gpu", "cuda") or (
+        accelerator == "auto" and torch.cuda.is_available()
+    )
+    lightning_precision = resolve_precision(precision, cfg.amp, use_gpu)  # before any write
     last_ckpt = out / "checkpoints" / "last.ckpt"
     if resume and not last_ckpt.is_file():
         raise SlimsegError(f"{last_ckpt}: nothing to resume (no checkpoint in {out})")
     out = resolve_run_dir(out, resume)
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     module = DetectorModule(
         spec.to_dict(), dataclasses.asdict(cfg), list(data_cfg.names), list(data_cfg.mobility)
     )
     if weights and not resume:
-        print(transfer_weights(module, weights))
+        logger.info(transfer_weights(module, weights))
     dm = SegDataModule(
         data_cfg,
         cfg.imgsz,
@@ -215,9 +258,6 @@ def train(
                 sort_keys=False,
             )
         )
-    use_gpu = accelerator in ("gpu", "cuda") or (
-        accelerator == "auto" and torch.cuda.is_available()
-    )
     multi = num_nodes > 1 or (devices not in ("auto", 1, "1"))
     trainer = L.Trainer(
         max_epochs=cfg.epochs,
@@ -225,7 +265,7 @@ def train(
         devices=devices,
         num_nodes=num_nodes,
         strategy="ddp" if multi else "auto",
-        precision="16-mixed" if (cfg.amp and use_gpu) else "32-true",
+        precision=lightning_precision,
         gradient_clip_val=cfg.grad_clip or None,
         sync_batchnorm=cfg.sync_bn and multi,
         logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),

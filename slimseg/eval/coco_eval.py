@@ -34,7 +34,7 @@ from pycocotools.cocoeval import COCOeval
 
 from slimseg.data.coco_rle import segm_to_rle
 from slimseg.errors import SlimsegError
-from slimseg.eval.postprocess import FrameDetections
+from slimseg.eval.postprocess import COCO_MAX_DETS, FrameDetections
 from slimseg.utils.table import format_table
 
 if TYPE_CHECKING:
@@ -194,7 +194,7 @@ class CocoEvaluator:
         if "segm" in self.iou_types:
             if not det.has_masks:
                 raise ValueError("mask evaluation needs detections with masks (or RLEs)")
-            rles = det.mask_rles()
+            rles = det.mask_rles()  # None: not assembled, beyond COCO_MAX_DETS of its class
             self._results["segm"].extend(
                 {"image_id": img_id, "category_id": c, "segmentation": r, "score": s}
                 for c, r, s in zip(cats, rles, scores.tolist(), strict=True)
@@ -202,12 +202,15 @@ class CocoEvaluator:
 
     def write_results(self, path: str | Path) -> Path:
         """Write the accumulated detections as a COCO results json (boxes xywh; masks as RLE
-        under ``segmentation`` when evaluated), atomically."""
+        under ``segmentation`` when evaluated, except for detections beyond
+        :data:`~slimseg.eval.postprocess.COCO_MAX_DETS` of their class in an image, whose
+        masks validation does not assemble), atomically."""
         merged: dict[int, dict] = {}
         for i, r in enumerate(self._results["bbox"]):
             merged[i] = dict(r)
         for i, r in enumerate(self._results.get("segm", [])):
-            merged[i]["segmentation"] = r["segmentation"]
+            if r["segmentation"] is not None:  # no mask beyond COCO_MAX_DETS of its class
+                merged[i]["segmentation"] = r["segmentation"]
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.tmp")
@@ -227,7 +230,7 @@ class CocoEvaluator:
         self, iou_type: str
     ) -> tuple[float, float, list[float | None], list[float | None]]:
         """Overall (mAP50-95, mAP50) and per-class lists for one iou type."""
-        results = self._results[iou_type]
+        results = [r for r in self._results[iou_type] if r.get("segmentation", True) is not None]
         if not results:
             # No detection at all: pycocotools cannot load an empty result list. AP is 0 for
             # every class with ground truth.
@@ -238,6 +241,8 @@ class CocoEvaluator:
         ev = COCOeval(self.gt, dt, iou_type)
         ev.params.imgIds = sorted(self._img_ids)
         ev.params.catIds = sorted(self.cat_ids)
+        if max(ev.params.maxDets) > COCO_MAX_DETS:  # the masks left out would then count
+            raise ValueError(f"COCOeval scores {max(ev.params.maxDets)} detections per class")
         _quiet(ev.evaluate)
         _quiet(ev.accumulate)
         _quiet(ev.summarize)

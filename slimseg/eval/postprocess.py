@@ -15,11 +15,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from pycocotools import mask as mask_utils
 
 from slimseg.data.letterbox import LetterboxParams, boxes_to_frame
-from slimseg.ops.masks import assemble_masks, masks_to_frame
+from slimseg.ops.masks import assemble_masks, frame_windows, mask_windows, masks_to_frame
 from slimseg.ops.nms import Detections
+from slimseg.ops.rle import window_rles
+
+#: COCO scores at most this many detections per image and class (``COCOeval.params.maxDets``
+#: last value): validation assembles masks only for detections within it, in score order.
+COCO_MAX_DETS = 100
 
 
 @dataclass(eq=False)
@@ -29,7 +35,9 @@ class FrameDetections:
     ``boxes``: ``float32 [N, 4]`` xyxy, clipped to the frame; ``scores``: ``float32 [N]``;
     ``classes``: ``int64 [N]`` contiguous class ids; ``masks``: ``bool [N, h, w]`` or
     ``None``; ``rles``: ``N`` COCO RLE dicts (``size [h, w]``, ``counts`` str) or ``None``;
-    ``image_hw``: ``(h, w)``. Detection-only results have neither masks nor RLEs.
+    ``image_hw``: ``(h, w)``. Detection-only results have neither masks nor RLEs. An RLE
+    entry is ``None`` for a detection whose mask was not assembled (validation skips those
+    beyond :data:`COCO_MAX_DETS` of their class: COCO never looks at them).
     """
 
     boxes: np.ndarray
@@ -37,7 +45,7 @@ class FrameDetections:
     classes: np.ndarray
     image_hw: tuple[int, int]
     masks: np.ndarray | None = None
-    rles: list[dict] | None = None
+    rles: list[dict | None] | None = None
 
     def __len__(self) -> int:
         return len(self.scores)
@@ -46,7 +54,7 @@ class FrameDetections:
     def has_masks(self) -> bool:
         return self.masks is not None or self.rles is not None
 
-    def mask_rles(self) -> list[dict]:
+    def mask_rles(self) -> list[dict | None]:
         """The masks as COCO RLEs (encoded from ``masks`` if only those are stored)."""
         if self.rles is not None:
             return self.rles
@@ -97,6 +105,16 @@ def decode_rle(rles: Sequence[dict], image_hw: tuple[int, int]) -> np.ndarray:
         return np.transpose(mask_utils.decode(list(rles)), (2, 0, 1)).astype(bool)
 
 
+def within_class_limit(classes: torch.Tensor, limit: int | None) -> torch.Tensor:
+    """``bool [N]``: detections (sorted by decreasing score) among the first ``limit`` of
+    their class; all of them when ``limit`` is ``None``."""
+    if limit is None or len(classes) == 0:
+        return torch.ones(len(classes), dtype=torch.bool, device=classes.device)
+    onehot = F.one_hot(classes.long(), int(classes.max()) + 1)
+    rank = (onehot.cumsum(0) * onehot).sum(1) - 1  # earlier detections of the same class
+    return rank < limit
+
+
 def to_frame_detections(
     dets: Detections,
     proto: torch.Tensor | None,
@@ -104,14 +122,18 @@ def to_frame_detections(
     *,
     rle: bool = False,
     chunk: int = 32,
+    mask_limit: int | None = None,
 ) -> FrameDetections:
     """One image's NMS output → :class:`FrameDetections` on its source frame.
 
     ``dets``: boxes xyxy in input pixels and ``coeffs [N, nm]``; ``proto``: the image's
     prototypes ``[nm, Hp, Wp]`` (``None``: detection only, no masks); ``meta``: the batch meta
     of the image, with ``"letterbox"`` (:class:`LetterboxParams`) and ``"orig_shape"``
-    ``(h, w)``. ``rle=True`` stores masks as RLEs instead of ``bool [N, h, w]``. Masks are
-    built ``chunk`` detections at a time.
+    ``(h, w)``. ``rle=True`` stores masks as RLEs instead of ``bool [N, h, w]``, encoded
+    from each detection's window (never a full-frame mask); then ``mask_limit`` (e.g.
+    :data:`COCO_MAX_DETS`) assembles masks only for the first ``mask_limit`` detections of
+    each class, the others' RLE is ``None``. Masks are built ``chunk`` detections at a time,
+    on ``proto``'s device.
     """
     p: LetterboxParams = meta["letterbox"]
     h, w = (int(v) for v in meta["orig_shape"])
@@ -129,11 +151,13 @@ def to_frame_detections(
             f"proto has {proto.shape[0]} channels but detections carry "
             f"{dets.coeffs.shape[1]} mask coefficients"
         )
+    if rle:
+        out.rles = _frame_rles(dets, proto.detach(), p, (h, w), chunk, mask_limit)
+        return out
     # Without a resize to the frame, thresholding at input resolution gives the same masks
     # and skips the float copies.
     threshold = 0.5 if (p.new_h, p.new_w) == (h, w) else None
     parts: list[np.ndarray] = []
-    rles: list[dict] = []
     for s in range(0, len(dets), chunk):
         at_input = assemble_masks(
             dets.coeffs[s : s + chunk].detach(),
@@ -144,16 +168,44 @@ def to_frame_detections(
             chunk=chunk,
         )
         m = masks_to_frame(at_input, p, (h, w), chunk=chunk, boxes=boxes_in[s : s + chunk])
-        m = m.cpu().numpy()
-        if rle:
-            rles.extend(encode_rle(m))
-        else:
-            parts.append(m)
-    if rle:
-        out.rles = rles
-    else:
-        out.masks = np.concatenate(parts) if parts else np.zeros((0, h, w), bool)
+        parts.append(m.cpu().numpy())
+    out.masks = np.concatenate(parts) if parts else np.zeros((0, h, w), bool)
     return out
+
+
+def _frame_rles(
+    dets: Detections,
+    proto: torch.Tensor,
+    p: LetterboxParams,
+    frame_hw: tuple[int, int],
+    chunk: int,
+    mask_limit: int | None,
+) -> list[dict | None]:
+    """The RLE of each detection's frame mask (``None`` beyond ``mask_limit`` per class):
+    the same pixels as the dense path of :func:`to_frame_detections`, from windows."""
+    h, w = frame_hw
+    rles: list[dict | None] = [None] * len(dets)
+    idx = within_class_limit(dets.classes, mask_limit).nonzero().squeeze(1)
+    coeffs, boxes = dets.coeffs.detach()[idx], dets.boxes.detach()[idx]
+    if (p.new_h, p.new_w) == (h, w):  # no resize: input-resolution windows, minus the padding
+        for k, values, top, left in mask_windows(coeffs, proto, boxes, (p.out_h, p.out_w)):
+            top, left = top - p.top, left - p.left  # frame pixels
+            rows = top[:, None] + torch.arange(values.shape[1], device=top.device)
+            cols = left[:, None] + torch.arange(values.shape[2], device=left.device)
+            in_frame = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None]
+            encoded = window_rles(values & in_frame, top, left, (h, w))
+            for i, r in zip(idx[k].tolist(), encoded, strict=True):
+                rles[i] = r
+        return rles
+    for s in range(0, len(idx), chunk):
+        at_input = assemble_masks(
+            coeffs[s : s + chunk], proto, boxes[s : s + chunk], (p.out_h, p.out_w), None, chunk
+        )
+        for k, values, top, left in frame_windows(at_input, p, (h, w), boxes[s : s + chunk]):
+            encoded = window_rles(values, top, left, (h, w))
+            for i, r in zip(idx[s + k].tolist(), encoded, strict=True):
+                rles[i] = r
+    return rles
 
 
 def batch_to_frame_detections(
@@ -163,11 +215,19 @@ def batch_to_frame_detections(
     *,
     rle: bool = False,
     chunk: int = 32,
+    mask_limit: int | None = None,
 ) -> list[FrameDetections]:
     """:func:`to_frame_detections` for a batch: ``proto [B, nm, Hp, Wp]`` or ``None``."""
     if len(dets) != len(metas) or (proto is not None and proto.shape[0] != len(dets)):
         raise ValueError("dets, proto and metas must describe the same batch")
     return [
-        to_frame_detections(d, None if proto is None else proto[i], m, rle=rle, chunk=chunk)
+        to_frame_detections(
+            d,
+            None if proto is None else proto[i],
+            m,
+            rle=rle,
+            chunk=chunk,
+            mask_limit=mask_limit,
+        )
         for i, (d, m) in enumerate(zip(dets, metas, strict=True))
     ]

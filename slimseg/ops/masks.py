@@ -37,6 +37,8 @@ of binary masks gives smoother edges when the frame is larger than the input.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import torch
 import torch.nn.functional as F
 
@@ -79,25 +81,25 @@ def _bilinear_taps(
     return o, valid, i0, i1, (src - i0).clamp(0, 1)
 
 
-def _resize_into(
-    out: torch.Tensor,
+def _resize_window(
     src: torch.Tensor,
-    k: torch.Tensor,
     span_x: tuple[torch.Tensor, torch.Tensor],
     span_y: tuple[torch.Tensor, torch.Tensor],
     out_hw: tuple[int, int],
     threshold: float | None,
-) -> None:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Bilinear resize (half-pixel centres) of ``src [m, Hs, Ws]`` to ``out_hw``, computed only
-    on a window around each detection's output span ``(first [m], count [m])`` per axis and
-    written into the contiguous ``out [N, H · W]`` at rows ``k [m]`` (thresholded unless
-    ``threshold`` is ``None``). Window pixels outside the spans are written 0 (callers
-    guarantee the result is 0 there); the rest of ``out`` is left untouched."""
+    on a window around each detection's output span ``(first [m], count [m])`` per axis.
+
+    Returns ``values [m, sy, sx]`` (``bool`` thresholded at ``threshold``, or float when it is
+    ``None``; 0 on window pixels outside the spans) and the window's top row and left column
+    ``[m]`` in output pixels: window pixel ``(i, j)`` of detection ``d`` is output pixel
+    ``(top[d] + i, left[d] + j)``, always inside ``out_hw``."""
     h, w = out_hw
     m, hs, ws = src.shape
     sx, sy = int(span_x[1].max()), int(span_y[1].max())
-    ox, vx, ix0, ix1, lx = _bilinear_taps(*span_x, sx, w, ws)
-    oy, vy, iy0, iy1, ly = _bilinear_taps(*span_y, sy, h, hs)
+    _, vx, ix0, ix1, lx = _bilinear_taps(*span_x, sx, w, ws)
+    _, vy, iy0, iy1, ly = _bilinear_taps(*span_y, sy, h, hs)
     # x first, then y (the order of torch's and OpenCV's bilinear kernels).
     g0 = torch.gather(src, 2, ix0[:, None, :].expand(m, hs, sx))
     g1 = torch.gather(src, 2, ix1[:, None, :].expand(m, hs, sx))
@@ -107,8 +109,69 @@ def _resize_into(
     local = g0 * (1 - ly)[:, :, None] + g1 * ly[:, :, None]  # [m, sy, sx]
     inside = vy[:, :, None] & vx[:, None, :]
     values = local * inside if threshold is None else (local > threshold) & inside
+    # the windows' first pixels, as _bilinear_taps places them (also for empty windows)
+    top = torch.minimum(span_y[0], torch.full_like(span_y[0], h - sy))
+    left = torch.minimum(span_x[0], torch.full_like(span_x[0], w - sx))
+    return values, top, left
+
+
+def _scatter_windows(
+    out: torch.Tensor,
+    k: torch.Tensor,
+    values: torch.Tensor,
+    top: torch.Tensor,
+    left: torch.Tensor,
+    out_hw: tuple[int, int],
+) -> None:
+    """Write windows ``values [m, sy, sx]`` at ``(top, left) [m]`` into rows ``k [m]`` of the
+    contiguous ``out [N, H · W]`` (``out_hw = (H, W)``); the rest of ``out`` is untouched."""
+    h, w = out_hw
+    _, sy, sx = values.shape
+    oy = top[:, None] + torch.arange(sy, device=top.device)
+    ox = left[:, None] + torch.arange(sx, device=left.device)
     lin = (k[:, None, None] * h + oy[:, :, None]) * w + ox[:, None, :]
-    out.view(-1).scatter_(0, lin.view(-1), values.view(-1))
+    out.view(-1).scatter_(0, lin.view(-1), values.reshape(-1))
+
+
+def mask_windows(
+    coeffs: torch.Tensor,
+    proto: torch.Tensor,
+    boxes: torch.Tensor,
+    input_hw: tuple[int, int],
+    threshold: float | None = 0.5,
+    chunk: int = 32,
+    proto_crop: bool = False,
+) -> Iterator[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """:func:`assemble_masks` without the full-size output: per chunk of detections (sorted
+    by box size), ``(k [m], values [m, sy, sx], top [m], left [m])``: the detections' indices,
+    their masks on a window (``bool``, or probabilities when ``threshold`` is ``None``; 0
+    outside the window) and the window's position in input pixels."""
+    if coeffs.ndim != 2 or proto.ndim != 3 or coeffs.shape[1] != proto.shape[0]:
+        raise ValueError(
+            f"expected coeffs [N, nm] and proto [nm, Hp, Wp], got {tuple(coeffs.shape)} and "
+            f"{tuple(proto.shape)}"
+        )
+    n = coeffs.shape[0]
+    if boxes.shape != (n, 4):
+        raise ValueError(f"expected boxes [{n}, 4], got {tuple(boxes.shape)}")
+    if n == 0:
+        return
+    h, w = input_hw
+    nm, hp, wp = proto.shape
+    flat = proto.reshape(nm, hp * wp).float()
+    b = boxes.detach().float()
+    x0, nx = _pixel_span(b[:, 0], b[:, 2], w)
+    y0, ny = _pixel_span(b[:, 1], b[:, 3], h)
+    order = (nx * ny).argsort(descending=True)
+    to_proto = torch.tensor([wp / w, hp / h, wp / w, hp / h], device=b.device)
+    for s in range(0, n, chunk):
+        k = order[s : s + chunk]
+        m = k.numel()
+        prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
+        if proto_crop:
+            prob = prob * _proto_window(b[k] * to_proto, hp, wp)
+        values, top, left = _resize_window(prob, (x0[k], nx[k]), (y0[k], ny[k]), (h, w), threshold)
+        yield k, values, top, left
 
 
 def assemble_masks(
@@ -133,33 +196,13 @@ def assemble_masks(
     large as the chunk's largest box, with vectorised gathers; the result equals full-frame
     ``F.interpolate`` followed by the crop (up to float rounding).
     """
-    if coeffs.ndim != 2 or proto.ndim != 3 or coeffs.shape[1] != proto.shape[0]:
-        raise ValueError(
-            f"expected coeffs [N, nm] and proto [nm, Hp, Wp], got {tuple(coeffs.shape)} and "
-            f"{tuple(proto.shape)}"
-        )
-    n = coeffs.shape[0]
-    if boxes.shape != (n, 4):
-        raise ValueError(f"expected boxes [{n}, 4], got {tuple(boxes.shape)}")
-    h, w = input_hw
-    nm, hp, wp = proto.shape
+    n, (h, w) = coeffs.shape[0], input_hw
     dtype = torch.float32 if threshold is None else torch.bool
     out = torch.zeros(n, h * w, dtype=dtype, device=coeffs.device)
-    if n == 0:
-        return out.view(0, h, w)
-    flat = proto.reshape(nm, hp * wp).float()
-    b = boxes.detach().float()
-    x0, nx = _pixel_span(b[:, 0], b[:, 2], w)
-    y0, ny = _pixel_span(b[:, 1], b[:, 3], h)
-    order = (nx * ny).argsort(descending=True)
-    to_proto = torch.tensor([wp / w, hp / h, wp / w, hp / h], device=b.device)
-    for s in range(0, n, chunk):
-        k = order[s : s + chunk]
-        m = k.numel()
-        prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
-        if proto_crop:
-            prob = prob * _proto_window(b[k] * to_proto, hp, wp)
-        _resize_into(out, prob, k, (x0[k], nx[k]), (y0[k], ny[k]), (h, w), threshold)
+    for k, values, top, left in mask_windows(
+        coeffs, proto, boxes, input_hw, threshold, chunk, proto_crop
+    ):
+        _scatter_windows(out, k, values, top, left, (h, w))
     return out.view(n, h, w)
 
 
@@ -199,8 +242,30 @@ def masks_to_frame(
             m = F.interpolate(m, size=(h, w), mode="bilinear", align_corners=False)
             out.append(m[:, 0] > threshold)
         return torch.cat(out) if out else torch.zeros((0, h, w), dtype=torch.bool)
+    out = torch.zeros(n, h * w, dtype=torch.bool, device=masks.device)
+    for k, values, top, left in frame_windows(masks, p, orig_hw, boxes, threshold, chunk):
+        _scatter_windows(out, k, values, top, left, (h, w))
+    return out.view(n, h, w)
+
+
+def frame_windows(
+    masks: torch.Tensor,
+    p: LetterboxParams,
+    orig_hw: tuple[int, int],
+    boxes: torch.Tensor,
+    threshold: float = 0.5,
+    chunk: int = 32,
+) -> Iterator[tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """:func:`masks_to_frame` with ``boxes`` and a frame size different from the letterbox
+    content, without the full-frame output: per chunk, ``(k [m], values bool [m, sy, sx],
+    top [m], left [m])`` as in :func:`mask_windows`, in frame pixels."""
+    n = masks.shape[0]
     if boxes.shape != (n, 4):
         raise ValueError(f"expected boxes [{n}, 4], got {tuple(boxes.shape)}")
+    if n == 0:
+        return
+    h, w = orig_hw
+    content = masks[:, p.top : p.top + p.new_h, p.left : p.left + p.new_w]
     b = boxes.detach().float()
     spans = []
     for lo, hi, size, offset, new, dst in (
@@ -217,10 +282,10 @@ def masks_to_frame(
         f1 = torch.where(c1 > c0, f1, f0)
         spans.append((f0.long(), (f1 - f0).long()))
     (fx, nx), (fy, ny) = spans
-    out = torch.zeros(n, h * w, dtype=torch.bool, device=masks.device)
     order = (nx * ny).argsort(descending=True)
     for s in range(0, n, chunk):
         k = order[s : s + chunk]
-        src = content[k].float()
-        _resize_into(out, src, k, (fx[k], nx[k]), (fy[k], ny[k]), (h, w), threshold)
-    return out.view(n, h, w)
+        values, top, left = _resize_window(
+            content[k].float(), (fx[k], nx[k]), (fy[k], ny[k]), (h, w), threshold
+        )
+        yield k, values, top, left
