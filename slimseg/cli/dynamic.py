@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.dynamic.pipeline import MODES
+from slimseg.dynamic.pipeline import MASKING_CONF, MODES
 from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
 from slimseg.dynamic.tum import mask_name
@@ -40,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sequence", required=True, help="folder with rgb.txt and depth.txt")
     p.add_argument("--out", default="runs/dynamic")
     p.add_argument("--mode", default="fusion", choices=MODES)
-    p.add_argument("--conf", type=float, default=0.25)
+    p.add_argument("--conf", type=float, default=MASKING_CONF, help="detector score threshold")
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
     p.add_argument("--min-static", type=int, default=100, help="Eq. 1: static points needed")
     p.add_argument("--dilation", type=int, default=0, help="mask dilation in pixels")

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from slimseg.dynamic.pipeline import MODES
+from slimseg.dynamic.pipeline import MASKING_CONF, MODES
 from slimseg.errors import SlimsegError
 
 SPECIAL = ("raw", "gt", "oracle")
@@ -57,7 +57,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
-    p.add_argument("--conf", type=float, default=0.25, help="detector confidence (mask modes)")
+    p.add_argument(
+        "--conf", type=float, default=MASKING_CONF, help="detector confidence (mask modes)"
+    )
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features (mask modes)")
     p.add_argument("--dilation", type=int, default=2, help="px added around removed regions")
     p.add_argument("--features", type=int, default=1000, help="ORB-SLAM3 ORB features")

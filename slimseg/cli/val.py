@@ -19,6 +19,7 @@ from slimseg.engine.evaluate import SEMANTIC_CONF, evaluate_dataset, is_semantic
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.semantic_metrics import format_semantic_table
+from slimseg.ops.nms import EVAL_CONF, NMS_IOU
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -46,14 +47,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--conf",
         type=float,
         default=None,
-        help="score threshold (default 0.001 for mAP, 0.25 for --semantic)",
+        help=f"score threshold (default {EVAL_CONF} for mAP, {SEMANTIC_CONF} for --semantic)",
     )
     p.add_argument(
         "--semantic",
         action="store_true",
         help="mIoU/MPA of a YOLO segmenter's masks as a class map (implied for msnet)",
     )
-    p.add_argument("--iou", type=float, default=0.7)
+    p.add_argument("--iou", type=float, default=NMS_IOU)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--save-json", default=None, help="also write COCO results json here")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (network and masks)")
@@ -103,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if semantic and args.save_json:
         raise SlimsegError("--save-json writes COCO detections: not available for mIoU/MPA")
-    conf = args.conf if args.conf is not None else (SEMANTIC_CONF if semantic else 0.001)
+    conf = args.conf if args.conf is not None else (SEMANTIC_CONF if semantic else EVAL_CONF)
     base = CocoDataset.from_config(data_cfg, args.split)
     result, evaluator = evaluate_dataset(
         model,

@@ -27,7 +27,7 @@ from slimseg.deploy.int8_quantize import quantize_onnx
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.eval.postprocess import to_frame_detections
-from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
+from slimseg.ops.nms import PREDICT_CONF, Detections, non_max_suppression, yolov3_to_rows
 from slimseg.ops.semantic import logits_to_frame
 from slimseg.utils.threads import torch_threads
 
@@ -137,5 +137,5 @@ def _postprocess(model: nn.Module, out: object, imgsz: int) -> list[object]:
     pred, proto = out if isinstance(out, tuple) else (out, None)
     if model.spec.family == "darknet-yolov3":
         pred = yolov3_to_rows(pred)
-    dets: list[Detections] = non_max_suppression(pred, model.num_classes, conf=0.25)
+    dets: list[Detections] = non_max_suppression(pred, model.num_classes, conf=PREDICT_CONF)
     return [to_frame_detections(d, None if proto is None else proto[0], meta) for d in dets]

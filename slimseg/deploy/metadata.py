@@ -11,14 +11,16 @@ import json
 from pathlib import Path
 from typing import Any
 
-from torch import nn
-
 from slimseg import __version__
 from slimseg.data.letterbox import PAD_VALUE
+from slimseg.dynamic.threshold import M_TH_START
 from slimseg.errors import SlimsegError
+from slimseg.models.base import ZooModel
+from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 
-# Mobility threshold of SEEDS.md Eq. 1 at its starting value: classes above it are dynamic.
-DEFAULT_MOBILITY_THRESHOLD = 0.25
+# Eq. 1's mobility threshold at its starting value (docs/papers.md §2): classes above it are
+# dynamic. Read from the SLAM-side code that applies it, never retyped.
+DEFAULT_MOBILITY_THRESHOLD = M_TH_START
 # Masks from 1/4-resolution prototypes are soft at the edges: dilate them before dropping
 # keypoints (ORB's 31-px patch straddles the edge otherwise). Pixels at the 640 input.
 RECOMMENDED_MASK_DILATION_PX = 5
@@ -37,7 +39,7 @@ LETTERBOX_RULE = {
 
 
 def build_metadata(
-    model: nn.Module,
+    model: ZooModel,
     names: list[str],
     mobility: list[float],
     imgsz: tuple[int, int],
@@ -64,7 +66,7 @@ def build_metadata(
         "mobility_threshold": DEFAULT_MOBILITY_THRESHOLD,
         "dynamic_classes": dynamic_classes,
         "imgsz": [int(imgsz[0]), int(imgsz[1])],
-        "strides": [8, 16, 32],
+        "strides": list(model.strides),
         "precision": precision,
         "dynamic_shapes": dynamic,
         "input": {
@@ -78,11 +80,10 @@ def build_metadata(
         },
         "letterbox": LETTERBOX_RULE,
         "recommended_mask_dilation_px": RECOMMENDED_MASK_DILATION_PX,
-        "nms": {"conf": 0.25, "iou": 0.7, "max_det": 300, "class_aware": True},
+        "nms": {"conf": PREDICT_CONF, "iou": NMS_IOU, "max_det": MAX_DET, "class_aware": True},
     }
     if spec.task == "semantic":
         del meta["nms"], meta["recommended_mask_dilation_px"]
-        meta["strides"] = [4, 8, 16, 32]
         meta["outputs"] = {
             "logits": {
                 "shape": ["B", nc + 1, "H", "W"],

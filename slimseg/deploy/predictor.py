@@ -33,6 +33,7 @@ from slimseg.deploy.prediction import Prediction, combined_mask
 from slimseg.deploy.preprocess import parse_imgsz, preprocess_frame
 from slimseg.deploy.runners import OnnxRunner, TorchRunner
 from slimseg.errors import SlimsegError
+from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.threads import torch_threads
 
 __all__ = ["BACKENDS", "Prediction", "Predictor", "combined_mask"]
@@ -163,7 +164,11 @@ class Predictor:
         )
 
     def predict(
-        self, image_rgb: np.ndarray, conf: float = 0.25, iou: float = 0.7, max_det: int = 300
+        self,
+        image_rgb: np.ndarray,
+        conf: float = PREDICT_CONF,
+        iou: float = NMS_IOU,
+        max_det: int = MAX_DET,
     ) -> Prediction:
         """Detect (and segment) one RGB ``uint8 [h, w, 3]`` frame; results on that frame.
 
@@ -186,9 +191,9 @@ class Predictor:
     def predict_batch(
         self,
         images_rgb: Sequence[np.ndarray],
-        conf: float = 0.25,
-        iou: float = 0.7,
-        max_det: int = 300,
+        conf: float = PREDICT_CONF,
+        iou: float = NMS_IOU,
+        max_det: int = MAX_DET,
     ) -> list[Prediction]:
         """:meth:`predict` for several frames (any sizes) in one forward pass per chunk.
 

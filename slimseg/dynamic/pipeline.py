@@ -33,6 +33,10 @@ from slimseg.dynamic.threshold import (
     keypoint_mobility,
 )
 
+# Detector score threshold for dynamic masking: a SLAM-facing setting, kept apart from the
+# detection-style thresholds of ``slimseg.ops.nms`` (docs/conventions.md §6).
+MASKING_CONF = 0.25
+
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
 EPIPOLAR_MODES = {"semantic+epipolar": "seg", "fusion+epipolar": "fusion"}
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from slimseg.deploy.prediction import Prediction
+
 
 def class_map_to_instances(
     class_map: np.ndarray, min_area: int = 32
@@ -38,10 +40,9 @@ def class_map_to_instances(
     return np.array(boxes, np.float32), np.array(classes, np.int64), np.stack(masks)
 
 
-def instances_of(prediction: object) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def instances_of(prediction: Prediction) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """``(boxes, classes, masks)`` of a prediction: its own instances, or those of its
     ``class_map`` for semantic models (``masks`` is None for detection-only models)."""
-    class_map = getattr(prediction, "class_map", None)
-    if class_map is not None:
-        return class_map_to_instances(class_map)
+    if prediction.class_map is not None:
+        return class_map_to_instances(prediction.class_map)
     return prediction.boxes, prediction.classes, prediction.masks

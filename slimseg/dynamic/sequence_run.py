@@ -30,6 +30,7 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
+    MASKING_CONF,
     MODES,
     FrameInputs,
     FrameResult,
@@ -77,7 +78,7 @@ def run_sequence(
     sequence: Path,
     out: Path,
     mode: str = "fusion",
-    conf: float = 0.25,
+    conf: float = MASKING_CONF,
     keypoints: int = 1000,
     min_static: int = 100,
     dilation_px: int = 0,

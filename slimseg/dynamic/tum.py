@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 import yaml
 
+from slimseg.data.images import decode_file
 from slimseg.dynamic.intrinsics import CALIBRATIONS, DEFAULT, TUM_DEPTH_SCALE, calibration_for
 from slimseg.errors import SlimsegError
 
@@ -253,10 +254,11 @@ class TumSequence:
 
 
 def _imread(path: Path, flags: int) -> np.ndarray:
-    """``cv2.imread`` that raises ``SlimsegError`` naming ``path`` instead of returning None."""
+    """The shared image decoder (``slimseg.data.images``), raising ``SlimsegError`` naming
+    ``path`` instead of returning None."""
     if not path.is_file():
         raise SlimsegError(f"missing image file {path}")
-    img = cv2.imread(str(path), flags)
+    img = decode_file(path, flags)
     if img is None:
         raise SlimsegError(f"cannot decode image file {path}")
     return img

@@ -25,7 +25,7 @@ from slimseg.eval.coco_eval import CocoEvaluator
 from slimseg.eval.postprocess import COCO_MAX_DETS, FrameDetections, batch_to_frame_detections
 from slimseg.eval.semantic_metrics import ConfusionMatrix
 from slimseg.ops.masks import assemble_masks
-from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
+from slimseg.ops.nms import EVAL_CONF, MAX_DET, NMS_IOU, non_max_suppression, yolov3_to_rows
 
 # Score threshold of a YOLO segmenter's detections painted into a class map (the predict
 # default): the 0.001 of mAP evaluation would paint every low-score guess.
@@ -42,8 +42,8 @@ def semantic_batch(
     model: nn.Module,
     batch: dict,
     conf: float = SEMANTIC_CONF,
-    iou: float = 0.7,
-    max_det: int = 300,
+    iou: float = NMS_IOU,
+    max_det: int = MAX_DET,
     timings: dict[str, float] | None = None,
 ) -> torch.Tensor:
     """Class maps ``int64 [B, H, W]`` (0 = background, class + 1) on the network input.
@@ -80,8 +80,8 @@ def evaluate_semantic(
     loader: Iterable[dict],
     names: list[str] | None = None,
     conf: float = SEMANTIC_CONF,
-    iou: float = 0.7,
-    max_det: int = 300,
+    iou: float = NMS_IOU,
+    max_det: int = MAX_DET,
     progress: bool = True,
 ) -> tuple[dict, ConfusionMatrix]:
     """mIoU / MPA (:mod:`slimseg.eval.semantic_metrics`) of ``model`` over ``loader``, whose
@@ -105,9 +105,9 @@ def evaluate_semantic(
 def detect_batch(
     model: nn.Module,
     batch: dict,
-    conf: float = 0.001,
-    iou: float = 0.7,
-    max_det: int = 300,
+    conf: float = EVAL_CONF,
+    iou: float = NMS_IOU,
+    max_det: int = MAX_DET,
     timings: dict[str, float] | None = None,
     mask_limit: int | None = COCO_MAX_DETS,
 ) -> list[FrameDetections]:
@@ -148,9 +148,9 @@ def evaluate(
     model: nn.Module,
     loader: Iterable[dict],
     evaluator: CocoEvaluator,
-    conf: float = 0.001,
-    iou: float = 0.7,
-    max_det: int = 300,
+    conf: float = EVAL_CONF,
+    iou: float = NMS_IOU,
+    max_det: int = MAX_DET,
     progress: bool = True,
 ) -> dict:
     """COCO box/mask mAP of ``model`` over ``loader``; adds ``speed_ms`` per image."""
@@ -179,8 +179,8 @@ def evaluate_dataset(
     dataset: YoloDataset,
     batch: int = 8,
     workers: int = 0,
-    conf: float = 0.001,
-    iou: float = 0.7,
+    conf: float = EVAL_CONF,
+    iou: float = NMS_IOU,
     progress: bool = True,
     semantic: bool = False,
 ) -> tuple[dict, CocoEvaluator | ConfusionMatrix]:

@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from slimseg.dynamic.pipeline import MASKING_CONF
 from slimseg.dynamic.tum import MAX_DT, TumSequence, mask_name
 from slimseg.errors import SlimsegError
 from slimseg.slam.conditions import (
@@ -53,7 +54,7 @@ class Plan:
     engine: str = "orbslam3"
     runs: int = 3
     vocab: Path | None = None
-    conf: float = 0.25
+    conf: float = MASKING_CONF
     keypoints: int = 1000
     dilation_px: int = 2
     features: int = 1000
