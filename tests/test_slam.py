@@ -285,3 +285,16 @@ def test_rows_mark_losses_and_runs_that_never_initialised() -> None:
     states = ["NOT_INITIALIZED", "OK", "OK", "LOST", "LOST", "OK", "RECENTLY_LOST", "OK"]
     e = EngineRun(np.zeros((0, 8)), states)
     assert (e.lost, e.reinitialised) == (4, 2)
+
+
+def test_slam_vocab_command(xyz_seq: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "v.txt"
+    pattern = str(xyz_seq / "rgb" / "*.png")
+    assert main(["slam", "vocab", "--images", pattern, "--out", str(out), "--k", "4",
+                 "--levels", "2", "--max-images", "6", "--per-image", "300"]) == 0  # fmt: skip
+    info = check_vocabulary(out)
+    assert (info.k, info.levels) == (4, 2) and 4 < info.words <= 16
+    assert "6 images" in capsys.readouterr().out
+    assert out.read_text().splitlines()[0] == "4 2 0 0"
+    assert main(["slam", "vocab", "--images", str(tmp_path / "*.jpg"), "--out", str(out)]) == 2
+    assert "matched no file" in capsys.readouterr().err
