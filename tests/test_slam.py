@@ -260,3 +260,41 @@ def test_core_imports_without_the_slam_extra(tmp_path: Path) -> None:
         "slimseg slam-eval: error: trajectory scoring needs the optional evo package: "
         "pip install 'slimseg[slam]' (GPL-3.0)"
     ]
+
+
+def test_rows_mark_losses_and_runs_that_never_initialised() -> None:
+    from slimseg.slam.conditions import Condition
+    from slimseg.slam.engines import EngineRun
+    from slimseg.slam.evaluate import ConditionResult, RunResult
+    from slimseg.slam.metrics import TrajectoryScore
+
+    def run(i: int, lost: int, ate: float | None) -> RunResult:
+        s = None if ate is None else TrajectoryScore(ate, 0.01, 0.0, 0.0, 0.0, 0.0, 150 - lost)
+        err = "never initialised (0/150 frames tracked)" if ate is None else None
+        return RunResult(i, 150, lost, 0, 30.0, None, s, err)
+
+    res = ConditionResult(
+        Condition("raw", "raw"), [run(1, 80, 0.3), run(2, 90, 0.1), run(3, 5, 0.2)]
+    )
+    s = res.summary()
+    assert s["ate_rmse"] == 0.2 and (s["ate_min"], s["ate_max"]) == (0.1, 0.3)
+    assert s["status"] == "lost 80/150 frames" and res.median_run().index == 3
+    dead = ConditionResult(Condition("gt", "masked"), [run(1, 150, None)])
+    assert dead.summary()["ate_rmse"] is None
+    assert dead.status() == "not scored: never initialised (0/150 frames tracked)"
+    states = ["NOT_INITIALIZED", "OK", "OK", "LOST", "LOST", "OK", "RECENTLY_LOST", "OK"]
+    e = EngineRun(np.zeros((0, 8)), states)
+    assert (e.lost, e.reinitialised) == (4, 2)
+
+
+def test_slam_vocab_command(xyz_seq: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "v.txt"
+    pattern = str(xyz_seq / "rgb" / "*.png")
+    assert main(["slam", "vocab", "--images", pattern, "--out", str(out), "--k", "4",
+                 "--levels", "2", "--max-images", "6", "--per-image", "300"]) == 0  # fmt: skip
+    info = check_vocabulary(out)
+    assert (info.k, info.levels) == (4, 2) and 4 < info.words <= 16
+    assert "6 images" in capsys.readouterr().out
+    assert out.read_text().splitlines()[0] == "4 2 0 0"
+    assert main(["slam", "vocab", "--images", str(tmp_path / "*.jpg"), "--out", str(out)]) == 2
+    assert "matched no file" in capsys.readouterr().err

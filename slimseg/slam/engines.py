@@ -65,7 +65,8 @@ class EngineRun:
 
     @property
     def reinitialised(self) -> int:
-        """Times tracking came back to OK after having been lost (ORB-SLAM3 starts a new map)."""
+        """Times tracking came back to OK after a loss (ORB-SLAM3 relocalised in its map or,
+        after LOST, started a new one)."""
         ok = [s in OK_STATES for s in self.states]
         seen, count = False, 0
         for prev, cur in itertools.pairwise(ok):
