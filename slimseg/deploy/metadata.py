@@ -15,10 +15,14 @@ from torch import nn
 
 from slimseg import __version__
 from slimseg.data.letterbox import PAD_VALUE
+from slimseg.dynamic.threshold import M_TH_START
 from slimseg.errors import SlimsegError
+from slimseg.models.msnet.backbone import STRIDES as MSNET_STRIDES
+from slimseg.models.yolo import STRIDES as YOLO_STRIDES
 
-# Mobility threshold of SEEDS.md Eq. 1 at its starting value: classes above it are dynamic.
-DEFAULT_MOBILITY_THRESHOLD = 0.25
+# Mobility threshold of Eq. 1 at its starting value (its home: slimseg.dynamic.threshold):
+# classes above it are dynamic.
+DEFAULT_MOBILITY_THRESHOLD = M_TH_START
 # Masks from 1/4-resolution prototypes are soft at the edges: dilate them before dropping
 # keypoints (ORB's 31-px patch straddles the edge otherwise). Pixels at the 640 input.
 RECOMMENDED_MASK_DILATION_PX = 5
@@ -64,7 +68,7 @@ def build_metadata(
         "mobility_threshold": DEFAULT_MOBILITY_THRESHOLD,
         "dynamic_classes": dynamic_classes,
         "imgsz": [int(imgsz[0]), int(imgsz[1])],
-        "strides": [8, 16, 32],
+        "strides": list(YOLO_STRIDES),
         "precision": precision,
         "dynamic_shapes": dynamic,
         "input": {
@@ -82,7 +86,7 @@ def build_metadata(
     }
     if spec.task == "semantic":
         del meta["nms"], meta["recommended_mask_dilation_px"]
-        meta["strides"] = [4, 8, 16, 32]
+        meta["strides"] = list(MSNET_STRIDES)
         meta["outputs"] = {
             "logits": {
                 "shape": ["B", nc + 1, "H", "W"],
