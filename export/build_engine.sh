@@ -1,9 +1,19 @@
 #!/usr/bin/env bash
-# Build a TensorRT FP16 engine from a slimseg ONNX export with trtexec.
+# Build a TensorRT engine from a slimseg ONNX export with trtexec.
 #   export/build_engine.sh export/yolov8s-seg-gs-rep.onnx [engine_path] [max_batch]
 # Static exports get exactly their shape. --dynamic exports get an optimisation profile:
 # min 1x3x320x320, opt 1x3xHxW (the export's imgsz from the sidecar JSON), max BxHxW.
 # The sidecar NAME.json (the ONNX metadata) travels with the engine: engines carry no metadata.
+#
+# Precision follows the sidecar's "precision":
+#   fp32/fp16 exports  -> --fp16 (FP16 kernels allowed).
+#   int8 (Q/DQ) exports, explicit quantization: the scales come from the file's Q/DQ nodes, never
+#   from a TensorRT calibrator.
+#     TensorRT 8.6 / 10 (weakly typed): --int8 --fp16 lets the quantized convs run in INT8 and the
+#       layers the file keeps in floating point run in FP16.
+#     TensorRT 10 with STRONGLY_TYPED=1, and TensorRT 11 (strongly typed only): --stronglyTyped;
+#       every tensor keeps the type the file declares, so the float parts of a slimseg INT8
+#       file (FP32 there) run in FP32. FP16 float parts would need FP16 tensors in the file.
 set -euo pipefail
 onnx=${1:?usage: build_engine.sh MODEL.onnx [ENGINE] [MAX_BATCH]}
 engine=${2:-${onnx%.onnx}.engine}
@@ -11,11 +21,23 @@ max_batch=${3:-4}
 sidecar=${onnx%.onnx}.json
 command -v trtexec >/dev/null || { echo "trtexec not found: install TensorRT and add its bin/ to PATH" >&2; exit 2; }
 [ -f "$sidecar" ] || { echo "$sidecar missing: export with 'slimseg export' (it writes the sidecar)" >&2; exit 2; }
-read -r h w dynamic < <(python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print(m['imgsz'][0], m['imgsz'][1], int(m['dynamic_shapes']))" "$sidecar")
-args=(--onnx="$onnx" --saveEngine="$engine" --fp16 --skipInference)
+read -r h w dynamic precision < <(python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print(m['imgsz'][0], m['imgsz'][1], int(m['dynamic_shapes']), m.get('precision', 'fp32'))" "$sidecar")
+# trtexec prints e.g. "TensorRT v8601" (8.6.1) or "TensorRT v100300" (10.3.0).
+ver=$(trtexec --help 2>&1 | grep -o 'TensorRT v[0-9]*' | head -n1 | grep -o '[0-9]*$' || true)
+if [ -z "$ver" ]; then major=10; elif [ ${#ver} -ge 6 ]; then major=$((ver / 10000)); else major=$((ver / 1000)); fi
+args=(--onnx="$onnx" --saveEngine="$engine" --skipInference)
+if [ "$precision" = int8 ]; then
+  if [ "$major" -ge 11 ] || [ "${STRONGLY_TYPED:-0}" = 1 ]; then
+    args+=(--stronglyTyped)
+  else
+    args+=(--int8 --fp16)
+  fi
+else
+  args+=(--fp16)
+fi
 if [ "$dynamic" = 1 ]; then
   args+=(--minShapes=images:1x3x320x320 --optShapes=images:1x3x${h}x${w} --maxShapes=images:${max_batch}x3x${h}x${w})
 fi
 trtexec "${args[@]}"
 [ "$sidecar" -ef "${engine%.engine}.json" ] || cp "$sidecar" "${engine%.engine}.json"
-echo "engine: $engine  metadata: ${engine%.engine}.json"
+echo "engine: $engine ($precision, TensorRT $major)  metadata: ${engine%.engine}.json"

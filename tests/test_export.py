@@ -79,13 +79,40 @@ def test_dynamic_export_runs_other_batch_and_sizes(tmp_path: Path) -> None:
     model = _realistic("yolov8n-seg")
     report = export_onnx(model, tmp_path / "d.onnx", (128, 128), dynamic=True)
     assert set(report.ops) <= TENSORRT_SUPPORTED_OPS | DYNAMIC_SHAPE_OPS
+    # the export's own gate checked batch 2 and a second size, every output
+    for tag in ("batch2", "size160x192"):
+        assert {f"{tag}/{k}" for k in ("box_px", "score", "mask_terms")} <= set(report.parity)
     session = ort.InferenceSession(str(report.path), providers=["CPUExecutionProvider"])
     x = np.random.default_rng(0).random((2, 3, 96, 160), dtype=np.float32)
     got = session.run(None, {"images": x})
     with torch.no_grad():
         ref = model.fuse()(torch.from_numpy(x))
     assert got[0].shape == tuple(ref[0].shape) and got[1].shape == tuple(ref[1].shape)
-    assert np.abs(got[0][:, :4] - ref[0][:, :4].numpy()).max() < 1e-3
+    # every row of output0 (boxes, scores, mask coefficients) and the prototypes
+    onnx_export.check_fp32_parity(model, [r.numpy() for r in ref], got)
+
+
+@pytest.mark.slow
+def test_dynamic_parity_catches_a_size_dependent_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A graph right at the export size but wrong at another size is refused."""
+    real = onnx_export.cpu_session
+
+    class Skewed:
+        def __init__(self, session) -> None:
+            self.session = session
+
+        def run(self, names, feed):
+            outs = self.session.run(names, feed)
+            if feed["images"].shape[2:] != (64, 64):
+                outs[0] = outs[0] + 0.5
+            return outs
+
+    monkeypatch.setattr(onnx_export, "cpu_session", lambda path: Skewed(real(path)))
+    with pytest.raises(ExportParityError):
+        export_onnx(_realistic("yolov8n"), tmp_path / "s.onnx", (64, 64), dynamic=True)
+    assert not (tmp_path / "s.onnx").exists()
 
 
 def test_parity_failure_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import re
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -223,3 +225,35 @@ def test_bench_adds_int8_with_ratio(setup, capsys) -> None:
     out = capsys.readouterr().out
     assert "ort_int8/ort_fp32" in out and "2 calibration frames" in out
     assert main([*argv, "--int8"]) == 2  # --int8 without --calib
+
+
+@pytest.mark.parametrize(
+    ("version", "precision", "flags"),
+    [
+        ("v8601", "int8", ["--int8", "--fp16"]),
+        ("v100300", "int8", ["--int8", "--fp16"]),
+        ("v110000", "int8", ["--stronglyTyped"]),
+        ("v100300", "fp32", ["--fp16"]),
+    ],
+)
+def test_build_engine_flags(tmp_path: Path, version: str, precision: str, flags: list) -> None:
+    """build_engine.sh picks explicit-quantization flags by the sidecar's precision and the
+    TensorRT version (a stand-in trtexec records its arguments)."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    fake = bin_dir / "trtexec"
+    fake.write_text(
+        f'#!/usr/bin/env bash\nif [ "$1" = --help ]; then echo "TensorRT {version}"; exit 0; fi\n'
+        f'echo "$@" > {tmp_path / "args.txt"}\n'
+    )
+    fake.chmod(0o755)
+    (tmp_path / "m.onnx").write_bytes(b"")
+    meta = {"imgsz": [64, 64], "dynamic_shapes": False, "precision": precision}
+    (tmp_path / "m.json").write_text(json.dumps(meta))
+    script = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    subprocess.run(
+        ["bash", str(script), str(tmp_path / "m.onnx")], check=True, env=env, capture_output=True
+    )
+    args = (tmp_path / "args.txt").read_text().split()
+    assert [a for a in args if a in ("--int8", "--fp16", "--stronglyTyped")] == flags
