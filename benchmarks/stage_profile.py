@@ -197,6 +197,7 @@ def main() -> None:
     ap.add_argument("--val-images", type=int, default=48)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--skip-train", action="store_true")
+    ap.add_argument("--skip-val", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     print(f"{args.model} {args.imgsz}px batch {args.batch}, {args.threads} threads, CPU")
@@ -212,6 +213,8 @@ def main() -> None:
             f"outside forward + backward: {100 * (1 - network / total):.1f} % of the step; "
             f"{args.batch * args.steps / total:.2f} images/s"
         )
+    if args.skip_val:
+        return
     st, n, metrics = profile_val(
         args.data, args.model, args.weights, args.imgsz, args.batch, args.val_images
     )
