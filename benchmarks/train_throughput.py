@@ -94,6 +94,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--loader-images", type=int, default=48)
     ap.add_argument("--no-reference", action="store_true", help="slimseg figures only")
+    ap.add_argument(
+        "--loader-only", action="store_true", help="only the data pipeline table (no training)"
+    )
     args = ap.parse_args()
     if len(args.images) != len(args.imgsz):
         ap.error("--images needs one count per --imgsz")
@@ -108,6 +111,17 @@ def main() -> None:
             rates: dict[str, list[float]] = {"reference": [], "slimseg": []}
             loader: dict[str, list[float]] = {"reference": [], "slimseg": []}
             for r in range(args.rounds):
+                if args.loader_only:
+                    if ref is not None:
+                        loader["reference"].append(
+                            reference_impl.loader_rate(
+                                ref, ref_data, imgsz, args.batch, args.loader_images
+                            )
+                        )
+                    loader["slimseg"].append(
+                        slimseg_loader_rate(data, imgsz, args.batch, args.loader_images)
+                    )
+                    continue
                 if ref is not None:
                     clock = reference_impl.train_epoch(
                         ref,
@@ -146,6 +160,8 @@ def main() -> None:
                     flush=True,
                 )
             for rows, measured in ((train_rows, rates), (loader_rows, loader)):
+                if not measured["slimseg"]:
+                    continue
                 ours = measured["slimseg"]
                 theirs = measured["reference"]
                 ratio = f"{_mean(ours) / _mean(theirs):.2f}" if theirs else "not installed"
@@ -162,8 +178,9 @@ def main() -> None:
         f"\n{args.model}, batch {args.batch}, {args.threads} threads, CPU, loader in the main "
         f"process; {args.rounds} alternating runs each (ratio of the means)"
     )
-    print("training loop (one epoch, batches after the first", args.warmup, "):")
-    print(format_table(head, train_rows))
+    if train_rows:
+        print(f"training loop (one epoch, batches after the first {args.warmup}):")
+        print(format_table(head, train_rows))
     print("training data pipeline alone (one loader worker's throughput):")
     print(format_table(head, loader_rows))
 

@@ -198,3 +198,14 @@ def test_float16_precision_on_cpu_is_refused_before_any_write(
     assert main(argv) == 2
     assert "16-mixed needs a CUDA device" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="the error is for machines without CUDA")
+@pytest.mark.parametrize(("device", "needle"), [("cuda", "no CUDA device"), ("tpu7", "expected")])
+def test_val_device_errors_are_one_line(
+    run_dir: Path, data_yaml: Path, device: str, needle: str, capsys: pytest.CaptureFixture
+) -> None:
+    argv = ["val", "--weights", str(run_dir / "weights" / "best.pt"), "--data", str(data_yaml)]
+    assert main([*argv, "--device", device]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1
