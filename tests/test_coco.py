@@ -293,7 +293,8 @@ def test_not_a_coco_json(tmp_path: Path) -> None:
 
 
 def test_batched_mask_decode_equals_one_decode_per_instance() -> None:
-    from slimseg.data.coco import Instance, decode_instance_mask, decode_instance_masks
+    from slimseg.data.coco_index import Instance
+    from slimseg.data.coco_rle import decode_instance_mask, decode_instance_masks
 
     h, w = 23, 31
     m = np.zeros((h, w, 2), np.uint8, order="F")
