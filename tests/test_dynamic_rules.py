@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slimseg.dynamic.fusion import box_masks, dilate, fuse_seg_box
+from slimseg.dynamic.seg_box import box_masks, dilate, fuse_seg_box
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
 

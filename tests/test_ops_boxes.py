@@ -64,7 +64,7 @@ def test_one_box_to_pixel_rule_everywhere() -> None:
     (x.5) included: a pixel is in a box when its centre is."""
     import numpy as np
 
-    from slimseg.dynamic.fusion import box_masks
+    from slimseg.dynamic.seg_box import box_masks
     from slimseg.ops.boxes import box_pixel_bounds
     from slimseg.ops.masks import _pixel_span
 

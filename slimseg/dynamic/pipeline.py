@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
-from slimseg.dynamic.fusion import box_masks, dilate, fuse_seg_box
+from slimseg.dynamic.seg_box import box_masks, dilate, fuse_seg_box
 from slimseg.dynamic.threshold import (
     M_TH_START,
     adaptive_threshold,

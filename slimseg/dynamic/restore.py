@@ -33,8 +33,8 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.epipolar import OrbFeatures, match_features, orb_features
-from slimseg.dynamic.fusion import dilate
 from slimseg.dynamic.patchmatch import NNField, patchmatch
+from slimseg.dynamic.seg_box import dilate
 
 WINDOW = 15
 STRIDE = 3

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.dynamic.fusion import dilate
+from slimseg.dynamic.seg_box import dilate
 from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EngineFrame

@@ -1,4 +1,9 @@
-"""Seg/box mask fusion (Eq. 4), box masks and mask dilation."""
+"""Eq. 4 of the substation paper: per detection, its seg mask or its filled box; box masks and
+mask dilation (docs/papers.md §2).
+
+The paper calls this detection/segmentation "fusion" (the ``fusion`` mode keeps that name); it
+is unrelated to fusing a network's BatchNorm layers (``slimseg.layers.fuse``).
+"""
 
 from __future__ import annotations
 
