@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.images import decode_file
 from slimseg.dynamic.seg_box import dilate
 from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.errors import SlimsegError
@@ -113,8 +114,8 @@ def condition_frames(
 
 def _replacement(seq: TumSequence, paths: tuple[Path, Path], hw: tuple[int, int]):
     rgb_path, depth_path = paths
-    bgr = cv2.imread(str(rgb_path), cv2.IMREAD_COLOR)
-    raw = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED)
+    bgr = decode_file(rgb_path, cv2.IMREAD_COLOR)  # the shared decoder (slimseg.data.images)
+    raw = decode_file(depth_path, cv2.IMREAD_UNCHANGED)
     for img, p in ((bgr, rgb_path), (raw, depth_path)):
         if img is None:
             raise SlimsegError(f"missing or unreadable replacement frame {p}")
