@@ -23,3 +23,21 @@ def test_none_and_zero_leave_the_count_alone(n: int | None) -> None:
     with torch_threads(n):
         assert torch.get_num_threads() == before
     assert torch.get_num_threads() == before
+
+
+def test_torch_runner_sets_threads_only_during_a_call() -> None:
+    import numpy as np
+
+    from slimseg.deploy.runners import TorchRunner
+
+    before = torch.get_num_threads()
+    other = 1 if before != 1 else 2
+    seen = []
+
+    class Probe(torch.nn.Module):
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            seen.append(torch.get_num_threads())
+            return x
+
+    TorchRunner(Probe(), threads=other)(np.zeros((1, 3, 4, 4), np.float32))
+    assert seen == [other] and torch.get_num_threads() == before

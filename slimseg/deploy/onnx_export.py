@@ -319,7 +319,7 @@ def export_onnx(
         onnx.checker.check_model(proto)
         candidate = Path(tmp_dir) / out.name
         onnx.save(proto, str(candidate))
-        parity = verify_parity(fused, candidate, imgsz, half, dynamic)
+        parity = verify_parity(fused, candidate, imgsz, half)
         sidecar_tmp = Path(tmp_dir) / "sidecar.json"
         sidecar_tmp.write_text(json.dumps(meta, indent=1))
         os.replace(candidate, out)
@@ -348,11 +348,13 @@ def _checked_inputs(imgsz: tuple[int, int], dynamic: bool) -> list[tuple[str, np
 
 
 def verify_parity(
-    fused: nn.Module, path: Path, imgsz: tuple[int, int], half: bool, dynamic: bool = False
+    fused: nn.Module, path: Path, imgsz: tuple[int, int], half: bool
 ) -> dict[str, float]:
-    """Run onnxruntime and the fused torch model on the parity inputs (with ``dynamic``, also
-    batch 2 and a second H×W); every output is compared; raise on disagreement."""
+    """Run onnxruntime and the fused torch model on the parity inputs (a graph with a dynamic
+    input shape also at batch 2 and a second H×W); every output is compared; raise on
+    disagreement."""
     session = cpu_session(path)
+    dynamic = not all(isinstance(d, int) for d in session.get_inputs()[0].shape)
     results: dict[str, float] = {}
     for tag, x in _checked_inputs(imgsz, dynamic):
         with torch.no_grad():
