@@ -141,3 +141,21 @@ def test_downsample_masks_equals_the_float_block_mean() -> None:
         blocks = masks.reshape(n, h // ratio, ratio, w // ratio, ratio).astype(np.float32)
         expected = (blocks.mean(axis=(2, 4)) >= 0.5).astype(np.uint8)
         np.testing.assert_array_equal(downsample_masks(masks, ratio), expected)
+
+
+@pytest.mark.parametrize("mosaic", [1.0, 0.0])
+def test_decoded_sample_cache_changes_no_sample(base: list[Sample], mosaic: float) -> None:
+    cfg = AugmentConfig(mosaic=mosaic)
+    plain = YoloDataset(base, 96, cfg, seed=4)
+    cached = YoloDataset(base, 96, cfg, seed=4, cache_mib=64)
+    for _ in range(3):  # later passes are served from the cache
+        for i in range(len(base)):
+            a, b = plain[i], cached[i]
+            for x, y in ((a.image, b.image), (a.masks, b.masks), (a.boxes, b.boxes)):
+                np.testing.assert_array_equal(x, y)
+            np.testing.assert_array_equal(a.classes, b.classes)
+    assert len(cached._cache) == len(base)
+    assert not base[0].image.flags.writeable  # shared arrays cannot be modified in place
+    tiny = YoloDataset(list(base), 96, cfg, seed=4, cache_mib=0)
+    tiny[0]
+    assert not tiny._cache

@@ -12,7 +12,7 @@ from slimseg.data.augment import AugmentConfig
 from slimseg.data.coco import CocoDataset
 from slimseg.data.collate import make_collate
 from slimseg.data.config import DataConfig
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.dataset import TRAIN_CACHE_MIB, YoloDataset
 
 
 class EpochSampler(Sampler[int]):
@@ -83,7 +83,9 @@ class SegDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and self.train_set is None:
-            self.train_set = YoloDataset(self._base("train"), self.imgsz, self.augment, self.seed)
+            self.train_set = YoloDataset(
+                self._base("train"), self.imgsz, self.augment, self.seed, TRAIN_CACHE_MIB
+            )
         if self.val_set is None:
             self.val_set = YoloDataset(self._base("val"), self.imgsz)
 

@@ -24,7 +24,7 @@ def mosaic4(samples: list[Sample], size: int, rng: np.random.Generator) -> Sampl
     xc, yc = (int(v) for v in rng.uniform(0.5 * s, 1.5 * s, 2))
     origin = s // 2  # window [origin, origin + s) on both axes of the 2s canvas
     image = np.full((s, s, 3), PAD_VALUE, np.uint8)
-    masks, classes = [], []
+    pieces, classes = [], []  # (crop, window rows, window cols) of each visible mask
     for k, smp in enumerate(samples):
         h0, w0 = smp.image.shape[:2]
         r = s / max(h0, w0)
@@ -46,11 +46,11 @@ def mosaic4(samples: list[Sample], size: int, rng: np.random.Generator) -> Sampl
             crop = mm[ty1:ty2, tx1:tx2]
             if not crop.any():
                 continue
-            full = np.zeros((s, s), np.uint8)
-            full[wy1:wy2, wx1:wx2] = crop
-            masks.append(full)
+            pieces.append((crop, slice(wy1, wy2), slice(wx1, wx2)))
             classes.append(c)
-    mask_arr = np.stack(masks) if masks else np.zeros((0, s, s), np.uint8)
+    mask_arr = np.zeros((len(pieces), s, s), np.uint8)  # one allocation, no stacking copy
+    for k, (crop, rows, cols) in enumerate(pieces):
+        mask_arr[k, rows, cols] = crop
     return Sample(
         image=image,
         boxes=np.zeros((len(classes), 4), np.float32),
