@@ -28,7 +28,7 @@ def test_components_per_class_with_boxes() -> None:
 def test_empty_map_and_instance_passthrough() -> None:
     boxes, classes, masks = class_map_to_instances(np.zeros((8, 8), np.uint8))
     assert boxes.shape == (0, 4) and classes.shape == (0,) and masks.shape == (0, 8, 8)
-    inst = SimpleNamespace(boxes=np.ones((1, 4)), classes=np.zeros(1), masks=None)
+    inst = SimpleNamespace(boxes=np.ones((1, 4)), classes=np.zeros(1), masks=None, class_map=None)
     assert instances_of(inst)[2] is None and instances_of(inst)[0] is inst.boxes
 
 

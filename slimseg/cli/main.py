@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 from slimseg import __version__
 from slimseg.cli import (
@@ -28,26 +29,23 @@ from slimseg.errors import SlimsegError
 COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic, slam_eval, slam)
 
 
-class _StdoutHandler(logging.StreamHandler):
-    """Writes each record to the *current* ``sys.stdout`` (which tests may replace)."""
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.setStream(sys.stdout)
-        super().emit(record)
-
-
-_CLI_HANDLER = _StdoutHandler()
-_CLI_HANDLER.setFormatter(logging.Formatter("%(message)s"))
-
-
-def configure_logging() -> None:
-    """The library's INFO lines (``slimseg.*`` loggers) printed as plain lines on stdout;
-    idempotent (one handler however often ``main`` runs in a process)."""
-    root = logging.getLogger("slimseg")
-    if _CLI_HANDLER not in root.handlers:
-        root.addHandler(_CLI_HANDLER)
-    if root.level == logging.NOTSET:
-        root.setLevel(logging.INFO)
+@contextmanager
+def cli_logging() -> Iterator[None]:
+    """While a command runs, the library's INFO lines (``slimseg.*`` loggers) print as plain
+    lines on the current stdout; the logger is put back as it was afterwards (no handler
+    outlives the command, so a library caller's logging is never changed for good)."""
+    logger = logging.getLogger("slimseg")
+    handler = logging.StreamHandler(sys.stdout)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    level = logger.level
+    logger.addHandler(handler)
+    if level == logging.NOTSET:
+        logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,9 +64,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the command; user errors print one line and return 2."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    configure_logging()
     try:
-        return int(args.run(args) or 0)
+        with cli_logging():
+            return int(args.run(args) or 0)
     except SlimsegError as exc:
         print(f"slimseg {args.command}: error: {exc}", file=sys.stderr)
         return 2
