@@ -37,8 +37,11 @@ def cli_logging() -> Iterator[None]:
     logger = logging.getLogger("slimseg")
     handler = logging.StreamHandler(sys.stdout)
     handler.setFormatter(logging.Formatter("%(message)s"))
-    level = logger.level
+    level, propagate = logger.level, logger.propagate
     logger.addHandler(handler)
+    # a library that configured the root logger (onnxruntime's quantizer does) would print
+    # every line a second time
+    logger.propagate = False
     if level == logging.NOTSET:
         logger.setLevel(logging.INFO)
     try:
@@ -46,6 +49,7 @@ def cli_logging() -> Iterator[None]:
     finally:
         logger.removeHandler(handler)
         logger.setLevel(level)
+        logger.propagate = propagate
 
 
 def build_parser() -> argparse.ArgumentParser:
