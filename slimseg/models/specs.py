@@ -1,4 +1,4 @@
-"""Model specs: frozen dataclasses loaded from ``configs/models/*.yaml`` with strict checking."""
+"""Model specs: frozen dataclasses loaded from ``slimseg/configs/models/*.yaml``, strictly checked."""
 
 from __future__ import annotations
 
