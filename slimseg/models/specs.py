@@ -1,4 +1,4 @@
-"""Model specs: frozen dataclasses loaded from ``slimseg/configs/models/*.yaml``, strictly checked."""
+"""Model specs: frozen dataclasses read from ``slimseg/configs/models/*.yaml``, checked strictly."""
 
 from __future__ import annotations
 
