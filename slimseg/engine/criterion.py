@@ -18,7 +18,9 @@ def build_criterion(model: nn.Module) -> Criterion:
     """The loss that matches ``model.spec.family``; the batch is a collate dict."""
     family = model.spec.family
     if family == "yolov8":
-        loss = YOLOv8Loss(model.num_classes, model.strides, model.reg_max)
+        loss = YOLOv8Loss(
+            model.num_classes, model.strides, model.reg_max, mask_loss=model.spec.head.mask_loss
+        )
 
         def v8(outputs: object, batch: dict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
             return loss.to(batch["images"].device)(outputs, batch["targets"], batch.get("masks"))

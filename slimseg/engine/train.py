@@ -39,6 +39,7 @@ from slimseg.engine.module import DetectorModule
 from slimseg.engine.precision import resolve_precision
 from slimseg.engine.pretrained import load_pretrained
 from slimseg.errors import SlimsegError
+from slimseg.losses.instance_mask import target_mask_ratio
 from slimseg.models.registry import get_spec
 from slimseg.utils.atomic import atomic_path
 from slimseg.utils.threads import torch_threads
@@ -243,6 +244,7 @@ def _train(
         cfg.workers,
         augment or AugmentConfig(),
         cfg.seed,
+        mask_ratio=target_mask_ratio(spec),
         semantic=module.semantic,
     )
     if _is_launcher_process():

@@ -5,7 +5,9 @@ Terms (each normalised as in the reference recipe, docs/architecture.md §6):
 - ``dfl``: distribution focal loss on the 4 side distances (targets clamped to reg_max − 1.01);
 - ``cls``: BCE of class logits against the task-aligned soft targets, / Σ targets;
 - ``seg``: BCE of ``coeffs · protos`` against the GT instance mask at prototype resolution,
-  cropped to the GT box and normalised by the box area, averaged over foreground anchors.
+  cropped to the GT box and normalised by the box area, averaged over foreground anchors
+  (:mod:`slimseg.losses.instance_mask`; its spec can move it to input resolution and add
+  Dice and thin-part terms).
 The total is ``(7.5·box + 1.5·dfl + 0.5·cls + 7.5·seg) × B`` (the reference scales by the
 batch size so its SGD recipe carries over); the returned terms are before gains and ×B.
 """
@@ -18,12 +20,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from slimseg.losses.instance_mask import InstanceMaskLoss
 from slimseg.models.heads.decode import YOLO_STRIDES, anchor_points
+from slimseg.models.specs import MaskLossSpec
 from slimseg.models.yolo import RawOutputs
-from slimseg.ops.assign import Assignment, task_aligned_assign
+from slimseg.ops.assign import task_aligned_assign
 from slimseg.ops.boxes import box_ciou_pairwise, box_to_distances, distances_to_box
-
-PROTO_RATIO = 4  # prototypes are at a quarter of the input size
 
 
 @dataclass(frozen=True)
@@ -64,8 +66,9 @@ class YOLOv8Loss(nn.Module):
     """Loss for the ``yolov8*`` family (detect and segment, any head).
 
     ``forward(raw, targets, masks)``: ``raw`` from the training forward (``RawOutputs``),
-    ``targets [M, 6]`` and ``masks [M, H/4, W/4]`` from ``slimseg.data.collate``. Returns
-    ``(total, terms)`` with ``terms`` a dict of detached scalars.
+    ``targets [M, 6]`` and ``masks [M, H/r, W/r]`` from ``slimseg.data.collate`` (``r`` =
+    ``instance_mask.target_mask_ratio(spec)``). Returns ``(total, terms)`` with ``terms`` a
+    dict of detached scalars.
     """
 
     def __init__(
@@ -77,11 +80,13 @@ class YOLOv8Loss(nn.Module):
         topk: int = 10,
         alpha: float = 0.5,
         beta: float = 6.0,
+        mask_loss: MaskLossSpec | None = None,
     ) -> None:
         super().__init__()
         self.nc, self.strides, self.reg_max = num_classes, strides, reg_max
         self.gains = gains or LossGains()
         self.topk, self.alpha, self.beta = topk, alpha, beta
+        self.mask_loss = InstanceMaskLoss(mask_loss)
         self.register_buffer("bins", torch.arange(reg_max, dtype=torch.float32), persistent=False)
 
     def forward(
@@ -131,7 +136,10 @@ class YOLOv8Loss(nn.Module):
             # the zero terms keep every mask parameter in the graph when nothing is assigned
             seg = seg + raw.proto.sum() * 0.0 + raw.mask_coeffs.sum() * 0.0
             if fg.any():
-                seg = seg + self._mask_loss(raw, assigned, rows, masks)
+                input_hw = (sizes[0][0] * self.strides[0], sizes[0][1] * self.strides[0])
+                seg = seg + self.mask_loss(
+                    raw.proto, raw.mask_coeffs, assigned, rows, masks, input_hw
+                )
             total = total + self.gains.seg * seg
             terms["seg"] = seg
         return total * b, {k: v.detach() for k, v in terms.items()}
@@ -145,34 +153,3 @@ class YOLOv8Loss(nn.Module):
         ce_left = F.cross_entropy(logits, left, reduction="none")
         ce_right = F.cross_entropy(logits, left + 1, reduction="none")
         return (ce_left * (1 - w_right) + ce_right * w_right).view(-1, 4).mean(-1)
-
-    @staticmethod
-    def _mask_loss(
-        raw: RawOutputs, assigned: Assignment, rows: torch.Tensor, masks: torch.Tensor | None
-    ) -> torch.Tensor:
-        """Box-cropped, area-normalised mask BCE summed over fg anchors / number of fg."""
-        if masks is None:
-            raise ValueError("the segmentation loss needs the batch's instance masks")
-        proto = raw.proto.float()
-        nm, ph, pw = proto.shape[1:]
-        gt_all = masks.to(proto.device).float()
-        if gt_all.shape[1:] != (ph, pw):
-            gt_all = F.interpolate(gt_all[None], (ph, pw), mode="nearest")[0]
-        coeffs = raw.mask_coeffs.float().transpose(1, 2)  # [B, A, nm]
-        xs = torch.arange(pw, device=proto.device, dtype=torch.float32) + 0.5
-        ys = torch.arange(ph, device=proto.device, dtype=torch.float32) + 0.5
-        total = proto.new_zeros(())
-        for i in range(proto.shape[0]):  # per image: the fg anchors of one image
-            sel = assigned.fg[i]
-            if not sel.any():
-                continue
-            gt = gt_all[rows[i].gather(0, assigned.gt_index[i][sel])]  # [n, ph, pw]
-            pred = (coeffs[i][sel] @ proto[i].reshape(nm, -1)).view(-1, ph, pw)
-            bce = F.binary_cross_entropy_with_logits(pred, gt, reduction="none")
-            xyxy = assigned.boxes[i][sel] / PROTO_RATIO  # proto pixels
-            in_x = (xs[None] >= xyxy[:, 0:1]) & (xs[None] < xyxy[:, 2:3])
-            in_y = (ys[None] >= xyxy[:, 1:2]) & (ys[None] < xyxy[:, 3:4])
-            crop = in_y[:, :, None] & in_x[:, None, :]
-            area = ((xyxy[:, 2] - xyxy[:, 0]) * (xyxy[:, 3] - xyxy[:, 1])).clamp(min=1.0)
-            total = total + ((bce * crop).sum((1, 2)) / area).sum()
-        return total / assigned.fg.sum()

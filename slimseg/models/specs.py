@@ -45,9 +45,48 @@ class ScaleSpec:
         return max(round(n * self.depth), 1)
 
 
+MASK_LOSS_RESOLUTIONS = ("proto", "input")
+PROTO_STRIDES = (4, 2)
+PROTO_SKIP_STRIDES = (2, 4)  # backbone features the prototype path can take
+# fields added after specs were first hashed: left out of ``to_dict`` at their defaults, so
+# older specs, their hashes and checkpoints stay exactly what they were
+_OMIT_AT_DEFAULT = {"omit_at_default": True}
+
+
+@dataclass(frozen=True)
+class MaskLossSpec:
+    """How the instance-mask term is supervised (``docs/architecture.md`` §6).
+
+    ``resolution``: ``proto`` compares ``coeffs · protos`` with the ground truth shrunk to the
+    prototype grid (the reference); ``input`` upsamples the predicted logits (bilinear, half
+    pixel centres) to the input resolution inside each box and compares them with the
+    full-resolution ground truth. ``dice``: weight of a soft-Dice term added to the BCE
+    (per instance, over its box). ``thin``: extra BCE weight on thin parts, the ground-truth
+    pixels a 5 × 5 opening removes (limbs narrower than 5 px at the target resolution).
+    """
+
+    resolution: str = "proto"
+    dice: float = 0.0
+    thin: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.resolution not in MASK_LOSS_RESOLUTIONS:
+            raise SpecError(
+                f"mask_loss.resolution={self.resolution!r} is not one of "
+                f"{list(MASK_LOSS_RESOLUTIONS)}"
+            )
+        if self.dice < 0 or self.thin < 0:
+            raise SpecError(f"mask_loss.dice and .thin must be >= 0, got {self.dice}, {self.thin}")
+
+
 @dataclass(frozen=True)
 class HeadSpec:
-    """Detection head. ``hidden`` and ``proto_channels`` are reference (width 1.0) channels."""
+    """Detection head. ``hidden`` and ``proto_channels`` are reference (width 1.0) channels.
+
+    ``proto_stride``: prototypes at 1/4 (the reference) or 1/2 of the input; ``proto_skips``:
+    backbone strides (2: the stem conv, 4: the stride-4 C2f) fed into the prototype path
+    through 1 × 1 laterals. ``mask_loss``: see :class:`MaskLossSpec`.
+    """
 
     kind: str = "decoupled"
     reg_max: int = 16
@@ -55,6 +94,25 @@ class HeadSpec:
     proto_channels: int = 256
     hidden: int = 256
     share_repconv: bool = True
+    proto_stride: int = field(default=4, metadata=_OMIT_AT_DEFAULT)
+    proto_skips: tuple[int, ...] = field(default=(), metadata=_OMIT_AT_DEFAULT)
+    mask_loss: MaskLossSpec = field(default_factory=MaskLossSpec, metadata=_OMIT_AT_DEFAULT)
+
+    def __post_init__(self) -> None:
+        if self.proto_stride not in PROTO_STRIDES:
+            raise SpecError(
+                f"head.proto_stride={self.proto_stride} is not one of {list(PROTO_STRIDES)}"
+            )
+        skips = self.proto_skips
+        if len(set(skips)) != len(skips) or not set(skips) <= set(PROTO_SKIP_STRIDES):
+            raise SpecError(
+                f"head.proto_skips={list(skips)}: distinct values from {list(PROTO_SKIP_STRIDES)}"
+            )
+        if any(s < self.proto_stride for s in skips):
+            raise SpecError(
+                f"head.proto_skips={list(skips)}: a skip finer than proto_stride "
+                f"{self.proto_stride} would be thrown away; drop it or set proto_stride: 2"
+            )
 
 
 @dataclass(frozen=True)
@@ -144,7 +202,7 @@ class ModelSpec:
         ``msnet`` is left out when unset, so specs (and hashes, checkpoints) of the other
         families are exactly what they were before the field existed.
         """
-        data = json.loads(json.dumps(dataclasses.asdict(self)))
+        data = _compact(self)
         if data.get("msnet") is None:
             data.pop("msnet", None)
         return data
@@ -160,6 +218,26 @@ class ModelSpec:
         if num_classes is None or num_classes == self.num_classes:
             return self
         return dataclasses.replace(self, num_classes=num_classes)
+
+
+def _compact(obj: Any) -> Any:
+    """``dataclasses.asdict`` as plain JSON types, without the fields marked
+    ``omit_at_default`` that hold their default value."""
+    if dataclasses.is_dataclass(obj):
+        out = {}
+        for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            if f.metadata.get("omit_at_default"):
+                default = (
+                    f.default_factory()
+                    if f.default_factory is not dataclasses.MISSING
+                    else f.default
+                )
+                if value == default:
+                    continue
+            out[f.name] = _compact(value)
+        return out
+    return json.loads(json.dumps(obj)) if isinstance(obj, (tuple, list)) else obj
 
 
 def _convert(value: Any, hint: Any, where: str) -> Any:

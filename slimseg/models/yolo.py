@@ -27,7 +27,8 @@ class RawOutputs(NamedTuple):
 
     ``feats``: per level ``[B, 4·reg_max + nc, H_i, W_i]`` (box logits, then class logits);
     ``mask_coeffs``: ``[B, nm, A]`` raw coefficients (None for detect); ``proto``:
-    ``[B, nm, H/4, W/4]`` (None for detect).
+    ``[B, nm, H/s, W/s]`` with ``s = spec.head.proto_stride`` (4, or 2 for the finer path;
+    None for detect).
     """
 
     feats: list[torch.Tensor]
@@ -39,7 +40,8 @@ class YOLO(ZooModel):
     """YOLOv8 family network built from a ``ModelSpec``.
 
     Eval forward on ``[B, 3, H, W]`` (H, W multiples of 32) returns the deployment layout:
-    segment → ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/4, W/4])``; detect →
+    segment → ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/s, W/s])`` (``s`` =
+    ``spec.head.proto_stride``, 4 unless the finer prototype path is on); detect →
     ``pred [B, 4 + nc, A]``. ``pred`` rows: cx, cy, w, h in input pixels, nc sigmoid class
     scores, nm raw mask coefficients; ``A = Σ (H/s)(W/s)`` over strides 8, 16, 32.
     Training forward returns ``RawOutputs``.
@@ -73,16 +75,26 @@ class YOLO(ZooModel):
         if self.segment:
             self.mask_coeffs = MaskCoefficients(chans, head.num_masks, fused=fused)
             self.proto = Proto(
-                chans[0], scaler.channels(head.proto_channels), head.num_masks, fused
+                chans[0],
+                scaler.channels(head.proto_channels),
+                head.num_masks,
+                fused,
+                stride=head.proto_stride,
+                skip_channels={s: self.backbone.skip_channels[s] for s in head.proto_skips},
             )
         self.dfl = DistributionFocalDecode(head.reg_max)
         self.detect.init_biases(self.strides)
 
     def forward_raw(self, images: torch.Tensor) -> RawOutputs:
         """``images [B, 3, H, W]`` → ``RawOutputs`` (used by training and by ``forward``)."""
-        feats = list(self.neck(self.backbone(images)))
+        if self.segment and self.proto.skip_strides:
+            skips, pyramid = self.backbone.features(images)
+        else:
+            skips, pyramid = None, self.backbone(images)
+        feats = list(self.neck(pyramid))
         if self.segment:
-            return RawOutputs(self.detect(feats), self.mask_coeffs(feats), self.proto(feats[0]))
+            proto = self.proto(feats[0], skips)
+            return RawOutputs(self.detect(feats), self.mask_coeffs(feats), proto)
         return RawOutputs(self.detect(feats), None, None)
 
     def decode(self, raw: RawOutputs) -> torch.Tensor:

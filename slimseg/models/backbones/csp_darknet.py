@@ -40,6 +40,17 @@ class CSPDarknet(nn.Module):
             SPPF(c1024, c1024, 5, fused=fused),
         )
         self.out_channels = (c256, c512, c1024)
+        self.skip_channels = {2: c64, 4: c128}  # stride → channels of ``features``' extras
+
+    def features(self, x: torch.Tensor) -> tuple[dict[int, torch.Tensor], tuple[torch.Tensor, ...]]:
+        """``({2: [B, c64, H/2, W/2], 4: [B, c128, H/4, W/4]}, (P3, P4, P5))``: the stem
+        conv and stride-4 C2f outputs (for a prototype path that takes them) and the
+        pyramid of ``forward``."""
+        s2 = self.stem[0](x)
+        s4 = self.stem[2](self.stem[1](s2))
+        p3 = self.stage3(s4)
+        p4 = self.stage4(p3)
+        return {2: s2, 4: s4}, (p3, p4, self.stage5(p4))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         p3 = self.stage3(self.stem(x))
