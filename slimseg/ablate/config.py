@@ -187,8 +187,11 @@ def _check(cfg: AblationConfig, path: Path) -> None:
         raise SpecError(
             f"{path}: bench.imgsz must be one or more distinct multiples of 32, got {list(sizes)}"
         )
-    if cfg.bench.runs < 1 or cfg.bench.warmup < 0 or cfg.bench.threads < 1:
-        raise SpecError(f"{path}: bench needs runs >= 1, warmup >= 0 and threads >= 1")
+    b = cfg.bench
+    if b.runs < 1 or b.warmup < 0 or b.threads < 1 or not 0.0 <= b.conf < 1.0:
+        raise SpecError(
+            f"{path}: bench needs runs >= 1, warmup >= 0, threads >= 1 and 0 <= conf < 1"
+        )
 
 
 def _relative(base_file: Path, value: str) -> Path:

@@ -56,6 +56,15 @@ CSV_COLUMNS = (
 )
 
 
+# Headers of the coco metric's columns in the per-seed table (other metrics: column names).
+COCO_LABELS = {
+    "box_map50_95": "mAP box",
+    "seg_map50_95": "mAP seg",
+    "box_map50": "mAP50 box",
+    "seg_map50": "mAP50 seg",
+}
+
+
 class ReportPaths(NamedTuple):
     csv: Path
     md: Path
@@ -211,10 +220,10 @@ def _latency_section(
 def _per_seed_section(rows: list[dict], cfg: AblationConfig) -> list[str]:
     accuracy = metric_columns(cfg.metrics)
     return [
-        "## Per-seed rows",
+        "## Per-seed rows (mAP and metrics in %)",
         "",
         table(
-            ["Model", "seed", *accuracy, "best epoch"],
+            ["Model", "seed", *(COCO_LABELS.get(c, c) for c in accuracy), "best epoch"],
             [
                 [r["variant"], str(r["seed"]), *(pct(r[c]) for c in accuracy), str(r["best_epoch"])]
                 for r in rows
@@ -242,6 +251,7 @@ def plot_sweep(summaries: list[dict], out: Path, title: str) -> Path:
                     x,
                     100 * s[metric],
                     yerr=100 * s[metric + SPREAD],
+                    xerr=s.get(key + SPREAD),  # latency: spread over seeds; GFLOPs: none
                     fmt="o",
                     ms=7,
                     color=color,

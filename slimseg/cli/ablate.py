@@ -24,7 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "OUT/results.csv (one row per run), summary.csv (per arm: mean and spread, half the "
         "max-min range, over the seeds), results.md (with the paper's Table II beside the "
         "plain zoo arms) and results.png. Interrupted sweeps resume: rerun the same command. "
-        f"Shipped configs (slimseg/configs/ablation): {shipped}.",
+        f"Shipped configs (slimseg/configs/ablation): {shipped}; the config schema is in "
+        "docs/ablation.md.",
     )
     p.add_argument("--config", required=True, help="sweep YAML, or the name of a shipped one")
     p.add_argument("--out", default=None, help="sweep folder (default runs/ablate/<name>)")
