@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 from slimseg.ablate.config import load_ablation_config
-from slimseg.ablate.report import markdown, paper_key, write_reports
+from slimseg.ablate.paper_table import paper_key
+from slimseg.ablate.report import markdown, write_reports
 from slimseg.ablate.sweep import prepare_sweep_dir, run_sweep
 from slimseg.cli.main import main
 from slimseg.errors import SlimsegError
@@ -48,15 +49,22 @@ def test_shipped_configs_load(name: str) -> None:
     path = ABLATION_DIR / f"{name}.yaml"
     if name == "table2-coco20":  # points at the user's COCO-20 build: pass a stand-in
         cfg = load_ablation_config(path, data=str(RECIPE))
-        assert (cfg.train.epochs, cfg.train.imgsz, cfg.variants[0]) == (500, 640, "yolov8s-seg")
+        first = cfg.variants[0].name
+        assert (cfg.train.epochs, cfg.train.imgsz, first) == (500, 640, "yolov8s-seg")
     else:
         cfg = load_ablation_config(path)
         assert cfg.data_path is None and len(cfg.variants) == 4
-        assert all(v.startswith("yolov8n-seg") for v in cfg.variants)
-    assert [paper_key(v) for v in cfg.variants] == [
-        "yolov8s-seg" + v.removeprefix("yolov8n-seg").removeprefix("yolov8s-seg")
-        for v in cfg.variants
+        assert all(a.name.startswith("yolov8n-seg") for a in cfg.variants)
+    names = [a.name for a in cfg.variants]
+    assert all(a.plain for a in cfg.variants)
+    assert [paper_key(v) for v in names] == [
+        "yolov8s-seg" + v.removeprefix("yolov8n-seg").removeprefix("yolov8s-seg") for v in names
     ]
+    # no arms, seeds, metrics or bench sizes: the hash input is what it was before they existed
+    d = cfg.to_dict()
+    assert d["variants"] == names and not {"seeds", "metrics"} & set(d)
+    assert sorted(d["bench"]) == ["runs", "threads", "warmup"]
+    assert cfg.run_seeds == (cfg.train.seed,) and cfg.bench_sizes == (cfg.train.imgsz,)
 
 
 @pytest.mark.parametrize(
@@ -102,6 +110,7 @@ def test_sweep_folder_of_another_config_is_refused(tmp_path: Path) -> None:
 def _row(variant: str, box: float, seg: float, gflops_paper: float, params_paper: int) -> dict:
     return {
         "variant": variant,
+        "model": variant,
         "epochs": 9,
         "best_epoch": 9,
         "box_map50_95": box,
@@ -116,7 +125,8 @@ def _row(variant: str, box: float, seg: float, gflops_paper: float, params_paper
         "params_paper": params_paper,
         "fused_params": params_paper - 1000,
         "latency_ms": 10.0,
-        "latency_imgsz": 320,
+        "latency_imgsz": 256,
+        "ms_net@256": 10.0,
         "train_img_s": 20.0,
         "val_images": 96,
         "num_classes": 6,
@@ -149,7 +159,7 @@ def test_report_compares_changes_against_each_baseline(tmp_path: Path) -> None:
         "-13.6 %",
     ]
     assert "| yolov8n-seg-gs-rep → yolov8s-seg-gs-rep | 11.0 | 46.8 | 7.5 | 40.3 |" in text
-    csv_path, md_path, png_path = write_reports(rows, tmp_path, cfg)
+    csv_path, md_path, png_path, _ = write_reports(rows, tmp_path, cfg)
     with csv_path.open() as f:
         assert [r["variant"] for r in csv.DictReader(f)] == ["yolov8n-seg", "yolov8n-seg-gs-rep"]
     assert md_path.read_text() == text

@@ -1,15 +1,23 @@
 """Sweep definition: ``configs/ablation/*.yaml`` loaded strictly into frozen dataclasses.
 
-A sweep names its variants, its data (``synth``: the embedded generated set, or a data YAML),
-a training recipe plus overrides, the Lightning launch options and the latency bench::
+A sweep names its arms (zoo variants, or spec overrides on one: :mod:`slimseg.ablate.arms`),
+its data (``synth``: the embedded generated set, or a data YAML), a training recipe plus
+overrides, the seeds, the row metrics, the Lightning launch options and the latency bench::
 
     name: table2-synth
-    variants: [yolov8n-seg, yolov8n-seg-gs, yolov8n-seg-rep, yolov8n-seg-gs-rep]
+    variants: [yolov8n-seg, yolov8n-seg-gs, {name: m16, model: yolov8n-seg,
+                                             spec: {head: {num_masks: 16}}}]
     data: synth                      # or a data.yaml path (relative to this file)
     synth: {train_images: 512, val_images: 128, imgsz: 320, seed: 0}
     train: {recipe: ../train/cpu-demo.yaml, epochs: 10}   # recipe + TrainConfig overrides
+    seeds: [0, 1]                    # optional; default: the recipe's seed, one run per arm
+    metrics: [coco]                  # optional row metrics (slimseg.ablate.metrics)
     trainer: {accelerator: cpu, devices: "1", num_nodes: 1}
-    bench: {runs: 20, warmup: 3, threads: 2}
+    bench: {imgsz: [320, 640], runs: 20, warmup: 3, threads: 2, masks: true}
+
+The fields added after the first sweeps (``seeds``, ``metrics``, ``bench.imgsz``,
+``bench.masks``, ``bench.conf``) and plain-name arms leave the config hash as it was while
+they hold their defaults, so sweep folders of older configs still resume.
 """
 
 from __future__ import annotations
@@ -20,10 +28,13 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from slimseg.ablate.arms import Arm, parse_arms
+from slimseg.ablate.latency import BenchOptions
+from slimseg.ablate.metrics import DEFAULT_METRICS, resolve_metrics
 from slimseg.engine.config import TrainConfig, load_train_config
 from slimseg.errors import SlimsegError
-from slimseg.models.registry import list_models
 from slimseg.models.specs import SpecError, spec_from_mapping
+from slimseg.ops.nms import PREDICT_CONF
 from slimseg.utils.shipped import resolve_config, shipped_names
 from slimseg.utils.yaml_io import read_yaml
 
@@ -49,26 +60,46 @@ class TrainerOptions:
     num_nodes: int = 1
 
 
-@dataclass(frozen=True)
-class BenchOptions:
-    """onnxruntime FP32 latency at the sweep's imgsz: median of ``runs`` after ``warmup``."""
-
-    runs: int = 20
-    warmup: int = 3
-    threads: int = 2
+# Fields added after the first sweeps, left out of the hash while at these defaults.
+_HASH_DEFAULTS: dict[tuple[str, ...], object] = {
+    ("seeds",): None,
+    ("metrics",): list(DEFAULT_METRICS),
+    ("bench", "imgsz"): None,
+    ("bench", "masks"): False,
+    ("bench", "conf"): PREDICT_CONF,
+}
 
 
 @dataclass(frozen=True)
 class AblationConfig:
+    """A loaded sweep; ``variants`` are its arms, ``seeds`` None = ``train.seed`` only (and
+    the run folders ``variants/NAME/``; with seeds: ``variants/NAME/seed-S/``)."""
+
     name: str
-    variants: tuple[str, ...]
+    variants: tuple[Arm, ...]
     data: str
     train: TrainConfig
     synth: SynthData = field(default_factory=SynthData)
+    seeds: tuple[int, ...] | None = None
+    metrics: tuple[str, ...] = DEFAULT_METRICS
     trainer: TrainerOptions = field(default_factory=TrainerOptions)
     bench: BenchOptions = field(default_factory=BenchOptions)
     gflops_imgsz: int = 640  # GFLOPs column at the paper's input size
     source: str = ""
+
+    @property
+    def run_seeds(self) -> tuple[int, ...]:
+        """The seeds every arm trains with."""
+        return self.seeds if self.seeds is not None else (self.train.seed,)
+
+    @property
+    def bench_sizes(self) -> tuple[int, ...]:
+        """Input sizes of the latency bench (default: the training imgsz)."""
+        return self.bench.sizes(self.train.imgsz)
+
+    def arm(self, name: str) -> Arm:
+        """The arm called ``name``."""
+        return next(a for a in self.variants if a.name == name)
 
     @property
     def data_path(self) -> Path | None:
@@ -77,8 +108,16 @@ class AblationConfig:
 
     def to_dict(self) -> dict:
         """JSON-able dict (stored in the sweep folder; ``source`` excluded)."""
-        d = json.loads(json.dumps(dataclasses.asdict(self)))
+        d = json.loads(json.dumps(dataclasses.asdict(self) | {"variants": []}))
+        d["variants"] = [a.to_json() for a in self.variants]
         d.pop("source")
+        for keys, default in _HASH_DEFAULTS.items():
+            *parents, last = keys
+            holder = d
+            for key in parents:
+                holder = holder[key]
+            if holder[last] == default:
+                del holder[last]
         return d
 
     @property
@@ -120,20 +159,39 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
         raw["data"] = data
     elif isinstance(raw.get("data"), str) and raw["data"] != SYNTH:
         raw["data"] = str(_relative(path, raw["data"]))
-    cfg = spec_from_mapping(AblationConfig, raw | {"train": {}}, str(path))
-    cfg = dataclasses.replace(cfg, train=train, source=str(path))
-    known = set(list_models())
-    unknown = [v for v in cfg.variants if v not in known]
-    if unknown:
-        raise SpecError(f"{path}: variants {unknown} unknown; valid: {', '.join(sorted(known))}")
-    if not cfg.variants or len(set(cfg.variants)) != len(cfg.variants):
-        raise SpecError(f"{path}: variants must be a non-empty list without repeats")
+    arms = parse_arms(raw.pop("variants", None), path)
+    if isinstance(raw.get("bench"), dict) and isinstance(raw["bench"].get("imgsz"), int):
+        raw["bench"] = raw["bench"] | {"imgsz": [raw["bench"]["imgsz"]]}  # one size
+    cfg = spec_from_mapping(AblationConfig, raw | {"train": {}, "variants": []}, str(path))
+    cfg = dataclasses.replace(cfg, variants=arms, train=train, source=str(path))
+    _check(cfg, path)
     if cfg.data_path is not None and not cfg.data_path.is_file():
         raise SpecError(
             f"{path}: data {cfg.data_path} does not exist; build it (see "
             "configs/data/coco20-example.yaml) or pass --data DATA.yaml"
         )
     return cfg
+
+
+def _check(cfg: AblationConfig, path: Path) -> None:
+    """Constraints across fields (the types are checked by ``spec_from_mapping``)."""
+    if cfg.seeds is not None and (
+        not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds) or min(cfg.seeds) < 0
+    ):
+        raise SpecError(f"{path}: seeds must be a non-empty list of distinct ints >= 0")
+    resolve_metrics(cfg.metrics, str(path))
+    sizes = cfg.bench.imgsz
+    if sizes is not None and (
+        not sizes or len(set(sizes)) != len(sizes) or any(s < 32 or s % 32 for s in sizes)
+    ):
+        raise SpecError(
+            f"{path}: bench.imgsz must be one or more distinct multiples of 32, got {list(sizes)}"
+        )
+    b = cfg.bench
+    if b.runs < 1 or b.warmup < 0 or b.threads < 1 or not 0.0 <= b.conf < 1.0:
+        raise SpecError(
+            f"{path}: bench needs runs >= 1, warmup >= 0, threads >= 1 and 0 <= conf < 1"
+        )
 
 
 def _relative(base_file: Path, value: str) -> Path:

@@ -1,20 +1,36 @@
-"""Sweep results as ``results.csv``, ``results.md`` (with the paper's Table II beside ours)
-and ``results.png`` (mAP against GFLOPs and against latency, one labelled point per variant)."""
+"""Sweep results: ``results.csv`` (one row per run), ``summary.csv`` (one per arm: mean and
+spread over its seeds, :mod:`slimseg.ablate.summary`), ``results.md`` (the tables, per-seed
+rows, and the paper's Table II beside the plain zoo arms) and ``results.png`` (mAP against
+GFLOPs and against latency, one labelled point per arm with its spread as error bars)."""
 
 from __future__ import annotations
 
 import csv
 import io
 import math
-import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 from matplotlib.figure import Figure
 
 from slimseg.ablate.config import AblationConfig
-from slimseg.eval.paper import TABLE2, TABLE2_IMGSZ, TABLE2_NUM_CLASSES, PaperRow
+from slimseg.ablate.latency import latency_columns
+from slimseg.ablate.mdtable import pct, pm, table
+from slimseg.ablate.metrics import BASE_METRIC, metric_columns
+from slimseg.ablate.paper_table import paper_key, paper_section
+from slimseg.ablate.summary import (
+    SPREAD,
+    SPREAD_RULE,
+    summarize,
+    summary_columns,
+    summary_csv_rows,
+)
+from slimseg.eval.paper import TABLE2
 from slimseg.utils.atomic import atomic_path, write_text
 
+# results.csv: these first (their order predates arms and seeds), then the model, the
+# latency columns of the bench sizes and the columns of any extra row metric.
 CSV_COLUMNS = (
     "variant",
     "box_map50_95",
@@ -39,80 +55,98 @@ CSV_COLUMNS = (
     "seed",
 )
 
-NOTES = """\
-How to read the two tables:
-- Scale and recipe differ: the paper trained the s-scale variants for 500 epochs on COCO-20 at
-  640 px; a synthetic CPU sweep trains n-scale variants for minutes. Compare the *changes
-  against each table's baseline row*, not the absolute mAP.
-- GFLOPs: ours are 2 x multiply-adds counted by torch's FlopCounterMode in eval mode. The
-  paper's tool (thop through the reference code) also counts 4 operations per BatchNorm
-  output and overcounts ConvTranspose; "GFLOPs paper conv." applies that convention, and at
-  s scale, nc 20, 640 px it reproduces the paper's column to within 0.06.
-- The unused conv: the published VoVGSCSP defines a 3x3 conv it never calls. The paper
-  counted it in params and gradients of the -gs rows; "params paper conv." adds it, the
-  main params column does not (it cannot train: it gets no gradient).
-- The -rep params: the paper lists 12.2 M for -rep but 10.2 M for -gs-rep. Both necks feed
-  the head the same channels, so a head change must move both rows by the same amount; the
-  pair cannot both hold. Our shared RepConv head removes the same parameters in both rows and
-  its GFLOPs match the paper's.
-"""
+
+# Headers of the coco metric's columns in the per-seed table (other metrics: column names).
+COCO_LABELS = {
+    "box_map50_95": "mAP box",
+    "seg_map50_95": "mAP seg",
+    "box_map50": "mAP50 box",
+    "seg_map50": "mAP50 seg",
+}
 
 
-def paper_key(variant: str) -> str | None:
-    """The Table II row a variant corresponds to (scale ignored), if any."""
-    key = re.sub(r"^yolov8[nsmlx]-", "yolov8s-", variant)
-    return key if key in TABLE2 else None
+class ReportPaths(NamedTuple):
+    csv: Path
+    md: Path
+    png: Path
+    summary: Path
 
 
-def write_reports(rows: list[dict], out: Path, cfg: AblationConfig) -> tuple[Path, Path, Path]:
-    """Rewrite the three result files from ``rows`` (atomic: temp file, then rename)."""
+def csv_columns(cfg: AblationConfig) -> list[str]:
+    """Header of ``results.csv``."""
+    extra = [*latency_columns(cfg.bench_sizes, cfg.bench.masks), *metric_columns(cfg.metrics)]
+    return [*CSV_COLUMNS, "model", *(c for c in extra if c not in CSV_COLUMNS)]
+
+
+def write_reports(rows: list[dict], out: Path, cfg: AblationConfig) -> ReportPaths:
+    """Rewrite the four result files from ``rows`` (atomic: temp file, then rename)."""
+    summaries = summarize(rows, cfg)
+    csv_path = write_text(out / "results.csv", _csv(rows, csv_columns(cfg)))
+    summary = _csv(summary_csv_rows(summaries, cfg), summary_columns(cfg))
+    summary_path = write_text(out / "summary.csv", summary)
+    md_path = write_text(out / "results.md", markdown(rows, cfg))
+    png_path = plot_sweep(summaries, out / "results.png", cfg.name)
+    return ReportPaths(csv_path, md_path, png_path, summary_path)
+
+
+def _csv(rows: list[dict], columns: list[str]) -> str:
     buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+    writer = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore")
     writer.writeheader()
     writer.writerows(
         {k: round(v, 6) if isinstance(v, float) else v for k, v in r.items()} for r in rows
     )
-    csv_path = write_text(out / "results.csv", buf.getvalue())
-    md_path = write_text(out / "results.md", markdown(rows, cfg))
-    png_path = plot_sweep(rows, out / "results.png", cfg.name)
-    return csv_path, md_path, png_path
+    return buf.getvalue()
 
 
 def markdown(rows: list[dict], cfg: AblationConfig) -> str:
-    """The sweep's tables: Table II columns, the extra measurements, the paper beside ours."""
+    """The sweep's tables (arm summaries), the per-seed rows, the paper beside ours."""
     t = cfg.train
     data = "embedded synthetic set" if cfg.data_path is None else str(cfg.data_path)
     first = rows[0] if rows else {"num_classes": "?", "git_sha": "?", "val_images": "?"}
+    seeds = cfg.run_seeds
+    multi = len(seeds) > 1
+    seed_text = f"seeds {', '.join(map(str, seeds))}" if multi else f"seed {seeds[0]}"
+    spread = f" Cells of seed-dependent columns: {SPREAD_RULE}." if multi else ""
+    summaries = summarize(rows, cfg)
+    size = cfg.bench_sizes[0]
+
+    def acc(s: dict, key: str) -> str:
+        return pm(pct(s[key]), pct(s[key + SPREAD]) if multi else None)
+
+    def num(s: dict, key: str, digits: int) -> str:
+        return pm(f"{s[key]:.{digits}f}", f"{s[key + SPREAD]:.{digits}f}" if multi else None)
+
     lines = [
         f"# Ablation sweep `{cfg.name}`",
         "",
         f"Data: {data} ({first['val_images']} val images). Recipe: "
         f"{t.epochs} epochs, batch {t.batch}, {t.imgsz} px, {t.optimizer} lr0 {t.lr0}, "
-        f"seed {t.seed}. mAP: COCO (pycocotools) of the best EMA weights on the val split, "
+        f"{seed_text}. mAP: COCO (pycocotools) of the best EMA weights on the val split, "
         f"in %. GFLOPs, gradients and params at nc {first['num_classes']}, "
-        f"{cfg.gflops_imgsz} px. Config hash {cfg.hash}, git {first['git_sha']}.",
+        f"{cfg.gflops_imgsz} px. Config hash {cfg.hash}, git {first['git_sha']}.{spread}",
         "",
         "## Table II columns",
         "",
-        _table(
+        table(
             ["Model", "mAP box", "mAP seg", "GFLOPs", "Gradients (M)", "Params (M)", "Epochs"],
             [
                 [
-                    r["variant"],
-                    _pct(r["box_map50_95"]),
-                    _pct(r["seg_map50_95"]),
-                    f"{r['gflops']:.2f}",
-                    f"{r['gradients'] / 1e6:.2f}",
-                    f"{r['params'] / 1e6:.2f}",
-                    str(r["epochs"]),
+                    s["variant"],
+                    acc(s, "box_map50_95"),
+                    acc(s, "seg_map50_95"),
+                    f"{s['gflops']:.2f}",
+                    f"{s['gradients'] / 1e6:.2f}",
+                    f"{s['params'] / 1e6:.2f}",
+                    str(s["epochs"]),
                 ]
-                for r in rows
+                for s in summaries
             ],
         ),
         "",
         "## More measurements",
         "",
-        _table(
+        table(
             [
                 "Model",
                 "mAP50 box",
@@ -120,142 +154,122 @@ def markdown(rows: list[dict], cfg: AblationConfig) -> str:
                 "best epoch",
                 "fused params (M)",
                 "GFLOPs paper conv.",
-                f"ORT FP32 ms @{t.imgsz}",
+                f"ORT FP32 ms @{size}",
                 "train img/s",
                 "spec hash",
             ],
             [
                 [
-                    r["variant"],
-                    _pct(r["box_map50"]),
-                    _pct(r["seg_map50"]),
-                    str(r["best_epoch"]),
-                    f"{r['fused_params'] / 1e6:.3f}",
-                    f"{r['gflops_paper']:.2f}",
-                    f"{r['latency_ms']:.1f}",
-                    f"{r['train_img_s']:.1f}",
-                    r["spec_hash"],
+                    s["variant"],
+                    acc(s, "box_map50"),
+                    acc(s, "seg_map50"),
+                    num(s, "best_epoch", 1) if multi else str(round(s["best_epoch"])),
+                    f"{s['fused_params'] / 1e6:.3f}",
+                    f"{s['gflops_paper']:.2f}",
+                    num(s, "latency_ms", 1),
+                    num(s, "train_img_s", 1),
+                    s["spec_hash"],
                 ]
+                for s in summaries
+            ],
+        ),
+    ]
+    if cfg.bench.masks or len(cfg.bench_sizes) > 1:
+        lines += ["", *_latency_section(summaries, cfg, num)]
+    extra = [c for c in metric_columns(cfg.metrics) if c not in metric_columns([BASE_METRIC])]
+    if extra:
+        cells = [[s["variant"], *(acc(s, c) for c in extra)] for s in summaries]
+        lines += ["", "## Extra row metrics (in %)", "", table(["Model", *extra], cells)]
+    if multi:
+        lines += ["", *_per_seed_section(rows, cfg)]
+    plain = [s for s in summaries if cfg.arm(s["variant"]).plain]
+    paired = [(s, TABLE2[k]) for s in plain if (k := paper_key(s["variant"])) is not None]
+    if paired:
+        lines += ["", *paper_section(plain, paired)]
+    return "\n".join(lines) + "\n"
+
+
+def _latency_section(
+    summaries: list[dict], cfg: AblationConfig, num: Callable[[dict, str, int], str]
+) -> list[str]:
+    b = cfg.bench
+    headers, keys = ["Model"], []
+    for size in cfg.bench_sizes:
+        headers.append(f"net ms @{size}")
+        keys.append((f"ms_net@{size}", 2))
+        if b.masks:
+            headers += [f"post ms @{size}", f"dets @{size}"]
+            keys += [(f"ms_post@{size}", 2), (f"dets@{size}", 1)]
+    post = (
+        f"; post = NMS (conf {b.conf}) + mask assembly (coefficients x prototypes, crop, "
+        "upsample to the frame) on the val split's first image, as `slimseg predict` does it; "
+        "dets = detections kept on it"
+        if b.masks
+        else ""
+    )
+    return [
+        "## Latency by input size",
+        "",
+        f"onnxruntime FP32, static input per size, batch 1, {b.threads} threads, median of "
+        f"{b.runs} runs after {b.warmup}: net = the network{post}.",
+        "",
+        table(headers, [[s["variant"], *(num(s, k, d) for k, d in keys)] for s in summaries]),
+    ]
+
+
+def _per_seed_section(rows: list[dict], cfg: AblationConfig) -> list[str]:
+    accuracy = metric_columns(cfg.metrics)
+    return [
+        "## Per-seed rows (mAP and metrics in %)",
+        "",
+        table(
+            ["Model", "seed", *(COCO_LABELS.get(c, c) for c in accuracy), "best epoch"],
+            [
+                [r["variant"], str(r["seed"]), *(pct(r[c]) for c in accuracy), str(r["best_epoch"])]
                 for r in rows
             ],
         ),
     ]
-    paired = [(r, TABLE2[k]) for r in rows if (k := paper_key(r["variant"])) is not None]
-    if paired:
-        lines += ["", *_paper_section(rows, paired)]
-    return "\n".join(lines) + "\n"
 
 
-def _paper_section(rows: list[dict], paired: list[tuple[dict, PaperRow]]) -> list[str]:
-    base = next((r for r in rows if paper_key(r["variant"]) == "yolov8s-seg"), None)
-    paper_base = TABLE2["yolov8s-seg"]
-    out = [
-        f"## The paper's Table II beside ours (paper: s scale, COCO-20, nc "
-        f"{TABLE2_NUM_CLASSES}, {TABLE2_IMGSZ} px, 500 epochs)",
-        "",
-        _table(
-            [
-                "Model (ours → paper row)",
-                "box ours",
-                "box paper",
-                "seg ours",
-                "seg paper",
-                "GFLOPs paper conv. ours",
-                "GFLOPs paper",
-                "Params paper conv. M ours",
-                "Params M paper",
-            ],
-            [
-                [
-                    f"{r['variant']} → {paper_key(r['variant'])}",
-                    _pct(r["box_map50_95"]),
-                    f"{p.box_map:.1f}",
-                    _pct(r["seg_map50_95"]),
-                    f"{p.seg_map:.1f}",
-                    f"{r['gflops_paper']:.2f}",
-                    f"{p.gflops:.1f}",
-                    f"{r['params_paper'] / 1e6:.2f}",
-                    f"{p.params_m:.1f}",
-                ]
-                for r, p in paired
-            ],
-        ),
-    ]
-    if base is not None:
-        out += [
-            "",
-            "Changes against each table's own baseline (mAP in points, cost in %):",
-            "",
-            _table(
-                [
-                    "Model",
-                    "Δ box ours",
-                    "Δ box paper",
-                    "Δ seg ours",
-                    "Δ seg paper",
-                    "Δ GFLOPs ours",
-                    "Δ GFLOPs paper",
-                    "Δ params ours",
-                    "Δ params paper",
-                ],
-                [
-                    [
-                        r["variant"],
-                        _pts(r["box_map50_95"], base["box_map50_95"]),
-                        f"{p.box_map - paper_base.box_map:+.1f}",
-                        _pts(r["seg_map50_95"], base["seg_map50_95"]),
-                        f"{p.seg_map - paper_base.seg_map:+.1f}",
-                        _rel(r["gflops_paper"], base["gflops_paper"]),
-                        _rel(p.gflops, paper_base.gflops),
-                        _rel(r["params_paper"], base["params_paper"]),
-                        _rel(p.params_m, paper_base.params_m),
-                    ]
-                    for r, p in paired
-                ],
-            ),
-        ]
-    return [*out, "", NOTES]
-
-
-def plot_sweep(rows: list[dict], out: Path, title: str) -> Path:
-    """mAP50-95 (seg filled, box hollow) against GFLOPs and against ORT latency → PNG."""
+def plot_sweep(summaries: list[dict], out: Path, title: str) -> Path:
+    """mAP50-95 (seg filled, box hollow; error bars: the spread over seeds) against GFLOPs
+    and against ORT latency → PNG. ``summaries``: :func:`~slimseg.ablate.summary.summarize`."""
     fig = Figure(figsize=(11, 4.2))
     axes = fig.subplots(1, 2)
     xs = (("gflops", "GFLOPs @{}"), ("latency_ms", "onnxruntime FP32 latency (ms) @{}"))
     for ax, (key, label) in zip(axes, xs, strict=True):
-        size = rows[0]["gflops_imgsz"] if key == "gflops" else rows[0]["latency_imgsz"]
-        for i, r in enumerate(rows):
+        size = summaries[0]["gflops_imgsz"] if key == "gflops" else summaries[0]["latency_imgsz"]
+        for i, s in enumerate(summaries):
             color = f"C{i}"
-            x = r[key]
-            if not math.isnan(r["seg_map50_95"]):
-                ax.scatter(x, 100 * r["seg_map50_95"], color=color, s=50, zorder=3)
-            ax.scatter(x, 100 * r["box_map50_95"], facecolors="none", edgecolors=color, s=50)
-            y = r["seg_map50_95"] if not math.isnan(r["seg_map50_95"]) else r["box_map50_95"]
+            x = s[key]
+            has_seg = not math.isnan(s["seg_map50_95"])
+            for metric, filled in (("seg_map50_95", True), ("box_map50_95", False)):
+                if metric == "seg_map50_95" and not has_seg:
+                    continue
+                ax.errorbar(
+                    x,
+                    100 * s[metric],
+                    yerr=100 * s[metric + SPREAD],
+                    xerr=s.get(key + SPREAD),  # latency: spread over seeds; GFLOPs: none
+                    fmt="o",
+                    ms=7,
+                    color=color,
+                    mfc=color if filled else "none",
+                    capsize=3,
+                    zorder=3 if filled else 2,
+                )
+            y = s["seg_map50_95"] if has_seg else s["box_map50_95"]
             ax.annotate(
-                r["variant"], (x, 100 * y), textcoords="offset points", xytext=(5, 5), fontsize=8
+                s["variant"], (x, 100 * y), textcoords="offset points", xytext=(5, 5), fontsize=8
             )
         ax.set(xlabel=label.format(f"{size} px"), ylabel="mAP50-95 (%)", ylim=(0, None))
         ax.margins(x=0.3)  # room for the labels of the outermost points
         ax.grid(alpha=0.3)
-    axes[0].set_title(f"{title}: filled = mask mAP, hollow = box mAP", fontsize=10)
+    axes[0].set_title(
+        f"{title}: filled = mask mAP, hollow = box mAP, bars = spread over seeds", fontsize=10
+    )
     fig.tight_layout()
     with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=110)
     return out
-
-
-def _table(headers: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
-def _pct(v: float) -> str:
-    return "–" if math.isnan(v) else f"{100 * v:.1f}"
-
-
-def _pts(v: float, base: float) -> str:
-    return "–" if math.isnan(v) or math.isnan(base) else f"{100 * (v - base):+.1f}"
-
-
-def _rel(v: float, base: float) -> str:
-    return f"{100 * (v / base - 1):+.1f} %"

@@ -1,49 +1,56 @@
-"""Run a sweep: train, evaluate and measure each variant under one recipe and seed.
+"""Run a sweep: train, evaluate and measure each arm under one recipe, once per seed.
 
 Sweep folder::
 
     OUT/sweep.json                      the resolved config and its hash (a guard on resume)
     OUT/data/                           the embedded synthetic set (``data: synth``)
-    OUT/variants/NAME/                  a ``slimseg train`` run folder, plus
+    OUT/variants/NAME/                  a run (no ``seeds:``), or with ``seeds:``
+    OUT/variants/NAME/seed-S/           one run per seed; each run folder is a
+                                        ``slimseg train`` run folder, plus
+        spec.yaml                       the arm's merged spec (arms with a spec override)
         throughput.json                 images and seconds per training epoch
-        model.onnx                      the fused FP32 export the latency was measured on
-        row.json                        the finished row (present = variant done)
-    OUT/results.csv, results.md, results.png    rewritten after every finished variant
+        model.onnx, model-S.onnx        the fused FP32 exports the latency was measured on
+        row.json                        the finished row (present = run done)
+    OUT/results.csv, summary.csv, results.md, results.png   rewritten after every run
 
-Resume rule: a variant with ``row.json`` (of this config) is kept; one with a Lightning
+Resume rule: a run with ``row.json`` (of this config) is kept; one with a Lightning
 ``last.ckpt`` continues from it; one with neither starts over.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
 import shutil
 import subprocess
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from slimseg.ablate.arms import Arm
 from slimseg.ablate.config import AblationConfig
+from slimseg.ablate.latency import bench_latency
+from slimseg.ablate.metrics import resolve_metrics, run_weights, score_run
 from slimseg.ablate.report import write_reports
 from slimseg.ablate.throughput import ThroughputMeter, images_per_second
 from slimseg.data.coco import CocoDataset
-from slimseg.data.config import load_data_config
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.config import DataConfig, load_data_config
+from slimseg.data.images import read_image_rgb8
 from slimseg.data.synth import generate
-from slimseg.deploy.bench import median_ms
 from slimseg.deploy.checkpoint import load_weights
-from slimseg.deploy.onnx_export import export_onnx
-from slimseg.deploy.ort_session import cpu_session
-from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.errors import SlimsegError
 from slimseg.eval.complexity import measure
-from slimseg.models.registry import build_model
-from slimseg.utils.atomic import write_json
+from slimseg.models.registry import build_from_spec
+from slimseg.models.specs import ModelSpec
+from slimseg.utils.atomic import write_json, write_yaml
 
-ROW_VERSION = 1
+# 2: arms (``model``), seeds, row metrics, per-size latency; a version-1 row is measured
+# again from its run's weights (nothing retrains).
+ROW_VERSION = 2
 
 logger = logging.getLogger(__name__)
 
@@ -91,13 +98,36 @@ def sweep_data(cfg: AblationConfig, out: Path, progress: bool) -> Path:
     return data_yaml
 
 
+@dataclass(frozen=True)
+class Run:
+    """One (arm, seed) of a sweep and its run folder; ``label`` names it in logs."""
+
+    arm: Arm
+    seed: int
+    dir: Path
+    label: str
+
+
+def sweep_runs(cfg: AblationConfig, out: Path) -> list[Run]:
+    """Every run of ``cfg`` in order (arm-major): ``variants/NAME`` without ``seeds:``,
+    ``variants/NAME/seed-S`` with them."""
+    base = out / "variants"
+    if cfg.seeds is None:
+        return [Run(a, cfg.train.seed, base / a.name, a.name) for a in cfg.variants]
+    return [
+        Run(a, s, base / a.name / f"seed-{s}", f"{a.name}/seed-{s}")
+        for a in cfg.variants
+        for s in cfg.seeds
+    ]
+
+
 def run_sweep(
     cfg: AblationConfig,
     out: Path,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> list[dict]:
-    """Every variant of ``cfg`` trained, evaluated and measured; returns the rows in order.
+    """Every run of ``cfg`` trained, evaluated and measured; returns the rows in order.
 
     Progress lines go to ``log`` (default: this module's logger at INFO)."""
     log = log or logger.info
@@ -108,45 +138,60 @@ def run_sweep(
     prepare_sweep_dir(cfg, out)
     data_yaml = sweep_data(cfg, out, progress)
     data_cfg = load_data_config(data_yaml)
+    specs = {a.name: a.model_spec().with_classes(len(data_cfg.names)) for a in cfg.variants}
+    frame = bench_frame(data_cfg)
     sha = git_sha()
+    runs = sweep_runs(cfg, out)
     rows: list[dict] = []
-    for k, name in enumerate(cfg.variants, 1):
-        vdir = out / "variants" / name
-        row = read_row(vdir, cfg.hash)
+    for k, run in enumerate(runs, 1):
+        tag = f"[{k}/{len(runs)}] {run.label}"
+        rdir, spec = run.dir, specs[run.arm.name]
+        row = read_row(rdir, cfg.hash)
         if row is not None:
-            log(f"[{k}/{len(cfg.variants)}] {name}: done earlier, row kept")
+            log(f"{tag}: done earlier, row kept")
             rows.append(row)
             continue
-        epochs_done = trained_epochs(vdir)
-        if epochs_done >= cfg.train.epochs:
-            log(f"[{k}/{len(cfg.variants)}] {name}: trained earlier, measuring")
+        train_cfg = dataclasses.replace(cfg.train, seed=run.seed)
+        if trained_epochs(rdir) >= train_cfg.epochs:
+            log(f"{tag}: trained earlier, measuring")
         else:
-            ckpt = vdir / "checkpoints" / "last.ckpt"
+            ckpt = rdir / "checkpoints" / "last.ckpt"
             resume = ckpt.is_file()
-            if not resume and vdir.exists():
-                shutil.rmtree(vdir)  # killed before its first checkpoint: nothing to keep
+            if not resume and rdir.exists():
+                shutil.rmtree(rdir)  # killed before its first checkpoint: nothing to keep
             start = f"resuming after epoch {checkpoint_epochs(ckpt)}" if resume else "training"
-            log(f"[{k}/{len(cfg.variants)}] {name}: {start} ({cfg.train.epochs} epochs)")
+            log(f"{tag}: {start} ({train_cfg.epochs} epochs, seed {run.seed})")
             train(
-                name,
+                run.arm.name if run.arm.plain else spec,
                 data_yaml,
-                cfg.train,
-                vdir,
+                train_cfg,
+                rdir,
                 resume=resume,
                 devices=_devices(cfg.trainer.devices),
                 num_nodes=cfg.trainer.num_nodes,
                 accelerator=cfg.trainer.accelerator,
                 progress=progress,
-                callbacks=[ThroughputMeter(vdir / "throughput.json")],
+                callbacks=[ThroughputMeter(rdir / "throughput.json")],
             )
             if int(os.environ.get("LOCAL_RANK", "0")) or int(os.environ.get("NODE_RANK", "0")):
                 continue  # DDP worker ranks train; the launching rank measures and writes
-        row = measure_variant(cfg, name, vdir, data_yaml, data_cfg.names, sha, progress)
-        write_json(vdir / "row.json", row, indent=1)
+        if not run.arm.plain:  # the spec it trained with, loadable by slimseg train --model
+            write_yaml(rdir / "spec.yaml", spec.to_dict())
+        row = measure_run(cfg, run, spec, data_cfg, frame, sha)
+        write_json(rdir / "row.json", row, indent=1)
         rows.append(row)
         paths = write_reports(rows, out, cfg)
-        log(f"[{k}/{len(cfg.variants)}] {name}: {_summary(row)} -> {paths[1]}")
+        log(f"{tag}: {_summary(row)} -> {paths.md}")
     return rows
+
+
+def bench_frame(data_cfg: DataConfig) -> np.ndarray:
+    """The val frame the latency bench runs on (the split's first image), ``uint8 [h, w, 3]``."""
+    val = CocoDataset.from_config(data_cfg, "val")
+    if not len(val):
+        raise SlimsegError(f"{data_cfg.source}: the val split has no images to score or time")
+    image, _ = read_image_rgb8(val.image_path(0))
+    return image
 
 
 def read_row(vdir: Path, config_hash: str) -> dict | None:
@@ -176,47 +221,28 @@ def checkpoint_epochs(ckpt: Path) -> int:
     return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) + 1
 
 
-def measure_variant(
+def measure_run(
     cfg: AblationConfig,
-    name: str,
-    vdir: Path,
-    data_yaml: Path,
-    names: list[str],
+    run: Run,
+    spec: ModelSpec,
+    data_cfg: DataConfig,
+    frame: np.ndarray,
     sha: str,
-    progress: bool = True,
 ) -> dict:
-    """One row: COCO mAP of the best EMA weights on the val split (from the run's own
-    validation, pycocotools), size and cost at ``cfg.gflops_imgsz``, onnxruntime FP32
-    latency at the training imgsz, training throughput."""
-    imgsz = cfg.train.imgsz
-    model, info = load_weights(vdir / "weights" / "best.pt")
-    val_set = YoloDataset(CocoDataset.from_config(load_data_config(data_yaml), "val"), imgsz)
-    metrics = info.metrics  # the training run's COCO validation of exactly these weights
-    if "box" not in metrics:  # weights written without a validation: score them now
-        metrics, _ = evaluate_dataset(
-            model.fuse(),
-            val_set,
-            cfg.train.batch,
-            conf=cfg.train.conf,
-            iou=cfg.train.iou,
-            progress=progress,
-        )
-    size = measure(build_model(name, num_classes=len(names)), cfg.gflops_imgsz)
-    onnx_path = vdir / "model.onnx"
-    export_onnx(model, onnx_path, (imgsz, imgsz), names=names, mobility=info.mobility)
-    session = cpu_session(onnx_path, cfg.bench.threads)
-    feed = {"images": np.random.default_rng(0).random((1, 3, imgsz, imgsz), np.float32)}
-    latency = median_ms(lambda: session.run(None, feed), cfg.bench.runs, cfg.bench.warmup)
-    box, mask = metrics["box"], metrics.get("mask") or {}
-    nan = float("nan")
+    """One row: the metrics of ``cfg.metrics`` (COCO mAP of the best EMA weights on the val
+    split first), size and cost of ``spec`` at ``cfg.gflops_imgsz``, onnxruntime latency
+    (and post-processing) at the bench sizes on ``frame``, training throughput."""
+    model, info = run_weights(run.dir)
+    scores = score_run(resolve_metrics(cfg.metrics, cfg.source), run.dir, spec, data_cfg)
+    size = measure(build_from_spec(spec), cfg.gflops_imgsz)
+    latency = bench_latency(model, info, run.dir, cfg.train.imgsz, cfg.bench, frame)
+    first = cfg.bench_sizes[0]
     return {
-        "variant": name,
+        "variant": run.arm.name,
+        "model": run.arm.model,
         "epochs": cfg.train.epochs,
         "best_epoch": info.epoch + 1,
-        "box_map50_95": box["map50_95"],
-        "seg_map50_95": mask.get("map50_95", nan),
-        "box_map50": box["map50"],
-        "seg_map50": mask.get("map50", nan),
+        **scores,
         "gflops": size.gflops,
         "gflops_paper": size.gflops_paper,
         "gflops_imgsz": cfg.gflops_imgsz,
@@ -224,14 +250,15 @@ def measure_variant(
         "params": size.params,
         "params_paper": size.params_paper,
         "fused_params": size.fused_params,
-        "latency_ms": latency,
-        "latency_imgsz": imgsz,
-        "train_img_s": images_per_second(vdir / "throughput.json"),
-        "val_images": len(val_set),
-        "num_classes": len(names),
+        "latency_ms": latency[f"ms_net@{first}"],
+        "latency_imgsz": first,
+        **latency,
+        "train_img_s": images_per_second(run.dir / "throughput.json"),
+        "val_images": len(CocoDataset.from_config(data_cfg, "val")),
+        "num_classes": len(data_cfg.names),
         "spec_hash": info.spec.hash,
         "git_sha": sha,
-        "seed": cfg.train.seed,
+        "seed": run.seed,
         "config_hash": cfg.hash,
         "row_version": ROW_VERSION,
     }

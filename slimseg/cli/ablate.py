@@ -15,12 +15,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     shipped = ", ".join(shipped_names("ablation"))
     p = sub.add_parser(
         "ablate",
-        help="train and compare variants under one recipe and seed (the paper's Table II)",
-        description="Train, evaluate (COCO box and mask mAP) and measure (params, gradients, "
-        "GFLOPs, onnxruntime latency, training images/s) every variant of a sweep config; "
-        "write OUT/results.csv, results.md (with the paper's Table II beside ours) and "
-        "results.png. Interrupted sweeps resume: rerun the same command. Shipped configs "
-        f"(slimseg/configs/ablation): {shipped}.",
+        help="train and compare variants or spec overrides under one recipe and its seeds "
+        "(the paper's Table II)",
+        description="Train, evaluate (COCO box and mask mAP, plus the config's extra row "
+        "metrics) and measure (params, gradients, GFLOPs, onnxruntime latency at each "
+        "bench size, optionally NMS + mask post-processing, training images/s) every arm "
+        "of a sweep config (a zoo variant, or a spec override on one) once per seed; write "
+        "OUT/results.csv (one row per run), summary.csv (per arm: mean and spread, half the "
+        "max-min range, over the seeds), results.md (with the paper's Table II beside the "
+        "plain zoo arms) and results.png. Interrupted sweeps resume: rerun the same command. "
+        f"Shipped configs (slimseg/configs/ablation): {shipped}; the config schema is in "
+        "docs/ablation.md.",
     )
     p.add_argument("--config", required=True, help="sweep YAML, or the name of a shipped one")
     p.add_argument("--out", default=None, help="sweep folder (default runs/ablate/<name>)")
@@ -43,10 +48,16 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, trainer=dataclasses.replace(cfg.trainer, **launch))
     out = Path(args.out) if args.out else Path("runs") / "ablate" / cfg.name
     start = time.perf_counter()
-    print(f"sweep {cfg.name}: {len(cfg.variants)} variants -> {out} (config hash {cfg.hash})")
+    seeds = ", ".join(map(str, cfg.run_seeds))
+    runs = len(cfg.variants) * len(cfg.run_seeds)
+    print(
+        f"sweep {cfg.name}: {len(cfg.variants)} arms x seeds [{seeds}] = {runs} runs -> {out} "
+        f"(config hash {cfg.hash})"
+    )
     rows = run_sweep(cfg, out, progress=not args.quiet)
     minutes = (time.perf_counter() - start) / 60
-    print(f"\n{len(rows)} variants in {minutes:.1f} min this run\n")
+    print(f"\n{len(rows)} runs in {minutes:.1f} min this run\n")
     print((out / "results.md").read_text())
-    print(f"results: {out / 'results.csv'}, {out / 'results.md'}, {out / 'results.png'}")
+    files = ", ".join(str(out / f) for f in ("results.csv", "summary.csv", "results.md"))
+    print(f"results: {files}, {out / 'results.png'}")
     return 0

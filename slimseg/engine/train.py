@@ -41,6 +41,7 @@ from slimseg.engine.pretrained import load_pretrained
 from slimseg.errors import SlimsegError
 from slimseg.losses.instance_mask import target_mask_ratio
 from slimseg.models.registry import get_spec
+from slimseg.models.specs import ModelSpec
 from slimseg.utils.atomic import atomic_path
 from slimseg.utils.threads import torch_threads
 
@@ -169,7 +170,7 @@ def transfer_weights(module: DetectorModule, path: str | Path) -> str:
 
 
 def train(
-    model: str,
+    model: str | ModelSpec,
     data: str | Path,
     cfg: TrainConfig,
     out: Path,
@@ -184,6 +185,9 @@ def train(
     precision: str = "auto",
 ) -> tuple[DetectorModule, Path]:
     """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder.
+
+    ``model``: a zoo name, a spec YAML path, or a :class:`ModelSpec` (its class count is
+    replaced by the data's, as for the other two).
 
     ``callbacks`` are added to the run's own (checkpointing, run writer, progress bar).
     ``cfg.threads`` (when set) is torch's thread count during the call only. ``precision``:
@@ -207,7 +211,7 @@ def train(
 
 
 def _train(
-    model: str,
+    model: str | ModelSpec,
     data: str | Path,
     cfg: TrainConfig,
     out: Path,
@@ -222,7 +226,10 @@ def _train(
     precision: str,
 ) -> tuple[DetectorModule, Path]:
     data_cfg = load_data_config(data)
-    spec = get_spec(model, len(data_cfg.names))
+    if isinstance(model, ModelSpec):
+        spec = model.with_classes(len(data_cfg.names))
+    else:
+        spec = get_spec(model, len(data_cfg.names))
     use_gpu = accelerator in ("gpu", "cuda") or (
         accelerator == "auto" and torch.cuda.is_available()
     )
@@ -252,7 +259,7 @@ def _train(
         (out / "args.yaml").write_text(
             yaml.safe_dump(
                 {
-                    "model": model,
+                    "model": spec.name if isinstance(model, ModelSpec) else model,
                     "data": str(data),
                     "spec": spec.to_dict(),
                     "train": dataclasses.asdict(cfg),
