@@ -159,6 +159,7 @@ def mask_quality(
 
         {"classes": [name, ...],                   # evaluated classes, person first
          "instances": {name: n, ...},              # non-crowd ground truth
+         "detections": n,                          # the ones scored
          "mask": {"all": {"ap", "ap50", "ap75"}, name: {...} or None, ...},
          "boundary": {"1px": <as "mask">, "2px": ..., "default": ...},
          "skeleton": {"class": "person", "recall", "thin_recall", "instances", "matched",
@@ -236,6 +237,7 @@ def mask_quality(
     return {
         "classes": [names[c] for c in order],
         "instances": {names[c]: counts[c] for c in order},
+        "detections": len(all_dets),
         "mask": _table(per_class_ap(gt, all_dets, imgs, cats), names, order),
         "boundary": {
             k: _table(per_class_ap(_boundary_coco(gt, b_gt[k]), b_dt[k], imgs, cats), names, order)
@@ -258,7 +260,8 @@ def format_mask_quality_table(result: dict, markdown: bool = False) -> str:
     AP75 and AP50:95 per boundary band) and one line of person skeleton recall."""
     keys = list(result["boundary"])
     px = result["settings"]["default_band_px"]
-    default = f"{px[0]}px" if len(px) == 1 else f"{result['settings']['dilation_ratio']:g}diag"
+    default = f"{100 * result['settings']['dilation_ratio']:g}%diag"
+    default += f" ({px[0]}px)" if len(px) == 1 else ""
     headers = ["class", "instances", "mask AP", "AP50", "AP75"] + [
         f"bAP {default if k == DEFAULT_BAND else k}" for k in keys
     ]
