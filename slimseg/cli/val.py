@@ -20,6 +20,7 @@ from slimseg.deploy.checkpoint import load_weights
 from slimseg.deploy.onnx_model import OnnxModel
 from slimseg.engine.evaluate import SEMANTIC_CONF, evaluate_dataset, is_semantic
 from slimseg.errors import SlimsegError
+from slimseg.eval.boundary import DILATION_RATIO, NARROW_BANDS
 from slimseg.eval.ceiling import ceiling_detections
 from slimseg.eval.coco_eval import format_metrics_table, load_gt
 from slimseg.eval.mask_quality import (
@@ -67,8 +68,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--mask-quality",
         action="store_true",
-        help="also per-class mask AP/AP50/AP75, Boundary AP (1 px, 2 px, 2%% of the diagonal) "
-        "and person skeleton recall (all / thin parts); JSON: under 'mask_quality'",
+        help="also per-class mask AP/AP50/AP75, Boundary AP ("
+        + ", ".join(f"{d} px" for d in NARROW_BANDS)
+        + f", {100 * DILATION_RATIO:g}%% of the diagonal) and person skeleton recall (all / thin "
+        "parts); JSON: under 'mask_quality'",
     )
     p.add_argument(
         "--ceiling",

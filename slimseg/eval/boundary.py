@@ -20,6 +20,8 @@ from pycocotools import mask as mask_utils
 
 #: ``d = max(1, round(DILATION_RATIO × image diagonal))``: Boundary IoU's default band.
 DILATION_RATIO = 0.02
+#: Narrow band widths in pixels reported besides the default band (thin limbs at 320 px).
+NARROW_BANDS = (1, 2)
 
 
 def band_width(image_hw: tuple[int, int], dilation_ratio: float = DILATION_RATIO) -> int:
@@ -93,6 +95,8 @@ class MaskStack:
             # pycocotools' Cython array lacks numpy 2's ``copy`` keyword: harmless
             warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)
             fortran = mask_utils.decode(self.rles)  # [H, W, N], Fortran order
+        if fortran.shape[:2] != (h, w):
+            raise ValueError(f"RLE size {list(fortran.shape[:2])} is not the image's {[h, w]}")
         self._cols = fortran.T  # [N, W, H], C order: the same buffer
         x, y, bw, bh = np.round(mask_utils.toBbox(self.rles)).astype(np.int64).reshape(-1, 4).T
         self._boxes = np.stack([x, y, x + bw, y + bh], axis=1)  # column, then row windows

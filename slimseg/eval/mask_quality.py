@@ -35,7 +35,7 @@ from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
 from slimseg.errors import SlimsegError
-from slimseg.eval.boundary import DILATION_RATIO, MaskStack, band_width
+from slimseg.eval.boundary import DILATION_RATIO, NARROW_BANDS, MaskStack, band_width
 from slimseg.eval.coco_eval import CocoEvaluator, load_gt, quiet
 from slimseg.eval.postprocess import COCO_MAX_DETS
 from slimseg.eval.skeleton import MATCH_IOU, THIN_WIDTH, SkeletonTally, greedy_match
@@ -127,6 +127,25 @@ def _table(per_cat: dict[int, dict | None], names: dict[int, str], order: list[i
     return {"all": mean, **{names[c]: per_cat[c] for c in order}}
 
 
+def _tally_people(
+    tally: SkeletonTally,
+    people: list[tuple[dict, np.ndarray]],
+    dets: list[dict],
+    det_masks: list[np.ndarray],
+    thin_width: float,
+) -> None:
+    """Add one image's person ground truths ``(rle, bool [H, W])`` to ``tally``, each with
+    the mask of the person detection matched to it (:func:`greedy_match` on mask IoU)."""
+    ious = np.zeros((len(dets), len(people)))
+    if dets and people:
+        segs = [d["segmentation"] for d in dets]
+        ious = np.asarray(mask_utils.iou(segs, [r for r, _ in people], [0] * len(people)))
+        ious = ious.reshape(len(dets), len(people))
+    match = greedy_match(ious, np.array([float(d["score"]) for d in dets]), MATCH_IOU)
+    for (_, gt_mask), k in zip(people, match.tolist(), strict=True):
+        tally.add(gt_mask, det_masks[k] if k >= 0 else None, thin_width)
+
+
 def _boundary_coco(gt: COCO, annotations: list[dict]) -> COCO:
     coco = COCO()
     coco.dataset = {
@@ -142,7 +161,7 @@ def mask_quality(
     coco_gt: str | Path | dict | COCO,
     detections: Iterable[dict],
     *,
-    narrow_bands: Sequence[int] = (1, 2),
+    narrow_bands: Sequence[int] = NARROW_BANDS,
     dilation_ratio: float = DILATION_RATIO,
     image_ids: Sequence[int] | None = None,
     cat_ids: Sequence[int] | None = None,
@@ -215,19 +234,9 @@ def mask_quality(
         if person_cat is not None:
             gi = [i for i, a in enumerate(plain) if a["category_id"] == person_cat]
             di = [i for i, x in enumerate(dts) if x["category_id"] == person_cat]
-            ious = np.zeros((len(di), len(gi)))
-            if di and gi:
-                ious = np.asarray(
-                    mask_utils.iou(
-                        [dts[i]["segmentation"] for i in di],
-                        [gt_rles[i] for i in gi],
-                        [0] * len(gi),
-                    )
-                ).reshape(len(di), len(gi))
-            match = greedy_match(ious, np.array([float(dts[i]["score"]) for i in di]), MATCH_IOU)
-            for j, g in enumerate(gi):
-                det = dt_masks.mask(di[match[j]]) if match[j] >= 0 else None
-                tally.add(gt_masks.mask(g), det, thin_width)
+            people = [(gt_rles[i], gt_masks.mask(i)) for i in gi]
+            found = [dts[i] for i in di], [dt_masks.mask(i) for i in di]
+            _tally_people(tally, people, *found, thin_width)
 
     all_dets = [d for img in imgs for d in per_image.get(img, [])]
     counts = _instances(gt, imgs, cats)
