@@ -1,5 +1,8 @@
 """``slimseg val``: COCO box and mask mAP of a weights file on a dataset config; mIoU and
-MPA for semantic models (MSNET), or for a YOLO segmenter with ``--semantic``."""
+MPA for semantic models (MSNET), or for a YOLO segmenter with ``--semantic``. With
+``--mask-quality`` also per-class mask AP, Boundary AP and person skeleton recall
+(:mod:`slimseg.eval.mask_quality`); ``--ceiling R`` scores the ground truth through an
+``R`` times coarser mask grid instead of a model (:mod:`slimseg.eval.ceiling`)."""
 
 from __future__ import annotations
 
@@ -17,7 +20,14 @@ from slimseg.deploy.checkpoint import load_weights
 from slimseg.deploy.onnx_model import OnnxModel
 from slimseg.engine.evaluate import SEMANTIC_CONF, evaluate_dataset, is_semantic
 from slimseg.errors import SlimsegError
-from slimseg.eval.coco_eval import format_metrics_table
+from slimseg.eval.boundary import DILATION_RATIO, NARROW_BANDS
+from slimseg.eval.ceiling import ceiling_detections
+from slimseg.eval.coco_eval import format_metrics_table, load_gt
+from slimseg.eval.mask_quality import (
+    evaluator_mask_quality,
+    format_mask_quality_table,
+    mask_quality,
+)
 from slimseg.eval.semantic_metrics import format_semantic_table
 from slimseg.ops.nms import EVAL_CONF, NMS_IOU
 
@@ -35,8 +45,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--weights",
-        required=True,
-        help="weights/best.pt, checkpoints/last.ckpt or an exported .onnx",
+        default=None,
+        help="weights/best.pt, checkpoints/last.ckpt or an exported .onnx (required unless "
+        "--ceiling)",
     )
     p.add_argument("--data", required=True, help="dataset config YAML")
     p.add_argument("--split", default="val", choices=("val", "train"))
@@ -53,6 +64,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--semantic",
         action="store_true",
         help="mIoU/MPA of a YOLO segmenter's masks as a class map (implied for msnet)",
+    )
+    p.add_argument(
+        "--mask-quality",
+        action="store_true",
+        help="also per-class mask AP/AP50/AP75, Boundary AP ("
+        + ", ".join(f"{d} px" for d in NARROW_BANDS)
+        + f", {100 * DILATION_RATIO:g}%% of the diagonal) and person skeleton recall (all / thin "
+        "parts); JSON: under 'mask_quality'",
+    )
+    p.add_argument(
+        "--ceiling",
+        type=int,
+        default=None,
+        metavar="RATIO",
+        help="no model: score the ground-truth masks pushed through a RATIO times coarser "
+        "mask grid and back (the best masks on that grid can do), with --mask-quality's metrics",
     )
     p.add_argument("--iou", type=float, default=NMS_IOU)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
@@ -82,6 +109,10 @@ def _load(args: argparse.Namespace) -> tuple[nn.Module, int]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.ceiling is not None:
+        return _run_ceiling(args)
+    if args.weights is None:
+        raise SlimsegError("--weights is required (or --ceiling RATIO to score the mask grid)")
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise SlimsegError(f"--device {args.device}: no CUDA device is visible to torch")
     try:
@@ -104,6 +135,11 @@ def run(args: argparse.Namespace) -> int:
         )
     if semantic and args.save_json:
         raise SlimsegError("--save-json writes COCO detections: not available for mIoU/MPA")
+    if args.mask_quality and (semantic or model.spec.task != "segment"):
+        raise SlimsegError(
+            f"--mask-quality scores instance masks: not available for "
+            f"{'mIoU/MPA' if semantic else f'the detector {model.spec.name}'}"
+        )
     conf = args.conf if args.conf is not None else (SEMANTIC_CONF if semantic else EVAL_CONF)
     base = CocoDataset.from_config(data_cfg, args.split)
     result, evaluator = evaluate_dataset(
@@ -132,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         written = evaluator.write_results(args.save_json)
         if not args.json:
             print(f"COCO results: {written}")
+    if args.mask_quality:
+        result["mask_quality"] = evaluator_mask_quality(evaluator)
     if args.json:
         print(json.dumps(result))
     else:
@@ -139,6 +177,33 @@ def run(args: argparse.Namespace) -> int:
         print(format_metrics_table(result, data_cfg.names))
         speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
         print(f"speed per image: {speed}")
+        if args.mask_quality:
+            print("mask quality (mask AP and Boundary AP at three band widths):")
+            print(format_mask_quality_table(result["mask_quality"]))
+    return 0
+
+
+def _run_ceiling(args: argparse.Namespace) -> int:
+    """``--ceiling R``: mask quality of the ground truth through an ``R``-coarser grid."""
+    given = [f for f, v in (("--weights", args.weights), ("--save-json", args.save_json)) if v]
+    given += ["--semantic"] if args.semantic else []
+    if given:
+        raise SlimsegError(f"--ceiling scores the ground truth, not a model: drop {given[0]}")
+    if args.ceiling < 1:
+        raise SlimsegError(f"--ceiling {args.ceiling}: the grid ratio must be >= 1 (e.g. 4)")
+    base = CocoDataset.from_config(load_data_config(args.data), args.split)
+    gt = load_gt(base.annotations_json)
+    image_ids = [rec.id for rec in base.records]
+    dets = ceiling_detections(gt, args.ceiling, image_ids)
+    quality = mask_quality(gt, dets, image_ids=image_ids, cat_ids=base.cat_ids)
+    if args.json:
+        print(json.dumps({"ceiling_ratio": args.ceiling, "mask_quality": quality}))
+        return 0
+    print(
+        f"ceiling: ground-truth masks through a {args.ceiling}x coarser grid and back, "
+        f"{args.data} ({args.split}, {len(base)} images)"
+    )
+    print(format_mask_quality_table(quality))
     return 0
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,6 +23,7 @@ from slimseg.data.dataset import YoloDataset
 from slimseg.data.semantic import instances_to_semantic
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator
+from slimseg.eval.mask_quality import evaluator_mask_quality
 from slimseg.eval.postprocess import COCO_MAX_DETS, FrameDetections, batch_to_frame_detections
 from slimseg.eval.semantic_metrics import ConfusionMatrix
 from slimseg.ops.masks import assemble_masks
@@ -198,3 +200,23 @@ def evaluate_dataset(
         return evaluate_semantic(model, loader, names, conf, iou, progress=progress)
     evaluator = CocoEvaluator.from_dataset(dataset.base, iou_types_for(model))
     return evaluate(model, loader, evaluator, conf, iou, progress=progress), evaluator
+
+
+def evaluate_mask_quality(
+    model: nn.Module,
+    dataset: YoloDataset,
+    batch: int = 8,
+    workers: int = 0,
+    conf: float = EVAL_CONF,
+    iou: float = NMS_IOU,
+    progress: bool = False,
+    **options: Any,
+) -> dict:
+    """Mask quality (:func:`~slimseg.eval.mask_quality.mask_quality`: per-class mask AP,
+    Boundary AP, person skeleton recall) of a segmenter on a validation ``YoloDataset``
+    (letterbox only), e.g. a trained sweep variant's val split; ``options`` go to
+    ``mask_quality`` (``narrow_bands``, ``dilation_ratio``, ``thin_width``, ...)."""
+    if model.spec.task != "segment":
+        raise SlimsegError(f"{model.spec.name} has no instance masks: mask quality needs them")
+    _, evaluator = evaluate_dataset(model, dataset, batch, workers, conf, iou, progress)
+    return evaluator_mask_quality(evaluator, **options)

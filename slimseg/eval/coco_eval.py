@@ -44,7 +44,7 @@ IOU_TYPES = ("bbox", "segm")
 _RESULT_KEY = {"bbox": "box", "segm": "mask"}
 
 
-def _quiet(fn: Any, *args: Any) -> Any:
+def quiet(fn: Any, *args: Any) -> Any:
     """Call ``fn(*args)`` with pycocotools' stdout chatter swallowed."""
     with contextlib.redirect_stdout(io.StringIO()):
         return fn(*args)
@@ -80,7 +80,9 @@ def _fill_gt_defaults(data: dict) -> dict:
     return out
 
 
-def _load_gt(gt: str | Path | dict | COCO) -> COCO:
+def load_gt(gt: str | Path | dict | COCO) -> COCO:
+    """A :class:`~pycocotools.coco.COCO` of a json path, its loaded dict or another
+    ``COCO`` (never modified), with the annotation defaults of the module docstring."""
     if isinstance(gt, COCO):
         data = gt.dataset
     elif isinstance(gt, dict):
@@ -96,7 +98,7 @@ def _load_gt(gt: str | Path | dict | COCO) -> COCO:
         raise SlimsegError("COCO ground truth needs 'images', 'annotations' and 'categories'")
     coco = COCO()
     coco.dataset = _fill_gt_defaults(data)
-    _quiet(coco.createIndex)
+    quiet(coco.createIndex)
     return coco
 
 
@@ -121,7 +123,7 @@ class CocoEvaluator:
         if bad or not iou_types or "bbox" not in iou_types:
             raise ValueError(f"iou_types must be ('bbox',) or ('bbox', 'segm'), got {iou_types}")
         self.iou_types = tuple(dict.fromkeys(iou_types))
-        self.gt = _load_gt(gt)
+        self.gt = load_gt(gt)
         if isinstance(cat_ids, Mapping):
             if sorted(cat_ids) != list(range(len(cat_ids))):
                 raise ValueError("a cat_ids mapping must cover the classes 0..K-1")
@@ -160,6 +162,17 @@ class CocoEvaluator:
     @property
     def num_images(self) -> int:
         return len(self._img_ids)
+
+    @property
+    def image_ids(self) -> list[int]:
+        """The json image ids added since the last :meth:`reset`, in order."""
+        return list(self._img_ids)
+
+    def mask_results(self) -> list[dict]:
+        """The accumulated mask detections as COCO result dicts (``image_id``,
+        ``category_id``, ``segmentation`` RLE, ``score``), those whose mask was assembled
+        (the ones COCO reads); empty for detection only."""
+        return [dict(r) for r in self._results.get("segm", []) if r["segmentation"] is not None]
 
     def update(self, image_ids: Sequence[int], detections: Sequence[FrameDetections]) -> None:
         """Add the detections of images ``image_ids`` (json image ids, each at most once per
@@ -237,15 +250,15 @@ class CocoEvaluator:
             per = [0.0 if n else None for n in self._instances()]
             self.coco_stats[iou_type] = np.zeros(12)
             return 0.0, 0.0, per, list(per)
-        dt = _quiet(self.gt.loadRes, [dict(r) for r in results])  # loadRes adds keys
+        dt = quiet(self.gt.loadRes, [dict(r) for r in results])  # loadRes adds keys
         ev = COCOeval(self.gt, dt, iou_type)
         ev.params.imgIds = sorted(self._img_ids)
         ev.params.catIds = sorted(self.cat_ids)
         if max(ev.params.maxDets) > COCO_MAX_DETS:  # the masks left out would then count
             raise ValueError(f"COCOeval scores {max(ev.params.maxDets)} detections per class")
-        _quiet(ev.evaluate)
-        _quiet(ev.accumulate)
-        _quiet(ev.summarize)
+        quiet(ev.evaluate)
+        quiet(ev.accumulate)
+        quiet(ev.summarize)
         stats = np.asarray(ev.stats, dtype=float)
         self.coco_stats[iou_type] = stats
         # precision [T iou thresholds, R recall points, K classes, A areas, M maxDets]
