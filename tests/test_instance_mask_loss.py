@@ -127,7 +127,7 @@ def test_target_ratio_follows_the_spec() -> None:
 
 
 def test_mask_loss_spec_errors_name_the_field() -> None:
-    with pytest.raises(SpecError, match="mask_loss.resolution"):
+    with pytest.raises(SpecError, match=r"mask_loss\.resolution"):
         MaskLossSpec("full")
     with pytest.raises(SpecError, match="dice"):
         MaskLossSpec(dice=-1.0)

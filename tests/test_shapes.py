@@ -25,7 +25,8 @@ def test_eval_layout_non_square(name: str, h: int, w: int) -> None:
     if model.spec.task == "segment":
         pred, proto = out
         assert pred.shape == (2, 4 + nc + 32, anchors(h, w))
-        assert proto.shape == (2, 32, h // 4, w // 4)
+        stride = model.spec.head.proto_stride  # 4, or 2 for the -hr variants
+        assert proto.shape == (2, 32, h // stride, w // stride)
     else:
         assert out.shape == (2, 4 + nc, anchors(h, w))
         pred = out

@@ -24,8 +24,9 @@ from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig
 from slimseg.data.dataset import YoloDataset
 from slimseg.deploy.checkpoint import WeightsInfo, load_weights
-from slimseg.engine.evaluate import evaluate_dataset
+from slimseg.engine.evaluate import evaluate_dataset, evaluate_mask_quality
 from slimseg.errors import SlimsegError
+from slimseg.eval.mask_quality import PERSON
 from slimseg.models.specs import ModelSpec, SpecError
 
 
@@ -84,7 +85,61 @@ class CocoMetric:
         }
 
 
-ROW_METRICS: dict[str, RowMetric] = {m.name: m for m in (CocoMetric(),)}
+def _number(value: float | None) -> float:
+    return math.nan if value is None else float(value)
+
+
+@dataclass(frozen=True)
+class MaskQualityMetric:
+    """Person masks beyond mAP (``docs/mask_quality.md``): the person class's mask AP,
+    AP50, AP75 and Boundary AP at the 1 px, 2 px and default bands, and the recall of the
+    person ground truth's skeleton (all of it, and its thin parts), scored on the val split
+    with the run's fused best weights at the evaluation thresholds."""
+
+    name: str = "mask_quality"
+    columns: tuple[str, ...] = (
+        "person_mask_ap",
+        "person_mask_ap50",
+        "person_mask_ap75",
+        "person_bap_1px",
+        "person_bap_2px",
+        "person_bap_default",
+        "all_mask_ap",
+        "skeleton_recall",
+        "thin_skeleton_recall",
+    )
+
+    def __call__(self, run_dir: Path, spec: ModelSpec, data_cfg: DataConfig) -> dict[str, float]:
+        model, info = run_weights(run_dir)
+        t = info.train_config
+        q = evaluate_mask_quality(
+            model.fuse(),
+            val_dataset(info, data_cfg),
+            int(t["batch"]),
+            conf=float(t["conf"]),
+            iou=float(t["iou"]),
+        )
+        person = PERSON if PERSON in q["classes"] else None
+        skeleton = q["skeleton"] or {}
+
+        def ap(table: dict, key: str) -> float:
+            value = table.get(person, {}) if person else {}
+            return _number((value or {}).get(key))
+
+        return {
+            "person_mask_ap": ap(q["mask"], "ap"),
+            "person_mask_ap50": ap(q["mask"], "ap50"),
+            "person_mask_ap75": ap(q["mask"], "ap75"),
+            "person_bap_1px": ap(q["boundary"]["1px"], "ap"),
+            "person_bap_2px": ap(q["boundary"]["2px"], "ap"),
+            "person_bap_default": ap(q["boundary"]["default"], "ap"),
+            "all_mask_ap": _number(q["mask"]["all"]["ap"]),
+            "skeleton_recall": _number(skeleton.get("recall")),
+            "thin_skeleton_recall": _number(skeleton.get("thin_recall")),
+        }
+
+
+ROW_METRICS: dict[str, RowMetric] = {m.name: m for m in (CocoMetric(), MaskQualityMetric())}
 DEFAULT_METRICS = ("coco",)
 BASE_METRIC = "coco"  # its mAP columns are the report's tables: every sweep computes it
 

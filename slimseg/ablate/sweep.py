@@ -109,15 +109,16 @@ class Run:
 
 
 def sweep_runs(cfg: AblationConfig, out: Path) -> list[Run]:
-    """Every run of ``cfg`` in order (arm-major): ``variants/NAME`` without ``seeds:``,
-    ``variants/NAME/seed-S`` with them."""
+    """Every run of ``cfg`` in order: ``variants/NAME`` without ``seeds:``,
+    ``variants/NAME/seed-S`` with them, seed-major (every arm at the first seed, then every
+    arm at the next), so a sweep cut short still compares all its arms."""
     base = out / "variants"
     if cfg.seeds is None:
         return [Run(a, cfg.train.seed, base / a.name, a.name) for a in cfg.variants]
     return [
         Run(a, s, base / a.name / f"seed-{s}", f"{a.name}/seed-{s}")
-        for a in cfg.variants
         for s in cfg.seeds
+        for a in cfg.variants
     ]
 
 

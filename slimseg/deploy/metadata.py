@@ -21,7 +21,7 @@ from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 # Eq. 1's mobility threshold at its starting value (docs/papers.md §2): classes above it are
 # dynamic. Read from the SLAM-side code that applies it, never retyped.
 DEFAULT_MOBILITY_THRESHOLD = M_TH_START
-# Masks from 1/4-resolution prototypes are soft at the edges: dilate them before dropping
+# Masks from 1/4- (or 1/2-) resolution prototypes are soft at the edges: dilate them before dropping
 # keypoints (ORB's 31-px patch straddles the edge otherwise). Pixels at the 640 input.
 RECOMMENDED_MASK_DILATION_PX = 5
 # Keys every slimseg export carries and a runtime cannot do without.
@@ -105,6 +105,9 @@ def build_metadata(
         return meta
     nm = spec.head.num_masks if spec.task == "segment" else 0
     meta["num_masks"] = nm
+    stride = spec.head.proto_stride
+    if nm:
+        meta["proto_stride"] = stride
     meta["outputs"] = {
         "output0": {
             "shape": ["B", 4 + nc + nm, "A"],
@@ -115,7 +118,7 @@ def build_metadata(
     }
     if nm:
         meta["outputs"]["output1"] = {
-            "shape": ["B", nm, "H/4", "W/4"],
+            "shape": ["B", nm, f"H/{stride}", f"W/{stride}"],
             "rows": "raw prototypes; mask = sigmoid(coefficients . prototypes), crop to the box, "
             "upsample to the input, > 0.5, then undo the letterbox",
         }

@@ -22,7 +22,7 @@ class OnnxModel(nn.Module):
     """A slimseg ONNX export (FP32, FP16 or INT8) run by onnxruntime on the CPU.
 
     ``forward(images float32 [B, 3, H, W])`` returns what the fused torch model returns:
-    ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/4, W/4])`` for segmenters, ``pred`` for
+    ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/s, W/s])`` for segmenters, ``pred`` for
     detectors, ``logits [B, K + 1, H, W]`` for semantic models (float32 torch tensors; FP16
     graphs are fed float16). Static-batch graphs run in chunks of their batch size.
     """

@@ -34,7 +34,7 @@ def instance_predictions(
     max_det: int,
 ) -> list[Prediction]:
     """``pred [B, 4 + nc (+ nm), A]`` (``[B, 5 + nc, A]`` for YOLOv3) and ``proto
-    [B, nm, H/4, W/4]`` → one :class:`Prediction` per frame of ``metas``."""
+    [B, nm, H/s, W/s]`` → one :class:`Prediction` per frame of ``metas``."""
     nc = len(names)
     if family == "darknet-yolov3":
         pred = yolov3_to_rows(pred)

@@ -6,7 +6,7 @@ detections (up to float rounding) whichever file is loaded:
 1. preprocess (:mod:`slimseg.deploy.preprocess`): the shared letterbox to the model's input
    size, RGB / 255, NCHW, float32 (float16 for FP16 exports, as their metadata says);
 2. inference (:mod:`slimseg.deploy.runners`): the fused model or the ONNX graph →
-   ``pred [B, 4 + nc (+ nm), A]`` and, for segmenters, ``proto [B, nm, H/4, W/4]``;
+   ``pred [B, 4 + nc (+ nm), A]`` and, for segmenters, ``proto [B, nm, H/s, W/s]``;
 3. postprocess (:mod:`slimseg.deploy.predict_postprocess`): NMS, boxes and masks on the source
    frame; semantic models (``logits [B, K+1, H, W]``) get a class map instead.
 

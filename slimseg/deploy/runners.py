@@ -2,7 +2,7 @@
 onnxruntime session, both mapping a network input ``[B, 3, H, W]`` to ``(pred, proto)``.
 
 ``pred``: ``float32 [B, 4 + nc (+ nm), A]`` (``[B, K + 1, H, W]`` logits for semantic models);
-``proto``: ``float32 [B, nm, H/4, W/4]`` or ``None``.
+``proto``: ``float32 [B, nm, H/s, W/s]`` or ``None``.
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ TENSORRT_SUPPORTED_OPS = frozenset(
         "Concat",
         "Conv",
         "ConvTranspose",
+        "DepthToSpace",  # -hr prototypes: pixel shuffle (CRD mode)
         "Div",
         "Erf",  # MSNET: exact GELU
         "Exp",

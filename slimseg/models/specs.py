@@ -55,7 +55,7 @@ _OMIT_AT_DEFAULT = {"omit_at_default": True}
 
 @dataclass(frozen=True)
 class MaskLossSpec:
-    """How the instance-mask term is supervised (``docs/architecture.md`` §6).
+    """How the instance-mask term is supervised (``docs/architecture.md`` §7).
 
     ``resolution``: ``proto`` compares ``coeffs · protos`` with the ground truth shrunk to the
     prototype grid (the reference); ``input`` upsamples the predicted logits (bilinear, half

@@ -1,7 +1,8 @@
 """Instance masks from prototype masks and per-detection coefficients, and back to the frame.
 
 The exact rule, which a C++ runtime follows step by step to get the same pixels
-(``H × W`` network input, ``Hp × Wp`` prototypes, usually ``H/4 × W/4``):
+(``H × W`` network input, ``Hp × Wp`` prototypes, ``H/4 × W/4``, or ``H/2 × W/2`` for the
+``-hr`` variants):
 
 :func:`assemble_masks` (per detection, boxes xyxy in input pixels):
 

@@ -15,7 +15,7 @@ class Proto(nn.Module):
     ``[B, c_in, H, W]`` (P3, stride 8) → ``[B, num_masks, 2H, 2W]`` (a quarter of the input
     size): the reference prototype module, with ``stride=4`` and no ``skip_channels``.
 
-    The finer path (``docs/architecture.md`` §4): ``skip_channels[4]`` adds a 1×1 lateral of
+    The finer path (``docs/architecture.md`` §7): ``skip_channels[4]`` adds a 1×1 lateral of
     the backbone's stride-4 feature to the upsampled map before the second 3×3 conv;
     ``stride=2`` then rearranges that conv's ``hidden`` channels at stride 4 into
     ``hidden/4`` channels at stride 2 (pixel shuffle: ONNX DepthToSpace, CRD), adds a 1×1
