@@ -32,6 +32,8 @@ bench: $(STAMP)  ## every benchmark, one after the other (ratios are measured wi
 	$(BIN)/python benchmarks/masking_logic.py
 	$(BIN)/python benchmarks/restoration.py
 	$(BIN)/python benchmarks/slam_engines.py
+	$(BIN)/python benchmarks/mask_path.py
+	$(BIN)/python benchmarks/mask_quality.py
 
 reference: $(STAMP)  ## regenerate tests/reference/complexity.json; review the diff like code
 	$(BIN)/python tools/gen_complexity_reference.py
