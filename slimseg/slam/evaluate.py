@@ -31,15 +31,14 @@ LOST_MARK_FRACTION = 0.1  # a row is marked when the median run lost more than t
 @dataclass(frozen=True)
 class EvalSettings:
     """``engine``: orbslam3 | dense; ``runs`` per condition (ORB-SLAM3); ``vocab`` /
-    ``settings``: ORB-SLAM3 files; ``realtime``: replay at the frame rate; ``dilation_px``
-    around removed regions; ``limit``: first frames only; ``fps``: the sequence's rate."""
+    ``settings``: ORB-SLAM3 files; ``realtime``: replay at the frame rate; ``limit``: first
+    frames only; ``fps``: the sequence's rate."""
 
     engine: str = "orbslam3"
     runs: int = 3
     vocab: Path | None = None
     settings: Path | None = None
     realtime: bool = True
-    dilation_px: int = 2
     limit: int | None = None
     fps: float = 30.0
     progress: bool = True
@@ -118,7 +117,7 @@ def evaluate_condition(
     seq: TumSequence, cond: Condition, gt: np.ndarray, cfg: EvalSettings, out: Path
 ) -> ConditionResult:
     """Track ``cond``'s frames ``cfg.runs`` times; write ``out/<cond>/run<k>.txt`` (TUM)."""
-    frames = condition_frames(seq, cond, cfg.dilation_px, cfg.limit, cfg.progress)
+    frames = condition_frames(seq, cond, cfg.limit, cfg.progress)
     result = ConditionResult(cond)
     runs = cfg.runs if cfg.engine == "orbslam3" else 1
     folder = out / _safe(cond.name)
