@@ -87,6 +87,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--no-realtime", action="store_true", help="feed frames as fast as tracking goes"
     )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="realtime replay speed (0.5: half the frame rate, so the schedule holds on a "
+        "loaded machine; the late column counts frames fed behind it)",
+    )
     p.add_argument("--threads", type=int, default=None, help="model threads")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=run)
@@ -137,6 +144,8 @@ def run(args: argparse.Namespace) -> int:
     masking = masking_from_args(args)
     if args.runs < 1:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")
+    if not 0 < args.speed <= 10:
+        raise SlimsegError(f"--speed {args.speed}: expected a factor in (0, 10]")
     if args.sweep:
         from slimseg.cli.slam_sweep import run_sweep_command
 
@@ -165,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         keypoints=args.keypoints,
         features=args.features,
         realtime=not args.no_realtime,
+        speed=args.speed,
         threads=args.threads,
         progress=not args.quiet,
     )

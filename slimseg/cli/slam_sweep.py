@@ -60,6 +60,7 @@ def run_sweep_command(
         keypoints=args.keypoints,
         features=args.features,
         realtime=not args.no_realtime,
+        speed=args.speed,
         threads=args.threads,
         progress=not args.quiet,
     )

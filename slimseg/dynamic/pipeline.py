@@ -26,7 +26,7 @@ import numpy as np
 
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.seg_box import box_masks, dilate, fuse_seg_box
-from slimseg.dynamic.settings import DEFAULT, MaskingSettings
+from slimseg.dynamic.settings import PAPERS, MaskingSettings
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
@@ -85,19 +85,21 @@ class FrameInputs:
 class FrameSettings:
     """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
     ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
-    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o`` (defaults: the ``slimseg`` preset of
-    :mod:`slimseg.dynamic.settings`), and ``dynamic_mobility``: the prior above which a class
-    counts as dynamic (boxes of depth-RANSAC, epipolar candidates), ``m_th_start`` if None."""
+    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o`` (defaults: the equations as printed, the
+    ``papers`` preset of :mod:`slimseg.dynamic.settings`, no dilation; sequence runs and the
+    CLI pass the ``slimseg`` preset through :meth:`from_masking`), and ``dynamic_mobility``:
+    the prior above which a class counts as dynamic (boxes of depth-RANSAC, epipolar
+    candidates), ``m_th_start`` if None."""
 
     class_mobility: np.ndarray
     mode: str = "fusion"
-    min_static: int = DEFAULT.min_static
-    dilation_px: int = DEFAULT.dilation_px
+    min_static: int = PAPERS.min_static
+    dilation_px: int = PAPERS.dilation_px
     dynamic_mobility: float | None = None
-    m_th_start: float = DEFAULT.m_th_start
-    m_th_step: float = DEFAULT.m_th_step
-    frame_ratio: float = DEFAULT.frame_ratio
-    t_o: float = DEFAULT.t_o
+    m_th_start: float = PAPERS.m_th_start
+    m_th_step: float = PAPERS.m_th_step
+    frame_ratio: float = PAPERS.frame_ratio
+    t_o: float = PAPERS.t_o
 
     @classmethod
     def from_masking(

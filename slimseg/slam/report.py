@@ -19,7 +19,7 @@ FLOOR_NAME = "still (floor)"
 COLUMNS = (
     "condition", "status", "runs", "scored_runs", "frames", "ate_rmse", "ate_min", "ate_max",
     "ate_std", "rpe_trans_frame", "rpe_rot_frame", "rpe_trans_s", "rpe_rot_s", "lost_median",
-    "lost_max", "reinitialised", "tracking_ms", "masking_ms", "note",
+    "lost_max", "reinitialised", "tracking_ms", "late_max", "masking_ms", "note",
 )  # fmt: skip
 
 
@@ -64,7 +64,7 @@ def run_rows(results: list[ConditionResult]) -> list[dict]:
             out.append(
                 {"condition": res.condition.name, "run": r.index, **s, "lost": r.lost,
                  "reinitialised": r.reinitialised, "frames": r.frames,
-                 "tracking_ms": round(r.tracking_ms, 2),
+                 "tracking_ms": round(r.tracking_ms, 2), "late": r.late,
                  "trajectory": r.trajectory.name if r.trajectory else "", "error": r.error or ""}
             )  # fmt: skip
     return out

@@ -60,6 +60,7 @@ class Plan:
     keypoints: int = 1000
     features: int = 1000
     realtime: bool = True
+    speed: float = 1.0
     threads: int | None = None
     progress: bool = True
 
@@ -231,7 +232,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
         settings = write_settings(out / "orbslam3_settings.yaml", seq.camera, w, h, orb)
     cfg = EvalSettings(
         engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
-        realtime=plan.realtime, fps=fps_of(seq),
+        realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
         progress=plan.progress,
     )  # fmt: skip
     results: list[ConditionResult] = []

@@ -25,7 +25,8 @@ SETTING_COLUMNS = tuple(SWEEP_KEYS.values())
 COLUMNS = (
     "sequence", "condition", "kind", *SETTING_COLUMNS, "ate_rmse", "ate_min", "ate_max",
     "ate_std", "rpe_trans_s", "rpe_rot_s", "precision", "recall", "tp", "fp", "fn",
-    "model_ms", "logic_ms", "masking_ms", "lost_median", "lost_max", "reinitialised",
+    "model_ms", "logic_ms", "masking_ms", "tracking_ms", "late_max", "lost_median", "lost_max",
+    "reinitialised",
     "scored_runs", "runs", "status",
 )  # fmt: skip
 
@@ -70,7 +71,8 @@ def _pct(v: object) -> str:
 def table(rows: list[dict], keys: list[str], markdown: bool = True) -> str:
     """The human table of one sequence's rows, with a column per swept key."""
     headers = ["condition", *keys, "ATE m (median)", "min–max", "RPE m/s", "precision %",
-               "recall %", "mask ms/frame", "lost (median/max)", "reinit", "status"]  # fmt: skip
+               "recall %", "mask ms/frame", "lost (median/max)", "reinit", "late",
+               "status"]  # fmt: skip
     body = []
     for r in rows:
         spread = "-" if r["ate_min"] is None else f"{r['ate_min']:.4f}–{r['ate_max']:.4f}"
@@ -79,6 +81,7 @@ def table(rows: list[dict], keys: list[str], markdown: bool = True) -> str:
         body.append([r["condition"], *vals, _m(r["ate_rmse"]), spread, _m(r["rpe_trans_s"]),
                      _pct(r["precision"]), _pct(r["recall"]), _m(r["masking_ms"], 1), lost,
                      "-" if r["reinitialised"] is None else str(r["reinitialised"]),
+                     "-" if r["late_max"] is None else str(r["late_max"]),
                      r["status"]])  # fmt: skip
     return format_table(headers, body, markdown=markdown)
 
@@ -95,7 +98,8 @@ def write_sweep(out: Path, plan: SweepPlan, sweeps: list[SequenceSweep], model: 
         f"- sweep: {plan.how} over " + ", ".join(f"{k} = {', '.join(f'{v:g}' for v in vals)}"
                                                  for k, vals in plan.spec.items()),
         f"- engine: {plan.engine}, {runs} run(s) per setting (ATE median, min–max), "
-        f"{'realtime' if plan.realtime else 'as-fast-as-possible'} feeding",
+        + (f"realtime feeding at {plan.speed:g}x the frame rate (late: frames fed behind it)"
+           if plan.realtime else "as-fast-as-possible feeding"),
         "- precision / recall: dynamic ORB keypoints of the masks vs the ground-truth dynamic/ "
         "masks; mask ms/frame: model (run once per frame, shared by all settings) + masking "
         "logic",

@@ -50,6 +50,7 @@ class SweepPlan:
     keypoints: int = 1000
     features: int = 1000
     realtime: bool = True
+    speed: float = 1.0
     threads: int | None = None
     progress: bool = True
 
@@ -130,7 +131,8 @@ def _one_sequence(
         orb = OrbSettings(features=plan.features, fps=fps_of(seq))
         settings = write_settings(folder / "orbslam3_settings.yaml", seq.camera, w, h, orb)
     cfg = EvalSettings(engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
-                       realtime=plan.realtime, fps=fps_of(seq), progress=plan.progress)  # fmt: skip
+                       realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
+                       progress=plan.progress)  # fmt: skip
     floor = still_floor(gt_at_frames(gt, seq))
     result = SequenceSweep(label, seq, points, vocab_label, floor=floor)
     tracks = folder / "trajectories"
