@@ -158,7 +158,7 @@ def build_cache(
         cache.frames.append(
             CachedFrame(stamp, feats, dets, truth, 1000 * (t1 - t0), 1000 * (t2 - t1))
         )
-    log.info("%d frames cached at conf %.3f, %d model calls", len(cache.frames), conf_floor,
+    log.debug("%d frames cached at conf %.3f, %d model calls", len(cache.frames), conf_floor,
              cache.calls)  # fmt: skip
     return cache
 
