@@ -267,7 +267,8 @@ def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
     # above 0.5, Eq. 1 no longer drops points on the static bottles (mobility 0.5)
     assert rows["m_th_start=0.6"]["fp"] <= rows["base (papers)"]["fp"]
     md = (out / "sweep.md").read_text()
-    assert "## seq_000" in md and "| dilation=9 " in md and "base settings conf" in md
+    assert "## seq_000" in md and "| dilation=9 " in md
+    assert "base settings: papers preset (conf 0.25" in md
     assert (out / "sweep.png").stat().st_size > 10_000
     assert (out / "seq_000" / "runs.csv").is_file()
     masks = list((out / "seq_000" / "masks" / "dilation_9").glob("*.png"))

@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
     )
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
+    print(f"masking settings: {masking.describe()}")
     _print_scores(report)
     if report.skipped:
         print(f"{len(report.skipped)} frame(s) without ground truth, e.g. {report.skipped[0]}")

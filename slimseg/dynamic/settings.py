@@ -69,6 +69,12 @@ class MaskingSettings:
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
 
+    def describe(self) -> str:
+        """``slimseg preset (conf 0.1, dilation_px 5, ...)``, or ``custom (...)``."""
+        name = preset_name(self)
+        values = ", ".join(f"{k} {v:g}" for k, v in self.as_dict().items())
+        return f"{name + ' preset' if name else 'custom'} ({values})"
+
 
 # field -> (lowest, highest, integer, what it is); bounds inclusive except those listed below
 RANGES: dict[str, tuple[float, float, bool, str]] = {

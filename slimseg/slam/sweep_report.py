@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from slimseg.dynamic.settings import MaskingSettings
 from slimseg.slam.evaluate import ConditionResult
 from slimseg.slam.report import csv_text
 from slimseg.slam.sweep import SWEEP_KEYS, SweepPoint, slice_through
@@ -94,7 +93,7 @@ def write_sweep(out: Path, plan: SweepPlan, sweeps: list[SequenceSweep], model: 
     lines = [
         "# slam-eval sweep",
         "",
-        f"- masks: `--modes {plan.mode}`, {model}; base settings {_settings(plan.base)}",
+        f"- masks: `--modes {plan.mode}`, {model}; base settings: {plan.base.describe()}",
         f"- sweep: {plan.how} over " + ", ".join(f"{k} = {', '.join(f'{v:g}' for v in vals)}"
                                                  for k, vals in plan.spec.items()),
         f"- engine: {plan.engine}, {runs} run(s) per setting (ATE median, min–max), "
@@ -123,10 +122,6 @@ def write_sweep(out: Path, plan: SweepPlan, sweeps: list[SequenceSweep], model: 
     write_text(out / "sweep.csv", csv_text(all_rows, COLUMNS))
     write_text(out / "sweep.md", "\n".join(lines))
     return all_rows
-
-
-def _settings(s: MaskingSettings) -> str:
-    return ", ".join(f"{k} {v:g}" for k, v in s.as_dict().items())
 
 
 def center_point(plan: SweepPlan, sw: SequenceSweep) -> SweepPoint:
