@@ -75,7 +75,7 @@ class SequenceSweep:
 
 def sequence_labels(sequences: list[TumSequence]) -> list[str]:
     """Short unique names: each folder's name, with parents prepended (``a_b``) until unique."""
-    parts = [list(s.root.resolve().parts) for s in sequences]
+    parts = [list(s.root.absolute().parts) for s in sequences]
     depth = 1
     while True:
         labels = ["_".join(p[-depth:]) for p in parts]
