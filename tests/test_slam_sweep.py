@@ -305,3 +305,18 @@ def test_presets_reach_the_cli_and_the_metadata() -> None:
     old = {"imgsz": [640, 640], "mobility_threshold": 0.25, "recommended_mask_dilation_px": 5}
     assert masking_from_metadata(old) == PAPERS.with_values(dilation_px=5)
     assert masking_from_metadata({"imgsz": [640, 640]}) == PAPERS
+
+
+def test_sequence_labels_are_short_and_unique(tmp_path: Path) -> None:
+    from slimseg.slam.sweep_run import sequence_labels
+
+    def seq(*parts: str) -> TumSequence:
+        folder = tmp_path.joinpath(*parts)
+        folder.mkdir(parents=True)
+        (folder / "rgb.txt").write_text("1.0 rgb/1.png\n")
+        (folder / "depth.txt").write_text("1.0 depth/1.png\n")
+        return TumSequence(folder)
+
+    a, b, c = seq("xyz", "seq_000"), seq("static", "seq_000"), seq("walking_rpy")
+    assert sequence_labels([a, b]) == ["xyz_seq_000", "static_seq_000"]
+    assert sequence_labels([c]) == ["walking_rpy"]
