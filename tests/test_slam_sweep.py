@@ -115,6 +115,11 @@ def test_oneway_and_grid_points() -> None:
     assert all(p.settings.dilation_px == SLIMSEG.dilation_px for p in curve)
     with pytest.raises(SweepError, match="sweep-mode"):
         sweep_points(SLIMSEG, spec, "random")
+    # ground-truth instances all score 1: conf makes no setting of its own
+    gti = sweep_points(PAPERS.with_values(conf=0.1, dilation_px=5),
+                       parse_sweep(["dilation=0,9"]), ignore_conf=True)  # fmt: skip
+    assert [p.label for p in gti][1:3] == ["dilation=0 (= preset papers)", "dilation=9"]
+    assert "preset papers" not in [p.label for p in gti]
 
 
 # ---------------------------------------------------------------------- detection cache

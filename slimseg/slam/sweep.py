@@ -12,7 +12,7 @@ base settings, and every named preset not already among the points is added as a
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from slimseg.dynamic.settings import PRESETS, MaskingSettings, SettingsError, preset_name
 
@@ -116,32 +116,42 @@ def values_of(settings: MaskingSettings, keys: list[str] | tuple[str, ...]) -> d
 
 
 def sweep_points(
-    base: MaskingSettings, spec: dict[str, tuple[Value, ...]], how: str = "oneway"
+    base: MaskingSettings,
+    spec: dict[str, tuple[Value, ...]],
+    how: str = "oneway",
+    ignore_conf: bool = False,
 ) -> list[SweepPoint]:
     """The settings to evaluate: the base first, then the sweep's points (``oneway`` or
-    ``grid``), then each named preset not among them (``reference``). No setting twice."""
+    ``grid``), then each named preset not among them (``reference``). No setting twice; with
+    ``ignore_conf`` (ground-truth instances, all scoring 1) settings differing only in
+    ``conf`` count as the same, and a preset equal to a point is named in its label."""
     if how not in SWEEP_MODES:
         raise SweepError(f"--sweep-mode {how!r}: valid: {', '.join(SWEEP_MODES)}")
     keys = list(spec)
+
+    def effective(s: MaskingSettings) -> MaskingSettings:
+        return s.with_values(conf=base.conf) if ignore_conf else s
+
     name = preset_name(base)
     points = [SweepPoint(f"base ({name})" if name else "base", base, values_of(base, keys))]
     if how == "oneway":
         combos = [{k: v} for k in keys for v in spec[k]]
     else:
         combos = [dict(zip(keys, c, strict=True)) for c in itertools.product(*spec.values())]
-    seen = {base}
     for combo in combos:
         s = base.with_values(**{SWEEP_KEYS[k]: v for k, v in combo.items()})
-        if s in seen:
+        if any(effective(p.settings) == effective(s) for p in points):
             continue
-        seen.add(s)
         changed = {k: v for k, v in combo.items() if getattr(base, SWEEP_KEYS[k]) != v}
         label = " ".join(f"{k}={_fmt(v)}" for k, v in changed.items())
         points.append(SweepPoint(label, s, values_of(s, keys)))
     for pname, s in PRESETS.items():
-        if s not in seen:
-            seen.add(s)
+        same = [i for i, p in enumerate(points) if effective(p.settings) == effective(s)]
+        if not same:
             points.append(SweepPoint(f"preset {pname}", s, values_of(s, keys), reference=True))
+        elif points[same[0]].settings != s:  # equal masks, another conf: say so in the label
+            p = points[same[0]]
+            points[same[0]] = replace(p, label=f"{p.label} (= preset {pname})")
     return points
 
 

@@ -92,7 +92,7 @@ def run_sweep(plan: SweepPlan, out: Path, say: Callable[[str], None]) -> list[Se
     """Everything after option parsing; returns one :class:`SequenceSweep` per sequence."""
     check_mode(plan.spec, plan.mode, plan.gt_instances)
     vocab_label = check_engine(plan.engine, plan.vocab)
-    points = sweep_points(plan.base, plan.spec, plan.how)
+    points = sweep_points(plan.base, plan.spec, plan.how, ignore_conf=plan.gt_instances)
     floor_conf = min(p.settings.conf for p in points)
     say(
         f"sweep: {len(points)} settings x {plan.runs if plan.engine == 'orbslam3' else 1} runs "
