@@ -259,10 +259,11 @@ def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "o"
     args = ["slam-eval", "--sequence", str(seq), "--gt-instances", "--engine", "dense",
             "--modes", "seg", "--preset", "papers", "--sweep", "dilation=3,9", "--sweep",
-            "m_th_start=0.6", "--out", str(out), "--quiet", "--json"]  # fmt: skip
+            "m_th_start=0.6", "--sweep", "m_th_step=0.2", "--out", str(out), "--quiet",
+            "--json"]  # fmt: skip
     assert main(args) == 0
     rows = {r["condition"]: r for r in json.loads(capsys.readouterr().out)}
-    spec = parse_sweep(["dilation=3,9", "m_th_start=0.6"])
+    spec = parse_sweep(["dilation=3,9", "m_th_start=0.6", "m_th_step=0.2"])
     assert list(rows) == ["raw", "gt"] + [p.label for p in sweep_points(PAPERS, spec)]
     assert rows["gt"]["ate_rmse"] < rows["raw"]["ate_rmse"]
     assert rows["dilation=9"]["dilation_px"] == 9 and rows["m_th_start=0.6"]["m_th_start"] == 0.6
@@ -271,6 +272,13 @@ def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
         "base (papers)"]["recall"]  # fmt: skip
     # above 0.5, Eq. 1 no longer drops points on the static bottles (mobility 0.5)
     assert rows["m_th_start=0.6"]["fp"] <= rows["base (papers)"]["fp"]
+    # Eq. 1 never has to raise m_th here (plenty of static points): the step changes no mask,
+    # so that setting shares the base's runs instead of adding ORB-SLAM3 noise of its own
+    step = rows["m_th_step=0.2"]
+    assert step["same_masks_as"] == "base (papers)" and "masks = base (papers)'s" in step["status"]
+    assert step["ate_rmse"] == rows["base (papers)"]["ate_rmse"]
+    ran = (out / "seq_000" / "runs.csv").read_text()
+    assert "m_th_step=0.2" not in ran and "dilation=9" in ran
     md = (out / "sweep.md").read_text()
     assert "## seq_000" in md and "| dilation=9 " in md
     assert "base settings: papers preset (conf 0.25" in md

@@ -15,6 +15,7 @@ sequence of 640×480 frames with a few dozen low-score detections per frame stay
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import time
 from dataclasses import dataclass, field
@@ -166,11 +167,13 @@ def build_cache(
 @dataclass
 class SettingMasks:
     """The masks of one setting: keypoint confusion ``score`` against ``dynamic/`` (None: no
-    ground truth), the masking logic's mean time per frame (ms) and the frames written."""
+    ground truth), the masking logic's mean time per frame (ms), the frames written and a
+    ``digest`` of every mask (equal digests: identical masks)."""
 
     score: ModeScore | None
     logic_ms: float
     frames: int
+    digest: str = ""
 
 
 def mask_with(
@@ -185,6 +188,7 @@ def mask_with(
     score = ModeScore() if have_truth and cache.frames else None
     previous: PreviousFrame | None = None
     t_logic = 0.0
+    digest = hashlib.sha1()
     out.mkdir(parents=True, exist_ok=True)
     for i, f in enumerate(cache.frames):
         t0 = time.perf_counter()
@@ -196,8 +200,11 @@ def mask_with(
         res = process_modes(inputs=inputs, settings=settings, modes=(mode,), rng=rng)[mode]
         t_logic += time.perf_counter() - t0
         write_png(out / mask_name(f.stamp), res.mask)
+        digest.update(np.ascontiguousarray(res.mask).tobytes())
         if score is not None:
             score.add(res.dynamic, f.truth)
         previous = PreviousFrame(f.features)
     n = max(len(cache.frames), 1)
-    return SettingMasks(score, 1000 * t_logic / n + cache.prep_ms, len(cache.frames))
+    return SettingMasks(
+        score, 1000 * t_logic / n + cache.prep_ms, len(cache.frames), digest.hexdigest()
+    )

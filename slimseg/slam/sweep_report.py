@@ -26,7 +26,7 @@ COLUMNS = (
     "ate_std", "rpe_trans_s", "rpe_rot_s", "precision", "recall", "tp", "fp", "fn",
     "model_ms", "logic_ms", "masking_ms", "tracking_ms", "late_max", "lost_median", "lost_max",
     "reinitialised",
-    "scored_runs", "runs", "status",
+    "scored_runs", "runs", "status", "same_masks_as",
 )  # fmt: skip
 
 
@@ -47,6 +47,9 @@ def sweep_rows(sw: SequenceSweep) -> list[dict]:
             s = sm.score
             row.update(precision=s.precision, recall=s.recall, tp=s.tp, fp=s.fp, fn=s.fn)
         row.update(model_ms=sw.model_ms, logic_ms=sm.logic_ms, masking_ms=sw.model_ms + sm.logic_ms)
+        if p.label in sw.same_as:
+            row["same_masks_as"] = sw.same_as[p.label]
+            row["status"] = f"masks = {sw.same_as[p.label]}'s (its runs)"
         rows.append(row)
     return rows
 

@@ -6,6 +6,10 @@ Output layout under ``out``::
     sweep.csv  sweep.md  sweep.png
     <sequence>/orbslam3_settings.yaml  <sequence>/runs.csv
     <sequence>/masks/<setting>/<ts>.png   <sequence>/trajectories/<condition>/run<k>.txt
+
+A setting whose masks are identical, frame for frame, to an earlier setting's is not tracked
+again: it shares that setting's runs (``same_as``), so a flat stretch of a curve costs nothing
+and shows as exactly flat instead of as ORB-SLAM3's run-to-run noise.
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ class SequenceSweep:
     gt: ConditionResult | None = None
     results: dict[str, ConditionResult] = field(default_factory=dict)
     masks: dict[str, SettingMasks] = field(default_factory=dict)
+    same_as: dict[str, str] = field(default_factory=dict)
+    """label → the earlier label whose identical masks' runs it shares"""
     model_ms: float = 0.0
     floor: float = float("nan")
     gt_dilation_px: int = 0
@@ -154,14 +160,22 @@ def _one_sequence(
         result.gt_dilation_px = d = plan.base.dilation_px
         result.gt = track(Condition("gt", "masked", masks=seq.root / "dynamic", dilation_px=d,
                                     note=f"ground-truth dynamic/, dilated {d} px"))  # fmt: skip
+    by_digest: dict[str, str] = {}
     for p in points:
         where = folder / "masks" / _slug(p.label)
         sm = mask_with(cache, plan.mode, p.settings, where)
         result.masks[p.label] = sm
         cond = Condition(p.label, "masked", masks=where, masking_ms=cache.model_ms + sm.logic_ms,
                          note=f"--mode {plan.mode}, {p.settings.as_dict()}")  # fmt: skip
+        first = by_digest.setdefault(sm.digest, p.label)
+        if first != p.label:
+            result.same_as[p.label] = first
+            result.results[p.label] = ConditionResult(cond, result.results[first].runs)
+            say(f"{label} {p.label}: masks identical to {first}'s, its runs shared")
+            continue
         result.results[p.label] = track(cond)
-    runs = run_rows([r for r in (result.raw, result.gt) if r] + list(result.results.values()))
+    tracked = [r for k, r in result.results.items() if k not in result.same_as]
+    runs = run_rows([r for r in (result.raw, result.gt) if r] + tracked)
     if runs:
         write_text(folder / "runs.csv", csv_text(runs, list(runs[0])))
     return result
