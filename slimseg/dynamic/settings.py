@@ -78,7 +78,7 @@ class MaskingSettings:
 
 # field -> (lowest, highest, integer, what it is); bounds inclusive except those listed below
 RANGES: dict[str, tuple[float, float, bool, str]] = {
-    "conf": (0.0, 1.0, False, "detector score threshold, 0 < conf < 1"),
+    "conf": (0.0, 1.0, False, "detector score threshold, 0 <= conf < 1"),
     "dilation_px": (0, 200, True, "mask dilation in whole pixels, 0-200"),
     "min_static": (0, 100_000, True, "Eq. 1 static points, a whole number >= 0"),
     "m_th_start": (0.0, 1.0, False, "Eq. 1 starting threshold, 0-1"),
@@ -86,7 +86,7 @@ RANGES: dict[str, tuple[float, float, bool, str]] = {
     "frame_ratio": (0.0, 1.0, False, "Eq. 3 fraction, 0-1"),
     "t_o": (0.0, 1.0, False, "Eq. 4 coverage threshold, 0-1"),
 }
-OPEN_LOW = ("conf", "m_th_step")  # the lower bound itself is not allowed
+OPEN_LOW = ("m_th_step",)  # the lower bound itself is not allowed
 OPEN_HIGH = ("conf",)
 
 
