@@ -76,6 +76,18 @@ def test_ate_and_rpe_equal_hand_computations() -> None:
     assert s.rpe_trans_frame == pytest.approx(float(np.sqrt(np.mean(np.square(err)))), rel=1e-6)
 
 
+def test_every_rpe_sees_the_whole_trajectory() -> None:
+    """evo's rpe shrinks its inputs to the pairs' poses: each delta must get fresh copies
+    (36 poses, 1 s = 30 frames: the rotation's 1 s pairs once failed on the shrunk copy)."""
+    gt = _helix(36)
+    est = gt.copy()
+    est[:, 1] += 0.002 * np.arange(36)  # drift along x: 0.06 m per second, no rotation error
+    s = score(gt, est, fps=30)
+    assert s.rpe_trans_s == pytest.approx(0.06, rel=1e-6)
+    assert s.rpe_trans_frame == pytest.approx(0.002, rel=1e-6)
+    assert s.rpe_rot_s == pytest.approx(0.0, abs=1e-6)
+
+
 def test_still_floor_is_the_best_aligned_standing_camera() -> None:
     gt = _helix()
     centroid = gt[:, 1:4].mean(0)

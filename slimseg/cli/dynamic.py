@@ -11,7 +11,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.dynamic.pipeline import MASKING_CONF, MODES
+from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
 from slimseg.dynamic.tum import mask_name
@@ -40,10 +41,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sequence", required=True, help="folder with rgb.txt and depth.txt")
     p.add_argument("--out", default="runs/dynamic")
     p.add_argument("--mode", default="fusion", choices=MODES)
-    p.add_argument("--conf", type=float, default=MASKING_CONF, help="detector score threshold")
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
-    p.add_argument("--min-static", type=int, default=100, help="Eq. 1: static points needed")
-    p.add_argument("--dilation", type=int, default=0, help="mask dilation in pixels")
+    add_masking_args(p)
     p.add_argument(
         "--epipolar-depth",
         action="store_true",
@@ -73,6 +72,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if (args.model is None) == (not args.gt_instances):
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
+    masking = masking_from_args(args)
     sequence = Path(args.sequence)
     if args.gt_instances:
         from slimseg.dynamic.annotations import AnnotationInstances
@@ -94,15 +94,14 @@ def run(args: argparse.Namespace) -> int:
         sequence,
         out,
         args.mode,
-        args.conf,
+        masking,
         args.keypoints,
-        args.min_static,
-        args.dilation,
         progress=not args.quiet,
         epipolar_depth=args.epipolar_depth,
     )
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
+    print(f"masking settings: {masking.describe()}")
     _print_scores(report)
     if report.skipped:
         print(f"{len(report.skipped)} frame(s) without ground truth, e.g. {report.skipped[0]}")

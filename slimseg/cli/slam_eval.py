@@ -7,7 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from slimseg.dynamic.pipeline import MASKING_CONF, MODES
+from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.dynamic.pipeline import MODES
 from slimseg.errors import SlimsegError
 
 SPECIAL = ("raw", "gt", "oracle")
@@ -23,10 +24,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "slimseg dynamic does, or read from --masks), ground-truth masks, restored frames "
         "(--restore), the true static background of a synthetic sequence - and score every "
         "trajectory with evo against groundtruth.txt. Writes per-run TUM trajectories, "
-        "results.csv, runs.csv, results.md and trajectories.png. Needs pip install "
-        "'slimseg[slam]' (pyorbslam3 and evo, GPL-3.0).",
+        "results.csv, runs.csv, results.md and trajectories.png. With --sweep, evaluates one "
+        "mask mode under many masking settings instead (sweep.csv, sweep.md, sweep.png; "
+        "docs/slam_defaults.md). Needs pip install 'slimseg[slam]' (pyorbslam3 and evo, "
+        "GPL-3.0).",
     )
-    p.add_argument("--sequence", required=True, type=Path, help="TUM-layout folder")
+    p.add_argument(
+        "--sequence",
+        required=True,
+        type=Path,
+        action="append",
+        help="TUM-layout folder (repeat it with --sweep for several sequences)",
+    )
     src = p.add_mutually_exclusive_group()
     src.add_argument("--model", help="exported .onnx (or weights) for the mask modes")
     src.add_argument("--masks", type=Path, help="a slimseg dynamic output (masks/<ts>.png)")
@@ -57,14 +66,33 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
-    p.add_argument(
-        "--conf", type=float, default=MASKING_CONF, help="detector confidence (mask modes)"
-    )
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features (mask modes)")
-    p.add_argument("--dilation", type=int, default=2, help="px added around removed regions")
+    add_masking_args(p)
+    p.add_argument(
+        "--sweep",
+        action="append",
+        metavar="KEY=v1,v2,...",
+        help="evaluate the mask mode under each value (repeatable): keys conf, dilation, "
+        "min_static, m_th_start, m_th_step, ratio (Eq. 3), t_o (Eq. 4); --modes names one mask "
+        "mode (default fusion)",
+    )
+    p.add_argument(
+        "--sweep-mode",
+        choices=("oneway", "grid"),
+        default="oneway",
+        help="oneway: one key at a time around the --preset/flags settings; grid: every "
+        "combination",
+    )
     p.add_argument("--features", type=int, default=1000, help="ORB-SLAM3 ORB features")
     p.add_argument(
         "--no-realtime", action="store_true", help="feed frames as fast as tracking goes"
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="realtime replay speed (0.5: half the frame rate, so the schedule holds on a "
+        "loaded machine; the late column counts frames fed behind it)",
     )
     p.add_argument("--threads", type=int, default=None, help="model threads")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -113,11 +141,21 @@ def run(args: argparse.Namespace) -> int:
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
+    masking = masking_from_args(args)
+    if args.runs < 1:
+        raise SlimsegError(f"--runs {args.runs} must be at least 1")
+    if not 0 < args.speed <= 10:
+        raise SlimsegError(f"--speed {args.speed}: expected a factor in (0, 10]")
+    if args.sweep:
+        from slimseg.cli.slam_sweep import run_sweep_command
+
+        return run_sweep_command(args, masking, say)
+    if len(args.sequence) > 1:
+        raise SlimsegError("several --sequence values need --sweep (one table per sequence)")
+    args.sequence = args.sequence[0]
     names = parse_modes(
         args.modes, args.model is not None or args.gt_instances, args.masks is not None
     )
-    if args.runs < 1:
-        raise SlimsegError(f"--runs {args.runs} must be at least 1")
     seq = TumSequence(args.sequence)
     gt_path = args.sequence / "groundtruth.txt"
     if not gt_path.is_file():
@@ -132,11 +170,11 @@ def run(args: argparse.Namespace) -> int:
         engine=args.engine,
         runs=args.runs,
         vocab=args.vocab,
-        conf=args.conf,
+        masking=masking,
         keypoints=args.keypoints,
-        dilation_px=args.dilation,
         features=args.features,
         realtime=not args.no_realtime,
+        speed=args.speed,
         threads=args.threads,
         progress=not args.quiet,
     )

@@ -13,17 +13,22 @@ from typing import Any
 
 from slimseg import __version__
 from slimseg.data.letterbox import PAD_VALUE
-from slimseg.dynamic.threshold import M_TH_START
+from slimseg.dynamic.settings import (
+    DEFAULT,
+    DEFAULT_PRESET,
+    DILATION_REFERENCE_PX,
+    PAPERS,
+    PRESETS,
+    MaskingSettings,
+    SettingsError,
+)
 from slimseg.errors import SlimsegError
 from slimseg.models.base import ZooModel
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 
-# Eq. 1's mobility threshold at its starting value (docs/papers.md §2): classes above it are
-# dynamic. Read from the SLAM-side code that applies it, never retyped.
-DEFAULT_MOBILITY_THRESHOLD = M_TH_START
-# Masks from 1/4- (or 1/2-) resolution prototypes are soft at the edges: dilate them before dropping
-# keypoints (ORB's 31-px patch straddles the edge otherwise). Pixels at the 640 input.
-RECOMMENDED_MASK_DILATION_PX = 5
+# Eq. 1's starting mobility threshold of the default masking settings (docs/papers.md §2):
+# classes above it are dynamic. Read from slimseg.dynamic.settings, never retyped.
+DEFAULT_MOBILITY_THRESHOLD = DEFAULT.m_th_start
 # Keys every slimseg export carries and a runtime cannot do without.
 REQUIRED_METADATA = ("names", "imgsz", "family", "task")
 
@@ -79,7 +84,8 @@ def build_metadata(
             "std": [1.0, 1.0, 1.0],
         },
         "letterbox": LETTERBOX_RULE,
-        "recommended_mask_dilation_px": RECOMMENDED_MASK_DILATION_PX,
+        "recommended_mask_dilation_px": input_dilation_px(DEFAULT.dilation_px, imgsz),
+        "slam_masking": slam_masking_entry(),
         "nms": {"conf": PREDICT_CONF, "iou": NMS_IOU, "max_det": MAX_DET, "class_aware": True},
     }
     if spec.task == "semantic":
@@ -123,6 +129,47 @@ def build_metadata(
             "upsample to the input, > 0.5, then undo the letterbox",
         }
     return meta
+
+
+def input_dilation_px(dilation_px: int, imgsz: tuple[int, int]) -> int | float:
+    """``dilation_px`` (frame pixels at a ``DILATION_REFERENCE_PX``-wide frame) in network
+    input pixels, the unit of the ``recommended_mask_dilation_px`` key (a runtime multiplies
+    it by ``max(h, w) / max(H, W)``): an int where exact, else rounded to 0.01 px."""
+    v = dilation_px * max(int(imgsz[0]), int(imgsz[1])) / DILATION_REFERENCE_PX
+    return int(v) if float(v).is_integer() else round(v, 2)
+
+
+def slam_masking_entry() -> dict[str, Any]:
+    """The ``slam_masking`` key: the default SLAM-facing settings (flat), the frame width the
+    dilation refers to, and every named preset (docs/slam_defaults.md)."""
+    return {
+        "preset": DEFAULT_PRESET,
+        **DEFAULT.as_dict(),
+        "dilation_reference_px": DILATION_REFERENCE_PX,
+        "presets": {name: s.as_dict() for name, s in PRESETS.items()},
+    }
+
+
+def masking_from_metadata(meta: dict[str, Any]) -> MaskingSettings:
+    """The recommended SLAM-facing settings of an export: ``slam_masking`` where present;
+    exports older than that key give the ``papers`` preset with their ``mobility_threshold``
+    and ``recommended_mask_dilation_px`` (input pixels, converted back to frame pixels at a
+    ``DILATION_REFERENCE_PX``-wide frame). :class:`SlimsegError` on a malformed entry."""
+    entry = meta.get("slam_masking")
+    try:
+        if isinstance(entry, dict):
+            names = MaskingSettings.__dataclass_fields__
+            return PAPERS.with_values(**{k: v for k, v in entry.items() if k in names})
+        values: dict[str, Any] = {}
+        if "mobility_threshold" in meta:
+            values["m_th_start"] = float(meta["mobility_threshold"])
+        if "recommended_mask_dilation_px" in meta and "imgsz" in meta:
+            side = max(int(v) for v in meta["imgsz"])
+            px = float(meta["recommended_mask_dilation_px"]) * DILATION_REFERENCE_PX / side
+            values["dilation_px"] = round(px)
+        return PAPERS.with_values(**values)
+    except (SettingsError, TypeError, ValueError) as e:
+        raise SlimsegError(f"export metadata slam_masking / mobility_threshold: {e}") from None
 
 
 def to_metadata_props(meta: dict[str, Any]) -> dict[str, str]:

@@ -26,16 +26,8 @@ import numpy as np
 
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.seg_box import box_masks, dilate, fuse_seg_box
-from slimseg.dynamic.threshold import (
-    M_TH_START,
-    adaptive_threshold,
-    is_dynamic_frame,
-    keypoint_mobility,
-)
-
-# Detector score threshold for dynamic masking: a SLAM-facing setting, kept apart from the
-# detection-style thresholds of ``slimseg.ops.nms`` (docs/conventions.md §6).
-MASKING_CONF = 0.25
+from slimseg.dynamic.settings import PAPERS, MaskingSettings
+from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
 EPIPOLAR_MODES = {"semantic+epipolar": "seg", "fusion+epipolar": "fusion"}
@@ -92,15 +84,37 @@ class FrameInputs:
 @dataclass(frozen=True)
 class FrameSettings:
     """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
-    ``min_static`` points, ``dilation_px`` around masks, and ``dynamic_mobility``: the prior
-    above which a class counts as dynamic (boxes of depth-RANSAC, epipolar candidates),
-    Eq. 1's starting threshold by default."""
+    ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
+    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o`` (defaults: the equations as printed, the
+    ``papers`` preset of :mod:`slimseg.dynamic.settings`, no dilation; sequence runs and the
+    CLI pass the ``slimseg`` preset through :meth:`from_masking`), and ``dynamic_mobility``:
+    the prior above which a class counts as dynamic (boxes of depth-RANSAC, epipolar
+    candidates), ``m_th_start`` if None."""
 
     class_mobility: np.ndarray
     mode: str = "fusion"
-    min_static: int = 100
-    dilation_px: int = 0
-    dynamic_mobility: float = M_TH_START
+    min_static: int = PAPERS.min_static
+    dilation_px: int = PAPERS.dilation_px
+    dynamic_mobility: float | None = None
+    m_th_start: float = PAPERS.m_th_start
+    m_th_step: float = PAPERS.m_th_step
+    frame_ratio: float = PAPERS.frame_ratio
+    t_o: float = PAPERS.t_o
+
+    @classmethod
+    def from_masking(
+        cls, class_mobility: np.ndarray, mode: str, masking: MaskingSettings
+    ) -> FrameSettings:
+        """The frame settings of ``masking`` (its ``conf`` acts on the detector, not here)."""
+        return cls(
+            class_mobility, mode, masking.min_static, masking.dilation_px, None,
+            masking.m_th_start, masking.m_th_step, masking.frame_ratio, masking.t_o,
+        )  # fmt: skip
+
+    @property
+    def mover_prior(self) -> float:
+        """The prior above which a class counts as dynamic (``dynamic_mobility``)."""
+        return self.m_th_start if self.dynamic_mobility is None else self.dynamic_mobility
 
 
 def process_frame(
@@ -135,7 +149,7 @@ def process_modes(
             raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
         if mode in EPIPOLAR_MODES:
             if check is None:
-                check = _epipolar_priors(inputs, mob, settings.dynamic_mobility)
+                check = _epipolar_priors(inputs, mob, settings.mover_prior)
             priors, epi, checked = check
             res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng)
             res.epipolar, res.checked = epi, list(checked)
@@ -161,7 +175,7 @@ def _one_mode(
 
         if inputs.depth_m is None:
             raise ValueError("mode 'box+depth-ransac' needs a depth image")
-        movers = boxes[mob > settings.dynamic_mobility]
+        movers = boxes[mob > settings.mover_prior]
         dynamic = screen_box_keypoints(keypoints, inputs.depth_m, movers, rng=rng)
         region = box_masks(movers, hw).any(0) if len(movers) else np.zeros(hw, bool)
         flag = bool(dynamic.mean() > 0) if len(dynamic) else False
@@ -173,12 +187,15 @@ def _one_mode(
     point_mob = keypoint_mobility(keypoints, regions, mob)
     # Eq. 3 counts points inside the detection boxes: a frame whose masks came out too thin is
     # exactly the one that needs the box fallback of Eq. 4
-    dynamic_frame = is_dynamic_frame(keypoint_mobility(keypoints, box_masks(boxes, hw), mob))
+    box_mob = keypoint_mobility(keypoints, box_masks(boxes, hw), mob)
+    dynamic_frame = is_dynamic_frame(box_mob, settings.frame_ratio)
     if mode == "fusion" and dynamic_frame and len(boxes):
-        regions, used = fuse_seg_box(regions, boxes)
+        regions, used = fuse_seg_box(regions, boxes, settings.t_o)
         used_seg = used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
-    result = adaptive_threshold(point_mob, settings.min_static)
+    result = adaptive_threshold(
+        point_mob, settings.min_static, settings.m_th_start, settings.m_th_step
+    )
     if result.m_th is None:
         region = np.zeros(hw, bool)
     else:

@@ -30,7 +30,6 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
-    MASKING_CONF,
     MODES,
     FrameInputs,
     FrameResult,
@@ -38,6 +37,7 @@ from slimseg.dynamic.pipeline import (
     process_modes,
 )
 from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.utils.atomic import write_png
 
@@ -52,6 +52,13 @@ class ModeScore:
     fp: int = 0
     fn: int = 0
     tn: int = 0
+
+    def add(self, dynamic: np.ndarray, truth: np.ndarray) -> None:
+        """Count one frame: predicted ``dynamic [N]`` vs ground-truth ``truth [N]`` (bool)."""
+        self.tp += int((dynamic & truth).sum())
+        self.fp += int((dynamic & ~truth).sum())
+        self.fn += int((~dynamic & truth).sum())
+        self.tn += int((~dynamic & ~truth).sum())
 
     @property
     def precision(self) -> float:
@@ -78,17 +85,16 @@ def run_sequence(
     sequence: Path,
     out: Path,
     mode: str = "fusion",
-    conf: float = MASKING_CONF,
+    masking: MaskingSettings = DEFAULT,
     keypoints: int = 1000,
-    min_static: int = 100,
-    dilation_px: int = 0,
     progress: bool = True,
     epipolar_depth: bool = False,
 ) -> SequenceReport:
     """Process every associated frame of ``sequence`` with ``predictor`` (a slimseg
-    ``Predictor`` or ``AnnotationInstances``); write masks, ``frames.csv`` and ``overlay.png``
-    under ``out``. ``epipolar_depth``: give the epipolar check the previous depth and the
-    intrinsics (depth-aided residual, see ``epipolar``)."""
+    ``Predictor`` or ``AnnotationInstances``) under the ``masking`` settings (score threshold,
+    dilation, Eq. 1/3/4); write masks, ``frames.csv`` and ``overlay.png`` under ``out``.
+    ``epipolar_depth``: give the epipolar check the previous depth and the intrinsics
+    (depth-aided residual, see ``epipolar``)."""
     seq = TumSequence(sequence)
     gt_dir = Path(sequence) / "dynamic"
     mobility = np.asarray(predictor.mobility, np.float32)
@@ -100,9 +106,8 @@ def run_sequence(
     step = max(len(seq.frames) // 6, 1)
     gt_instances = isinstance(predictor, AnnotationInstances)
     previous: PreviousFrame | None = None
-    settings = FrameSettings(
-        class_mobility=mobility, mode=mode, min_static=min_static, dilation_px=dilation_px
-    )
+    settings = FrameSettings.from_masking(mobility, mode, masking)
+    conf = masking.conf
     for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
         rgb, depth, stamp = seq.load(i)
         t0 = time.perf_counter()
@@ -142,13 +147,9 @@ def run_sequence(
             if gt is None:
                 report.skipped.append(str(gt_dir / name))
             else:
-                truth = _at(gt > 0, kps)
+                truth = at_keypoints(gt > 0, kps)
                 for m, res in results.items():
-                    s = report.scores[m]
-                    s.tp += int((res.dynamic & truth).sum())
-                    s.fp += int((res.dynamic & ~truth).sum())
-                    s.fn += int((~res.dynamic & truth).sum())
-                    s.tn += int((~res.dynamic & ~truth).sum())
+                    report.scores[m].add(res.dynamic, truth)
         if count_epi:
             epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
             _count_epipolar(report, predictor, stamp, results[epi_mode])
@@ -183,7 +184,8 @@ def _count_epipolar(
         report.epipolar[key] = report.epipolar.get(key, 0) + 1
 
 
-def _at(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
+def at_keypoints(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
+    """``mask [H, W]`` sampled at ``kps [N, 2]`` (x, y) px, rounded and clipped → ``[N]``."""
     h, w = mask.shape
     x = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
     y = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)

@@ -4,10 +4,12 @@ Kinds of condition:
 - ``raw``: the sequence's frames;
 - ``masked``: a dynamic mask per frame (``<rgb timestamp>.png``, nonzero = dynamic, as
   ``slimseg dynamic`` writes them, or the ground-truth ``dynamic/``). ORB-SLAM3 has no mask
-  input, so the region (dilated by ``dilation_px``) is removed from what it sees: the colour is
-  filled by OpenCV's Telea inpainting (no new corners at the mask edge, where a flat fill would
-  create some) and the depth is zeroed (ORB-SLAM3 ignores keypoints without depth for
-  RGB-D). The dense engine also gets the complement as its valid-pixel mask;
+  input, so the region is removed from what it sees: the colour is filled by OpenCV's Telea
+  inpainting (no new corners at the mask edge, where a flat fill would create some) and the
+  depth is zeroed (ORB-SLAM3 ignores keypoints without depth for RGB-D). The dense engine also
+  gets the complement as its valid-pixel mask. The mask is first dilated by the condition's
+  ``dilation_px``: the masking settings' dilation for ground-truth masks, 0 for masks that
+  already carry it (made by a mode, or by ``slimseg dynamic`` and read with ``--masks``);
 - ``replaced``: whole replacement frames, e.g. ``restored/rgb/<ts>.png`` +
   ``restored/depth/<ts>.png`` from ``slimseg dynamic --restore``, or a synthetic sequence's
   true static ``background/`` (the oracle).
@@ -30,7 +32,6 @@ from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EngineFrame
 
 INPAINT_RADIUS_PX = 3
-MASK_DILATION_PX = 2  # as `slimseg dynamic --restore-dilation`'s default
 
 PathsFor = Callable[[int], tuple[Path, Path]]
 
@@ -40,7 +41,8 @@ class Condition:
     """One row of the results table. ``kind``: raw | masked | replaced; ``masks``: folder of
     ``<rgb ts>.png`` masks (masked); ``frames``: ``i → (rgb path, depth path)`` of the
     replacement frames (replaced); ``masking_ms``: time per frame to make the masks or frames
-    (None: given, e.g. ground truth); ``note``: how they were made."""
+    (None: given, e.g. ground truth); ``note``: how they were made; ``dilation_px``: pixels
+    added around the masks before the region is removed (masked)."""
 
     name: str
     kind: str
@@ -48,6 +50,7 @@ class Condition:
     frames: PathsFor | None = None
     masking_ms: float | None = None
     note: str = ""
+    dilation_px: int = 0
 
 
 def check_masks(seq: TumSequence, folder: Path) -> None:
@@ -82,7 +85,6 @@ def restored_paths(seq: TumSequence, folder: Path) -> PathsFor:
 def condition_frames(
     seq: TumSequence,
     cond: Condition,
-    dilation_px: int = MASK_DILATION_PX,
     limit: int | None = None,
     progress: bool = False,
 ) -> list[EngineFrame]:
@@ -100,7 +102,7 @@ def condition_frames(
                 raise SlimsegError(f"missing or unreadable dynamic mask {path}")
             if m.shape != rgb.shape[:2]:
                 raise SlimsegError(f"mask {path} is {m.shape[::-1]}, frames are {rgb.shape[1::-1]}")
-            region = dilate(m > 0, dilation_px).astype(bool)
+            region = dilate(m > 0, cond.dilation_px).astype(bool)
             if region.any():
                 m8 = region.astype(np.uint8) * 255
                 rgb = cv2.inpaint(rgb, m8, INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)

@@ -57,6 +57,9 @@ class EngineRun:
     trajectory: np.ndarray
     states: list[str] = field(default_factory=list)
     ms_per_frame: float = float("nan")
+    late: int = 0
+    """realtime feeding: frames fed more than one frame interval after their timestamp (the
+    machine could not keep the sequence's rate; the mapping threads got less time than live)"""
 
     @property
     def lost(self) -> int:
@@ -82,12 +85,15 @@ def run_orbslam3(
     realtime: bool = True,
     log_path: Path | None = None,
     work: Path | None = None,
+    speed: float = 1.0,
 ) -> EngineRun:
     """Track ``frames`` with a fresh ORB-SLAM3 RGB-D system; returns its saved camera
     trajectory (``SaveTrajectoryTUM``: every tracked frame relative to its reference keyframe).
 
     ``realtime``: feed a frame no earlier than its timestamp after the first (replay at the
-    sequence's frame rate; ORB-SLAM3's mapping threads run meanwhile). ORB-SLAM3's console
+    sequence's frame rate, times ``speed``: 0.5 replays at half the rate, which gives the
+    mapping threads twice the live time and keeps the schedule on a loaded machine; ``late``
+    counts the frames fed behind it). ORB-SLAM3's console
     output goes to ``log_path`` (appended) instead of this process's stdout."""
     slam_mod = import_pyorbslam3()
     work = Path(work or (log_path.parent if log_path else "."))
@@ -98,12 +104,14 @@ def run_orbslam3(
             vocab_file=str(vocab), settings_file=str(settings), sensor=slam_mod.Sensor.RGBD
         )
         try:
-            t_track, start = 0.0, time.perf_counter()
+            t_track, start, late = 0.0, time.perf_counter(), 0
+            interval = _interval(frames)
             for f in frames:
                 if realtime:
-                    wait = (f.stamp - frames[0].stamp) - (time.perf_counter() - start)
+                    wait = (f.stamp - frames[0].stamp) / speed - (time.perf_counter() - start)
                     if wait > 0:
                         time.sleep(wait)
+                    late += wait < -interval / speed
                 t0 = time.perf_counter()
                 result = slam.track_rgbd(f.rgb, f.depth_m, f.stamp)
                 t_track += time.perf_counter() - t0
@@ -116,7 +124,14 @@ def run_orbslam3(
         traj = read_tum(traj_path) if traj_path.is_file() else np.zeros((0, 8))
     finally:
         traj_path.unlink(missing_ok=True)
-    return EngineRun(traj, states, 1000 * t_track / max(len(frames), 1))
+    return EngineRun(traj, states, 1000 * t_track / max(len(frames), 1), late)
+
+
+def _interval(frames: Sequence[EngineFrame]) -> float:
+    """Median time between frames (s); 1/30 s for a single frame."""
+    if len(frames) < 2:
+        return 1 / 30
+    return float(np.median(np.diff([f.stamp for f in frames])))
 
 
 def run_dense(frames: Sequence[EngineFrame], camera: Camera) -> EngineRun:

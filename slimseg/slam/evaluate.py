@@ -31,15 +31,15 @@ LOST_MARK_FRACTION = 0.1  # a row is marked when the median run lost more than t
 @dataclass(frozen=True)
 class EvalSettings:
     """``engine``: orbslam3 | dense; ``runs`` per condition (ORB-SLAM3); ``vocab`` /
-    ``settings``: ORB-SLAM3 files; ``realtime``: replay at the frame rate; ``dilation_px``
-    around removed regions; ``limit``: first frames only; ``fps``: the sequence's rate."""
+    ``settings``: ORB-SLAM3 files; ``realtime``: replay at the frame rate times ``speed``;
+    ``limit``: first frames only; ``fps``: the sequence's rate."""
 
     engine: str = "orbslam3"
     runs: int = 3
     vocab: Path | None = None
     settings: Path | None = None
     realtime: bool = True
-    dilation_px: int = 2
+    speed: float = 1.0
     limit: int | None = None
     fps: float = 30.0
     progress: bool = True
@@ -57,6 +57,8 @@ class RunResult:
     trajectory: Path | None
     score: TrajectoryScore | None = None
     error: str | None = None
+    late: int = 0
+    """frames fed behind the realtime schedule (``EngineRun.late``)"""
 
 
 @dataclass
@@ -85,6 +87,7 @@ class ConditionResult:
             "lost_max": max((r.lost for r in runs), default=0),
             "reinitialised": sum(r.reinitialised for r in runs),
             "tracking_ms": _median([r.tracking_ms for r in runs]),
+            "late_max": max((r.late for r in runs), default=0),
             "masking_ms": self.condition.masking_ms,
         }
         for key in ("ate_rmse", "ate_std", "rpe_trans_frame", "rpe_rot_frame", "rpe_trans_s",
@@ -118,7 +121,7 @@ def evaluate_condition(
     seq: TumSequence, cond: Condition, gt: np.ndarray, cfg: EvalSettings, out: Path
 ) -> ConditionResult:
     """Track ``cond``'s frames ``cfg.runs`` times; write ``out/<cond>/run<k>.txt`` (TUM)."""
-    frames = condition_frames(seq, cond, cfg.dilation_px, cfg.limit, cfg.progress)
+    frames = condition_frames(seq, cond, cfg.limit, cfg.progress)
     result = ConditionResult(cond)
     runs = cfg.runs if cfg.engine == "orbslam3" else 1
     folder = out / _safe(cond.name)
@@ -126,7 +129,12 @@ def evaluate_condition(
     for k in tqdm(range(runs), desc=f"{cond.name} runs", disable=not cfg.progress or runs < 2):
         if cfg.engine == "orbslam3":
             run = run_orbslam3(
-                frames, cfg.vocab, cfg.settings, cfg.realtime, log_path=folder / "orbslam3.log"
+                frames,
+                cfg.vocab,
+                cfg.settings,
+                cfg.realtime,
+                log_path=folder / "orbslam3.log",
+                speed=cfg.speed,
             )
         else:
             run = run_dense(frames, seq.camera)
@@ -138,7 +146,7 @@ def _scored(run: EngineRun, k: int, n: int, gt: np.ndarray, fps: float, folder: 
     path = None
     if len(run.trajectory):
         path = write_tum(folder / f"run{k + 1}.txt", run.trajectory)
-    res = RunResult(k + 1, n, run.lost, run.reinitialised, run.ms_per_frame, path)
+    res = RunResult(k + 1, n, run.lost, run.reinitialised, run.ms_per_frame, path, late=run.late)
     if not len(run.trajectory):
         res.error = f"never initialised ({n - run.lost}/{n} frames tracked)"
         return res

@@ -15,6 +15,7 @@ Conventions (stated in every report):
 
 from __future__ import annotations
 
+import copy
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -82,7 +83,9 @@ def score(gt: np.ndarray, est: np.ndarray, fps: float, max_dt: float = MAX_DT) -
             if n <= delta:
                 rel[f"rpe_{kind}_{name}"] = float("nan")
                 continue
-            r = rpe(ref, cand, relation, delta=delta, delta_unit=units.Unit.frames, all_pairs=True)
+            # evo's rpe reduces both trajectories to the pairs' poses in place: fresh copies
+            r = rpe(copy.deepcopy(ref), copy.deepcopy(cand), relation, delta=delta,
+                    delta_unit=units.Unit.frames, all_pairs=True)  # fmt: skip
             rel[f"rpe_{kind}_{name}"] = float(r.stats["rmse"])
     return TrajectoryScore(float(a.stats["rmse"]), float(a.stats["std"]), matched=n, **rel)
 

@@ -19,7 +19,7 @@ FLOOR_NAME = "still (floor)"
 COLUMNS = (
     "condition", "status", "runs", "scored_runs", "frames", "ate_rmse", "ate_min", "ate_max",
     "ate_std", "rpe_trans_frame", "rpe_rot_frame", "rpe_trans_s", "rpe_rot_s", "lost_median",
-    "lost_max", "reinitialised", "tracking_ms", "masking_ms", "note",
+    "lost_max", "reinitialised", "tracking_ms", "late_max", "masking_ms", "note",
 )  # fmt: skip
 
 
@@ -47,7 +47,7 @@ def summary_rows(results: list[ConditionResult], floor: float, frames: int) -> l
     return [*rows, floor_row]
 
 
-def _csv(rows: list[dict], columns: tuple[str, ...] | list[str]) -> str:
+def csv_text(rows: list[dict], columns: tuple[str, ...] | list[str]) -> str:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
     writer.writeheader()
@@ -64,7 +64,7 @@ def run_rows(results: list[ConditionResult]) -> list[dict]:
             out.append(
                 {"condition": res.condition.name, "run": r.index, **s, "lost": r.lost,
                  "reinitialised": r.reinitialised, "frames": r.frames,
-                 "tracking_ms": round(r.tracking_ms, 2),
+                 "tracking_ms": round(r.tracking_ms, 2), "late": r.late,
                  "trajectory": r.trajectory.name if r.trajectory else "", "error": r.error or ""}
             )  # fmt: skip
     return out
@@ -96,10 +96,10 @@ def table_lines(rows: list[dict], markdown: bool) -> str:
 def write_report(out: Path, info: RunInfo, results: list[ConditionResult], floor: float) -> list:
     """Write the four files under ``out``; returns the summary rows (for ``--json``)."""
     rows = summary_rows(results, floor, info.frames)
-    write_text(out / "results.csv", _csv(rows, COLUMNS))
+    write_text(out / "results.csv", csv_text(rows, COLUMNS))
     runs = run_rows(results)
     if runs:
-        write_text(out / "runs.csv", _csv(runs, list(runs[0])))
+        write_text(out / "runs.csv", csv_text(runs, list(runs[0])))
     official = info.vocabulary.startswith("official")
     lines = [
         f"# slam-eval: {info.sequence.name}",

@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.dynamic.pipeline import MASKING_CONF
+from slimseg.dynamic.settings import DEFAULT, MaskingSettings, preset_name
 from slimseg.dynamic.tum import MAX_DT, TumSequence, mask_name
 from slimseg.errors import SlimsegError
 from slimseg.slam.conditions import (
@@ -54,16 +54,19 @@ class Plan:
     engine: str = "orbslam3"
     runs: int = 3
     vocab: Path | None = None
-    conf: float = MASKING_CONF
+    masking: MaskingSettings = DEFAULT
+    """score threshold, dilation and Eq. 1/3/4 parameters of the mask modes; its dilation also
+    widens the ground-truth masks"""
     keypoints: int = 1000
-    dilation_px: int = 2
     features: int = 1000
     realtime: bool = True
+    speed: float = 1.0
     threads: int | None = None
     progress: bool = True
 
 
-def _fps(seq: TumSequence) -> float:
+def fps_of(seq: TumSequence) -> float:
+    """The sequence's frame rate from its median colour-frame interval (30 if one frame)."""
     stamps = np.array([t for (t, _), _ in seq.frames])
     return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
 
@@ -76,23 +79,23 @@ def gt_at_frames(gt: np.ndarray, seq: TumSequence, max_dt: float = MAX_DT) -> np
     return gt[j[np.abs(gt[j, 0] - stamps) <= max_dt]]
 
 
-def check_engine(plan: Plan) -> str:
+def check_engine(engine: str, vocab: Path | None) -> str:
     """Fail fast on a missing extra or vocabulary; returns the vocabulary label."""
     from slimseg.slam.metrics import _evo
 
     _evo()
-    if plan.engine == "dense":
+    if engine == "dense":
         return "none (dense engine)"
     from slimseg.slam.engines import import_pyorbslam3
     from slimseg.slam.vocab import check_vocabulary
 
     import_pyorbslam3()
-    if plan.vocab is None:
+    if vocab is None:
         raise SlimsegError(
             "--engine orbslam3 needs --vocab: the official ORBvoc.txt, or build one offline "
             "with slimseg slam vocab --images 'SEQ/rgb/*.png' --out voc.txt"
         )
-    return check_vocabulary(plan.vocab).label
+    return check_vocabulary(vocab).label
 
 
 def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[str, Condition]:
@@ -108,7 +111,9 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
                 say(f"gt: skipped, {folder} does not exist (real sequences have none)")
                 continue
             check_masks(seq, folder)
-            conds[name] = Condition("gt", "masked", masks=folder, note="ground-truth dynamic/")
+            d = plan.masking.dilation_px
+            conds[name] = Condition("gt", "masked", masks=folder, dilation_px=d,
+                                    note=f"ground-truth dynamic/, dilated {d} px")  # fmt: skip
         elif name == "masks":
             folder = plan.masks / "masks" if (plan.masks / "masks").is_dir() else plan.masks
             check_masks(seq, folder)
@@ -116,19 +121,22 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
                                     note=f"read from {folder}")  # fmt: skip
         elif name not in ("raw", "oracle"):
             if predictor is None:
-                predictor = _predictor(plan)
+                predictor = make_predictor(plan.model, plan.gt_instances, seq.root, plan.threads)
             conds[name] = _mode_condition(plan, predictor, name, out, say)
     return conds
 
 
-def _predictor(plan: Plan) -> object:
-    if plan.gt_instances:
+def make_predictor(
+    model: str | None, gt_instances: bool, sequence: Path, threads: int | None = None
+) -> object:
+    """The model's ``Predictor``, or the ``sequence``'s ground-truth instances."""
+    if gt_instances:
         from slimseg.dynamic.annotations import AnnotationInstances
 
-        return AnnotationInstances(plan.sequence.root)
+        return AnnotationInstances(sequence)
     from slimseg.deploy.predictor import Predictor
 
-    return Predictor.from_path(plan.model, threads=plan.threads)
+    return Predictor.from_path(model, threads=threads)
 
 
 def _mode_condition(
@@ -138,13 +146,14 @@ def _mode_condition(
 
     folder = out / "masks" / mode.replace("+", "_")
     rep = run_sequence(
-        predictor, plan.sequence.root, folder, mode, plan.conf, plan.keypoints,
+        predictor, plan.sequence.root, folder, mode, plan.masking, plan.keypoints,
         progress=plan.progress,
     )  # fmt: skip
     ms = sum(rep.ms_per_frame.values())
     say(f"{mode}: masks for {rep.frames} frames in {folder / 'masks'} ({ms:.1f} ms/frame)")
-    source = "--gt-instances" if plan.gt_instances else f"--conf {plan.conf}"
-    note = f"slimseg dynamic --mode {mode} {source}"
+    source = "--gt-instances" if plan.gt_instances else "--model"
+    settings = preset_name(plan.masking) or "custom"
+    note = f"slimseg dynamic --mode {mode} {source}, {settings} settings"
     name = f"{mode} (gt instances)" if plan.gt_instances else mode
     return Condition(name, "masked", masks=folder / "masks", masking_ms=ms, note=note)
 
@@ -165,7 +174,7 @@ def restored_condition(
 
     t0 = time.perf_counter()
     rep = restore_sequence(
-        plan.sequence.root, masks, folder, plan.dilation_px, keypoints=plan.keypoints,
+        plan.sequence.root, masks, folder, cond.dilation_px, keypoints=plan.keypoints,
         progress=plan.progress,
     )  # fmt: skip
     ms = 1000 * (time.perf_counter() - t0) / max(rep.frames, 1) + (cond.masking_ms or 0.0)
@@ -175,7 +184,7 @@ def restored_condition(
                      note=f"PatchMatch restoration of the {cond.name} masks")  # fmt: skip
 
 
-def _clean(out: Path, masks: Path | None) -> None:
+def clean(out: Path, masks: Path | None) -> None:
     """Delete the previous session's folders under ``out`` (stale runs of another vocabulary
     or intrinsics never mix into a new table); refuse when ``--masks`` lives inside them."""
     owned = [out / name for name in OWNED]
@@ -195,10 +204,10 @@ def _clean(out: Path, masks: Path | None) -> None:
 def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[dict], RunInfo]:
     """Everything after option parsing; returns the summary rows and the table's header."""
     seq = plan.sequence
-    vocab_label = check_engine(plan)
+    vocab_label = check_engine(plan.engine, plan.vocab)
     say(f"intrinsics: {seq.camera_source} (fx {seq.camera.fx}, fy {seq.camera.fy}, "
         f"cx {seq.camera.cx}, cy {seq.camera.cy})")  # fmt: skip
-    _clean(out, plan.masks)
+    clean(out, plan.masks)
     gt = read_tum(seq.root / "groundtruth.txt")
     if len(gt) < 3:
         raise SlimsegError(f"{seq.root / 'groundtruth.txt'} has {len(gt)} poses: need 3 or more")
@@ -219,11 +228,11 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     settings = None
     if plan.engine == "orbslam3":
         h, w = seq.load(0)[0].shape[:2]
-        orb = OrbSettings(features=plan.features, fps=_fps(seq))
+        orb = OrbSettings(features=plan.features, fps=fps_of(seq))
         settings = write_settings(out / "orbslam3_settings.yaml", seq.camera, w, h, orb)
     cfg = EvalSettings(
         engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
-        realtime=plan.realtime, dilation_px=plan.dilation_px, fps=_fps(seq),
+        realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
         progress=plan.progress,
     )  # fmt: skip
     results: list[ConditionResult] = []

@@ -1,0 +1,45 @@
+"""The SLAM-facing masking options shared by ``slimseg dynamic`` and ``slimseg slam-eval``:
+``--preset papers|slimseg`` and one flag per setting of
+:class:`slimseg.dynamic.settings.MaskingSettings` (a flag overrides the preset)."""
+
+from __future__ import annotations
+
+import argparse
+
+from slimseg.dynamic.settings import DEFAULT_PRESET, PRESETS, MaskingSettings, preset
+
+# flag -> (field, type, help)
+FLAGS: dict[str, tuple[str, type, str]] = {
+    "--conf": ("conf", float, "detector score threshold for masking (not predict's)"),
+    "--dilation": ("dilation_px", int, "px added around every mask before keypoints are judged"),
+    "--min-static": ("min_static", int, "Eq. 1: static points needed"),
+    "--m-th-start": ("m_th_start", float, "Eq. 1: starting mobility threshold"),
+    "--m-th-step": ("m_th_step", float, "Eq. 1: threshold step"),
+    "--frame-ratio": ("frame_ratio", float, "Eq. 3: fraction of points on mobile objects"),
+    "--t-o": ("t_o", float, "Eq. 4: seg-mask / box coverage above which the seg mask is kept"),
+}
+
+
+def add_masking_args(p: argparse.ArgumentParser) -> None:
+    """Add ``--preset`` and the per-setting flags (all defaulting to the preset's value)."""
+    g = p.add_argument_group("masking settings (docs/slam_defaults.md)")
+    values = "; ".join(
+        f"{name}: " + ", ".join(f"{k}={v}" for k, v in s.as_dict().items())
+        for name, s in PRESETS.items()
+    )
+    g.add_argument(
+        "--preset",
+        choices=tuple(PRESETS),
+        default=DEFAULT_PRESET,
+        help=f"named masking settings (default {DEFAULT_PRESET}); {values}",
+    )
+    for flag, (field, kind, text) in FLAGS.items():
+        base = getattr(PRESETS[DEFAULT_PRESET], field)
+        g.add_argument(flag, dest=field, type=kind, default=None,
+                       help=f"{text} (default: the preset's, {DEFAULT_PRESET} {base})")  # fmt: skip
+
+
+def masking_from_args(args: argparse.Namespace) -> MaskingSettings:
+    """The preset with every given flag applied (validated: ``SettingsError`` names a bad one)."""
+    given = {f: getattr(args, f) for f, _, _ in FLAGS.values() if getattr(args, f) is not None}
+    return preset(args.preset).with_values(**given)

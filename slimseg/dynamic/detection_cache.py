@@ -1,0 +1,210 @@
+"""Detections of a whole sequence computed once, then masked under many settings.
+
+A sweep over the masking settings (score threshold, dilation, Eq. 1/3/4) changes only the
+post-processing of the detections, so the model runs once per frame, at the lowest score
+threshold of the sweep, and every setting filters that cache (:meth:`CachedDetections.select`).
+
+Filtering is exact: NMS is greedy in decreasing score, so a detection is only ever suppressed
+by a higher-scoring one; the survivors scoring above ``c`` are therefore the same whether NMS
+ran at ``c`` or at any lower threshold (the candidate cap and ``max_det`` keep the highest
+scores, which a higher threshold keeps too). Each mask depends only on its own detection.
+
+Masks are stored as their tight bounding crop (a mask is zero outside its box anyway), so a
+sequence of 640×480 frames with a few dozen low-score detections per frame stays small.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
+from slimseg.dynamic.pipeline import FrameInputs, FrameSettings, process_modes
+from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
+from slimseg.dynamic.settings import MaskingSettings
+from slimseg.dynamic.tum import TumSequence, mask_name
+from slimseg.utils.atomic import write_png
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CachedDetections:
+    """One frame's detections at the cache's floor threshold: ``boxes float32 [M, 4]`` xyxy px,
+    ``scores float32 [M]``, ``classes int64 [M]``, each mask as ``(y0, x0, bool crop)`` (None:
+    a detection-only model), frame size ``hw``."""
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    classes: np.ndarray
+    crops: list[tuple[int, int, np.ndarray]] | None
+    hw: tuple[int, int]
+
+    @classmethod
+    def pack(
+        cls,
+        boxes: np.ndarray,
+        scores: np.ndarray,
+        classes: np.ndarray,
+        masks: np.ndarray | None,
+        hw: tuple[int, int],
+    ) -> CachedDetections:
+        """From the full ``masks bool [M, H, W]`` (or None) of an ``hw`` frame."""
+        crops = None if masks is None else [_crop(np.asarray(m, bool)) for m in masks]
+        return cls(
+            np.asarray(boxes, np.float32).reshape(-1, 4),
+            np.asarray(scores, np.float32).reshape(-1),
+            np.asarray(classes, np.int64).reshape(-1),
+            crops,
+            (int(hw[0]), int(hw[1])),
+        )
+
+    def select(self, conf: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The detections scoring above ``conf``: ``(boxes [m, 4], classes [m], masks bool
+        [m, H, W] or None)``, in the cached (decreasing score) order."""
+        keep = np.flatnonzero(self.scores > conf)
+        masks = None
+        if self.crops is not None:
+            h, w = self.hw
+            masks = np.zeros((len(keep), h, w), bool)
+            for j, k in enumerate(keep):
+                y0, x0, crop = self.crops[k]
+                masks[j, y0 : y0 + crop.shape[0], x0 : x0 + crop.shape[1]] = crop
+        return self.boxes[keep], self.classes[keep], masks
+
+
+def _crop(mask: np.ndarray) -> tuple[int, int, np.ndarray]:
+    rows, cols = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+    if not len(rows):
+        return 0, 0, np.zeros((0, 0), bool)
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    return int(y0), int(x0), mask[y0:y1, x0:x1].copy()
+
+
+@dataclass(frozen=True)
+class CachedFrame:
+    """One frame: colour ``stamp``, ORB ``features`` (keypoints + descriptors), ``detections``,
+    ground-truth dynamic flag per keypoint ``truth bool [N]`` (None: no ``dynamic/`` mask), and
+    the model and preparation (ORB + instance extraction) times in ms."""
+
+    stamp: float
+    features: OrbFeatures
+    detections: CachedDetections
+    truth: np.ndarray | None
+    model_ms: float
+    prep_ms: float
+
+
+@dataclass
+class DetectionCache:
+    """Every associated frame of ``sequence`` run through the model once at ``conf_floor``;
+    ``mobility [K]``: the model's class priors; ``calls``: model invocations made."""
+
+    sequence: TumSequence
+    conf_floor: float
+    mobility: np.ndarray
+    frames: list[CachedFrame] = field(default_factory=list)
+    calls: int = 0
+
+    @property
+    def model_ms(self) -> float:
+        """Mean model time per frame (ms)."""
+        return float(np.mean([f.model_ms for f in self.frames])) if self.frames else 0.0
+
+    @property
+    def prep_ms(self) -> float:
+        """Mean ORB + instance extraction time per frame (ms)."""
+        return float(np.mean([f.prep_ms for f in self.frames])) if self.frames else 0.0
+
+
+def build_cache(
+    predictor: object,
+    sequence: TumSequence,
+    conf_floor: float,
+    keypoints: int = 1000,
+    progress: bool = True,
+) -> DetectionCache:
+    """Run ``predictor`` (a slimseg ``Predictor`` or ``AnnotationInstances``) once per frame of
+    ``sequence`` at score threshold ``conf_floor`` and keep everything a setting needs."""
+    gt_dir = sequence.root / "dynamic"
+    cache = DetectionCache(sequence, conf_floor, np.asarray(predictor.mobility, np.float32))
+    gt_instances = isinstance(predictor, AnnotationInstances)
+    for i in tqdm(range(len(sequence)), desc="detections", disable=not progress):
+        rgb, _, stamp = sequence.load(i)
+        t0 = time.perf_counter()
+        if gt_instances:
+            pred = predictor.for_stamp(stamp)
+        else:
+            pred = predictor.predict(rgb, conf=conf_floor)
+        cache.calls += 1
+        t1 = time.perf_counter()
+        feats = orb_features(rgb, keypoints)
+        boxes, classes, masks = instances_of(pred)
+        scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
+        dets = CachedDetections.pack(boxes, scores, classes, masks, rgb.shape[:2])
+        t2 = time.perf_counter()
+        truth = None
+        gt = cv2.imread(str(gt_dir / mask_name(stamp)), cv2.IMREAD_GRAYSCALE)
+        if gt is not None:
+            truth = at_keypoints(gt > 0, feats.keypoints)
+        cache.frames.append(
+            CachedFrame(stamp, feats, dets, truth, 1000 * (t1 - t0), 1000 * (t2 - t1))
+        )
+    log.debug("%d frames cached at conf %.3f, %d model calls", len(cache.frames), conf_floor,
+             cache.calls)  # fmt: skip
+    return cache
+
+
+@dataclass
+class SettingMasks:
+    """The masks of one setting: keypoint confusion ``score`` against ``dynamic/`` (None: no
+    ground truth), the masking logic's mean time per frame (ms), the frames written and a
+    ``digest`` of every mask (equal digests: identical masks)."""
+
+    score: ModeScore | None
+    logic_ms: float
+    frames: int
+    digest: str = ""
+
+
+def mask_with(
+    cache: DetectionCache, mode: str, masking: MaskingSettings, out: Path
+) -> SettingMasks:
+    """Apply ``mode`` under ``masking`` to every cached frame; write ``out/<rgb ts>.png``
+    (uint8, 255 = dynamic), exactly what ``slimseg dynamic --mode mode`` writes for these
+    settings (the epipolar modes get the previous frame's features, without depth)."""
+    settings = FrameSettings.from_masking(cache.mobility, mode, masking)
+    rng = np.random.default_rng(0)  # as slimseg dynamic: depth-RANSAC's sampling
+    have_truth = all(f.truth is not None for f in cache.frames)
+    score = ModeScore() if have_truth and cache.frames else None
+    previous: PreviousFrame | None = None
+    t_logic = 0.0
+    digest = hashlib.sha1()
+    out.mkdir(parents=True, exist_ok=True)
+    for i, f in enumerate(cache.frames):
+        t0 = time.perf_counter()
+        boxes, classes, masks = f.detections.select(masking.conf)
+        depth = cache.sequence.load(i)[1] if mode == "box+depth-ransac" else None
+        kps = f.features.keypoints
+        inputs = FrameInputs(kps, boxes, classes, masks, f.detections.hw, depth,
+                             f.features.descriptors, previous)  # fmt: skip
+        res = process_modes(inputs=inputs, settings=settings, modes=(mode,), rng=rng)[mode]
+        t_logic += time.perf_counter() - t0
+        write_png(out / mask_name(f.stamp), res.mask)
+        digest.update(np.ascontiguousarray(res.mask).tobytes())
+        if score is not None:
+            score.add(res.dynamic, f.truth)
+        previous = PreviousFrame(f.features)
+    n = max(len(cache.frames), 1)
+    return SettingMasks(
+        score, 1000 * t_logic / n + cache.prep_ms, len(cache.frames), digest.hexdigest()
+    )

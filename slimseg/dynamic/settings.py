@@ -1,0 +1,128 @@
+"""The SLAM-facing masking settings, one home: score threshold, dilation, Eq. 1/3/4 parameters.
+
+Two named presets (``docs/slam_defaults.md``):
+
+- ``papers``: the values of the substation paper (docs/papers.md §2: Eq. 1 starts at 0.25 and
+  steps by 0.1, Eq. 4's t_o = 0.25), our reading of its garbled Eq. 3 (5 %), the detector score
+  threshold of a detection-style default (0.25, which the papers do not state) and no
+  dilation (none is described);
+- ``slimseg``: the defaults chosen from ``slimseg slam-eval --sweep`` on synthetic
+  ``walking_xyz`` / ``walking_static`` sequences with ORB-SLAM3 (ATE vs each setting). A
+  missed walker costs a SLAM system far more than a few static keypoints dropped, so the score
+  threshold sits well below the detection-style one.
+
+These are a separate family from the detection-style thresholds of ``slimseg.ops.nms``
+(``PREDICT_CONF`` for ``predict``, ``EVAL_CONF`` for mAP): never one number serving both
+(docs/conventions.md §6). ``slimseg dynamic``, ``slimseg slam-eval`` and the export metadata
+read the ``slimseg`` preset from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+from slimseg.dynamic.seg_box import T_O
+from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
+from slimseg.errors import SlimsegError
+
+# Frame width the dilation was chosen at (TUM / Bonn RGB-D frames are 640 x 480): a runtime on
+# other frame sizes scales it by max(h, w) / DILATION_REFERENCE_PX.
+DILATION_REFERENCE_PX = 640
+# The detection-style default score threshold the papers' detectors ran with (YOLO's 0.25).
+PAPERS_CONF = 0.25
+# Eq. 1's "too few static points" is unspecified in the paper: the pipeline's long-standing 100.
+PAPERS_MIN_STATIC = 100
+
+
+class SettingsError(SlimsegError):
+    """A masking setting out of its range (one line, naming the setting)."""
+
+
+@dataclass(frozen=True)
+class MaskingSettings:
+    """How detections become a dynamic mask for SLAM.
+
+    ``conf``: detector score threshold (keep detections scoring above it); ``dilation_px``:
+    pixels added around every mask before keypoints are classified (frame pixels at a
+    ``DILATION_REFERENCE_PX``-wide frame); ``min_static``: Eq. 1's static points needed;
+    ``m_th_start`` / ``m_th_step``: Eq. 1's starting mobility threshold and its step;
+    ``frame_ratio``: Eq. 3's fraction of points on mobile objects making a dynamic keyframe;
+    ``t_o``: Eq. 4's seg-mask-to-box coverage above which the seg mask is kept.
+    """
+
+    conf: float
+    dilation_px: int
+    min_static: int
+    m_th_start: float
+    m_th_step: float
+    frame_ratio: float
+    t_o: float
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            check_value(f.name, getattr(self, f.name))
+
+    def with_values(self, **values: float) -> MaskingSettings:
+        """A copy with some fields replaced (validated)."""
+        return replace(self, **values)
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+    def describe(self) -> str:
+        """``slimseg preset (conf 0.1, dilation_px 5, ...)``, or ``custom (...)``."""
+        name = preset_name(self)
+        values = ", ".join(f"{k} {v:g}" for k, v in self.as_dict().items())
+        return f"{name + ' preset' if name else 'custom'} ({values})"
+
+
+# field -> (lowest, highest, integer, what it is); bounds inclusive except those listed below
+RANGES: dict[str, tuple[float, float, bool, str]] = {
+    "conf": (0.0, 1.0, False, "detector score threshold, 0 <= conf < 1"),
+    "dilation_px": (0, 200, True, "mask dilation in whole pixels, 0-200"),
+    "min_static": (0, 100_000, True, "Eq. 1 static points, a whole number >= 0"),
+    "m_th_start": (0.0, 1.0, False, "Eq. 1 starting threshold, 0-1"),
+    "m_th_step": (0.0, 1.0, False, "Eq. 1 step, 0 < step <= 1"),
+    "frame_ratio": (0.0, 1.0, False, "Eq. 3 fraction, 0-1"),
+    "t_o": (0.0, 1.0, False, "Eq. 4 coverage threshold, 0-1"),
+}
+OPEN_LOW = ("m_th_step",)  # the lower bound itself is not allowed
+OPEN_HIGH = ("conf",)
+
+
+def check_value(name: str, value: object) -> None:
+    """Raise :class:`SettingsError` unless ``value`` is valid for field ``name``."""
+    lo, hi, integer, what = RANGES[name]
+    typed = isinstance(value, int) if integer else isinstance(value, int | float)
+    ok = typed and not isinstance(value, bool) and lo <= value <= hi
+    ok = ok and not (name in OPEN_LOW and value == lo) and not (name in OPEN_HIGH and value == hi)
+    if not ok:
+        raise SettingsError(f"masking setting {name} = {value!r}: expected {what}")
+
+
+PAPERS = MaskingSettings(
+    conf=PAPERS_CONF,
+    dilation_px=0,
+    min_static=PAPERS_MIN_STATIC,
+    m_th_start=M_TH_START,
+    m_th_step=M_TH_STEP,
+    frame_ratio=DYNAMIC_FRAME_RATIO,
+    t_o=T_O,
+)
+# Chosen from the sweeps of docs/slam_defaults.md.
+SLIMSEG = PAPERS.with_values(conf=0.1, dilation_px=5)
+PRESETS: dict[str, MaskingSettings] = {"papers": PAPERS, "slimseg": SLIMSEG}
+DEFAULT_PRESET = "slimseg"
+DEFAULT = PRESETS[DEFAULT_PRESET]
+
+
+def preset(name: str) -> MaskingSettings:
+    """The named preset, or :class:`SettingsError` listing the names."""
+    if name not in PRESETS:
+        raise SettingsError(f"unknown masking preset {name!r}; valid: {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+def preset_name(settings: MaskingSettings) -> str | None:
+    """The name of the preset equal to ``settings`` (None: a custom combination)."""
+    return next((k for k, v in PRESETS.items() if v == settings), None)

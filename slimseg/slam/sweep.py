@@ -1,0 +1,172 @@
+"""``slam-eval --sweep KEY=v1,v2,...``: parse the sweep and list the settings it evaluates.
+
+Keys (:data:`SWEEP_KEYS`) name fields of :class:`slimseg.dynamic.settings.MaskingSettings`:
+``conf`` (detector score threshold), ``dilation`` (px), ``min_static`` (Eq. 1),
+``m_th_start`` / ``m_th_step`` (Eq. 1), ``ratio`` (Eq. 3's fraction), ``t_o`` (Eq. 4).
+
+Modes: ``oneway`` varies one key at a time, the others at the base settings (the chosen
+preset with any flags applied); ``grid`` evaluates the full product. Both always include the
+base settings, and every named preset not already among the points is added as a reference.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field, replace
+
+from slimseg.dynamic.settings import PRESETS, MaskingSettings, SettingsError, preset_name
+
+SWEEP_KEYS: dict[str, str] = {
+    "conf": "conf",
+    "dilation": "dilation_px",
+    "min_static": "min_static",
+    "m_th_start": "m_th_start",
+    "m_th_step": "m_th_step",
+    "ratio": "frame_ratio",
+    "t_o": "t_o",
+}
+INT_KEYS = ("dilation", "min_static")
+SWEEP_MODES = ("oneway", "grid")
+FUSION_MODES = ("fusion", "fusion+epipolar")
+# keys that change nothing in some masking modes (a sweep of them there would be flat noise)
+ACTS_IN: dict[str, tuple[str, ...]] = {
+    "ratio": FUSION_MODES,
+    "t_o": FUSION_MODES,
+    "min_static": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
+    "m_th_step": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
+}
+
+
+class SweepError(SettingsError):
+    """A malformed ``--sweep`` (one line naming the item and what to do)."""
+
+
+Value = float | int
+
+
+def parse_sweep(items: list[str]) -> dict[str, tuple[Value, ...]]:
+    """``["conf=0.1,0.25", "dilation=0,5"]`` → ``{"conf": (0.1, 0.25), "dilation": (0, 5)}``
+    (key order kept, duplicate values dropped); every value checked against its range."""
+    out: dict[str, tuple[Value, ...]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise SweepError(f"--sweep {item!r}: expected KEY=v1,v2,... (e.g. conf=0.1,0.25)")
+        if key not in SWEEP_KEYS:
+            valid = ", ".join(SWEEP_KEYS)
+            raise SweepError(f"--sweep {item!r}: unknown key {key!r}; valid: {valid}")
+        if key in out:
+            raise SweepError(f"--sweep {key} given twice: list all its values in one item")
+        values = [v.strip() for v in text.split(",") if v.strip()]
+        if not values:
+            raise SweepError(f"--sweep {item!r}: no values after '='")
+        parsed = [_number(key, v, item) for v in values]
+        for v in parsed:
+            _check(key, v, item)
+        out[key] = tuple(dict.fromkeys(parsed))
+    if not out:
+        raise SweepError("--sweep: nothing to sweep")
+    return out
+
+
+def _number(key: str, text: str, item: str) -> Value:
+    try:
+        return int(text) if key in INT_KEYS else float(text)
+    except ValueError:
+        kind = "a whole number" if key in INT_KEYS else "a number"
+        raise SweepError(f"--sweep {item!r}: {text!r} is not {kind}") from None
+
+
+def _check(key: str, value: Value, item: str) -> None:
+    from slimseg.dynamic.settings import check_value
+
+    try:
+        check_value(SWEEP_KEYS[key], value)
+    except SettingsError as e:
+        raise SweepError(f"--sweep {item!r}: {e}") from None
+
+
+def check_mode(spec: dict[str, tuple[Value, ...]], mode: str, gt_instances: bool) -> None:
+    """Refuse keys that cannot change ``mode``'s masks (or ``conf`` on score-1 instances)."""
+    for key in spec:
+        modes = ACTS_IN.get(key)
+        if modes is not None and mode not in modes:
+            raise SweepError(f"--sweep {key}: has no effect in mode {mode} (acts in "
+                             f"{', '.join(modes)}); choose --modes {modes[0]}")  # fmt: skip
+    if gt_instances and "conf" in spec:
+        raise SweepError("--sweep conf: ground-truth instances (--gt-instances) all score 1")
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """One evaluated setting: ``label`` (``base``, ``conf=0.1``, ``preset papers``, ...),
+    the full ``settings`` and the swept ``values`` by sweep key."""
+
+    label: str
+    settings: MaskingSettings
+    values: dict[str, Value] = field(default_factory=dict)
+    reference: bool = False
+    """a named preset added for comparison, not one of the sweep's points"""
+
+
+def values_of(settings: MaskingSettings, keys: list[str] | tuple[str, ...]) -> dict[str, Value]:
+    """The sweep-key values of ``settings``."""
+    return {k: getattr(settings, SWEEP_KEYS[k]) for k in keys}
+
+
+def sweep_points(
+    base: MaskingSettings,
+    spec: dict[str, tuple[Value, ...]],
+    how: str = "oneway",
+    ignore_conf: bool = False,
+) -> list[SweepPoint]:
+    """The settings to evaluate: the base first, then the sweep's points (``oneway`` or
+    ``grid``), then each named preset not among them (``reference``). No setting twice; with
+    ``ignore_conf`` (ground-truth instances, all scoring 1) settings differing only in
+    ``conf`` count as the same, and a preset equal to a point is named in its label."""
+    if how not in SWEEP_MODES:
+        raise SweepError(f"--sweep-mode {how!r}: valid: {', '.join(SWEEP_MODES)}")
+    keys = list(spec)
+
+    def effective(s: MaskingSettings) -> MaskingSettings:
+        return s.with_values(conf=base.conf) if ignore_conf else s
+
+    name = preset_name(base)
+    points = [SweepPoint(f"base ({name})" if name else "base", base, values_of(base, keys))]
+    if how == "oneway":
+        combos = [{k: v} for k in keys for v in spec[k]]
+    else:
+        combos = [dict(zip(keys, c, strict=True)) for c in itertools.product(*spec.values())]
+    for combo in combos:
+        s = base.with_values(**{SWEEP_KEYS[k]: v for k, v in combo.items()})
+        if any(effective(p.settings) == effective(s) for p in points):
+            continue
+        changed = {k: v for k, v in combo.items() if getattr(base, SWEEP_KEYS[k]) != v}
+        label = " ".join(f"{k}={_fmt(v)}" for k, v in changed.items())
+        points.append(SweepPoint(label, s, values_of(s, keys)))
+    for pname, s in PRESETS.items():
+        same = [i for i, p in enumerate(points) if effective(p.settings) == effective(s)]
+        if not same:
+            points.append(SweepPoint(f"preset {pname}", s, values_of(s, keys), reference=True))
+        elif points[same[0]].settings != s:  # equal masks, another conf: say so in the label
+            p = points[same[0]]
+            points[same[0]] = replace(p, label=f"{p.label} (= preset {pname})")
+    return points
+
+
+def _fmt(v: Value) -> str:
+    return str(v) if isinstance(v, int) else f"{v:g}"
+
+
+def slice_through(points: list[SweepPoint], key: str, center: SweepPoint) -> list[SweepPoint]:
+    """The points that differ from ``center`` in ``key`` only (``center`` included), sorted by
+    that key's value: one curve of the sweep plot."""
+    others = [k for k in SWEEP_KEYS.values() if k != SWEEP_KEYS[key]]
+    same = [
+        p
+        for p in points
+        if not p.reference
+        and all(getattr(p.settings, f) == getattr(center.settings, f) for f in others)
+    ]
+    return sorted(same, key=lambda p: getattr(p.settings, SWEEP_KEYS[key]))
