@@ -157,10 +157,10 @@ def test_hash_covers_arms_and_seeds_and_layout_follows_seeds(tmp_path: Path) -> 
         out / "variants" / "n-m16",
     ]
     runs = sweep_runs(seeded, out)
-    assert [(r.arm.name, r.seed) for r in runs] == [
+    assert [(r.arm.name, r.seed) for r in runs] == [  # seed-major: a cut sweep has every arm
         ("yolov8n-seg", 0),
-        ("yolov8n-seg", 1),
         ("n-m16", 0),
+        ("yolov8n-seg", 1),
         ("n-m16", 1),
     ]
     assert runs[3].dir == out / "variants" / "n-m16" / "seed-1"

@@ -10,13 +10,17 @@ import slimseg
 from slimseg.models.registry import get_spec
 from slimseg.models.specs import SpecError, load_spec
 
-EXPECTED = {f"yolov8{s}-seg{v}" for s in "ns" for v in ("", "-gs", "-rep", "-gs-rep")} | {
-    "yolov8n",
-    "yolov8s",
-    "darknet19-yolov3",
-    "msnet-t",
-    "msnet-s",
-}
+EXPECTED = (
+    {f"yolov8{s}-seg{v}" for s in "ns" for v in ("", "-gs", "-rep", "-gs-rep")}
+    | {f"yolov8{s}-seg{v}-hr" for s in "ns" for v in ("", "-gs-rep")}
+    | {
+        "yolov8n",
+        "yolov8s",
+        "darknet19-yolov3",
+        "msnet-t",
+        "msnet-s",
+    }
+)
 
 
 def test_list_models_is_the_zoo() -> None:
