@@ -209,3 +209,49 @@ def test_val_device_errors_are_one_line(
     assert main([*argv, "--device", device]) == 2
     err = capsys.readouterr().err.strip()
     assert needle in err and len(err.splitlines()) == 1
+
+
+def test_freeze_trains_only_the_mask_branch_of_a_trained_trunk(
+    run_dir: Path, data_yaml: Path, tmp_path: Path
+) -> None:
+    """--freeze backbone,neck,detect: those parts (BatchNorm statistics included) leave the
+    run exactly as they came from --weights; the mask branch moves; the -hr twin takes the
+    trunk (shapes matched) and trains its new prototype path."""
+    start, _ = load_weights(run_dir / "weights" / "last.pt")
+    frozen = ("backbone", "neck", "detect")
+    for name in ("yolov8n-seg", "yolov8n-seg-hr"):
+        _, out = train(
+            name,
+            data_yaml,
+            TINY,
+            tmp_path / name,
+            accelerator="cpu",
+            progress=False,
+            weights=str(run_dir / "weights" / "last.pt"),
+            freeze=frozen,
+        )
+        tuned, _ = load_weights(out / "weights" / "last.pt")
+        before, after = start.state_dict(), tuned.state_dict()
+        for key, value in after.items():
+            if key.split(".")[0] in frozen:
+                assert torch.equal(value, before[key]), key
+        moved = [
+            k
+            for k, v in after.items()
+            if k.startswith("proto.")
+            and k in before
+            and v.shape == before[k].shape
+            and not torch.equal(v, before[k])
+        ]
+        assert moved, f"{name}: the prototype path did not train"
+
+
+def test_freeze_with_an_unknown_part_fails_before_any_write(
+    data_yaml: Path, tmp_path: Path
+) -> None:
+    argv = ["train", "--model", "yolov8n-seg", "--data", str(data_yaml), "--epochs", "1"]
+    assert (
+        main([*argv, "--imgsz", "64", "--freeze", "backbone,head", "--out", str(tmp_path / "r")])
+        == 2
+    )
+    assert not (tmp_path / "r").exists()

@@ -48,6 +48,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="run folder (default runs/<model>)")
     p.add_argument("--resume", action="store_true", help="continue OUT from checkpoints/last.ckpt")
     p.add_argument("--weights", default=None, help="initial weights (.pt or .ckpt); shapes matched")
+    p.add_argument(
+        "--freeze",
+        default="",
+        help="comma list of top-level parts kept fixed, e.g. backbone,neck,detect to train "
+        "only the mask branch of a trained model (with --weights)",
+    )
     p.add_argument("--accelerator", default="auto", help="cpu | gpu | auto")
     p.add_argument("--devices", default="auto", help="number of devices, e.g. 2 (DDP)")
     p.add_argument("--num-nodes", type=int, default=1)
@@ -79,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         num_nodes=args.num_nodes,
         accelerator=args.accelerator,
         weights=args.weights,
+        freeze=tuple(n.strip() for n in args.freeze.split(",") if n.strip()),
         augment=load_augment_config(args.augment),
         progress=not args.quiet,
         precision=args.precision,

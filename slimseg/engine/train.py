@@ -16,6 +16,7 @@ import dataclasses
 import logging
 import os
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import lightning as L
@@ -35,6 +36,7 @@ from slimseg.deploy.checkpoint import (
     save_weights,
 )
 from slimseg.engine.config import TrainConfig
+from slimseg.engine.freeze import FreezeModules, frozen_children
 from slimseg.engine.module import DetectorModule
 from slimseg.engine.precision import resolve_precision
 from slimseg.engine.pretrained import load_pretrained
@@ -183,6 +185,7 @@ def train(
     progress: bool = True,
     callbacks: list[L.Callback] | None = None,
     precision: str = "auto",
+    freeze: Sequence[str] = (),
 ) -> tuple[DetectorModule, Path]:
     """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder.
 
@@ -191,7 +194,9 @@ def train(
 
     ``callbacks`` are added to the run's own (checkpointing, run writer, progress bar).
     ``cfg.threads`` (when set) is torch's thread count during the call only. ``precision``:
-    one of :data:`~slimseg.engine.precision.PRECISIONS` (``auto`` follows ``cfg.amp``)."""
+    one of :data:`~slimseg.engine.precision.PRECISIONS` (``auto`` follows ``cfg.amp``).
+    ``freeze``: top-level parts of the network kept fixed (``engine/freeze.py``), e.g.
+    ``("backbone", "neck", "detect")`` to train only the mask branch on a trained trunk."""
     with torch_threads(cfg.threads):
         return _train(
             model,
@@ -207,6 +212,7 @@ def train(
             progress,
             callbacks,
             precision,
+            tuple(freeze),
         )
 
 
@@ -224,6 +230,7 @@ def _train(
     progress: bool,
     callbacks: list[L.Callback] | None,
     precision: str,
+    freeze: tuple[str, ...],
 ) -> tuple[DetectorModule, Path]:
     data_cfg = load_data_config(data)
     if isinstance(model, ModelSpec):
@@ -237,11 +244,14 @@ def _train(
     last_ckpt = out / "checkpoints" / "last.ckpt"
     if resume and not last_ckpt.is_file():
         raise SlimsegError(f"{last_ckpt}: nothing to resume (no checkpoint in {out})")
-    out = resolve_run_dir(out, resume)
     L.seed_everything(cfg.seed, workers=True, verbose=False)
     module = DetectorModule(
         spec.to_dict(), dataclasses.asdict(cfg), list(data_cfg.names), list(data_cfg.mobility)
     )
+    if freeze:
+        frozen_children(module.model, freeze)  # a bad name fails before anything is written
+        callbacks = [*(callbacks or []), FreezeModules(freeze)]
+    out = resolve_run_dir(out, resume)
     if weights and not resume:
         logger.info(transfer_weights(module, weights))
     dm = SegDataModule(
@@ -263,6 +273,7 @@ def _train(
                     "data": str(data),
                     "spec": spec.to_dict(),
                     "train": dataclasses.asdict(cfg),
+                    **({"freeze": list(freeze)} if freeze else {}),
                 },
                 sort_keys=False,
             )
