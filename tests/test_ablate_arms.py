@@ -283,22 +283,22 @@ def test_two_arms_two_seeds_sweep_resumes_after_its_first_run(
     assert "[4/4] n-m16/seed-1: training (1 epochs, seed 1)" in lines
     assert (first / "row.json").read_bytes() == kept
     assert (first / "row.json").stat().st_mtime_ns == kept_mtime
-    assert [(r["variant"], r["seed"]) for r in rows] == [
+    assert [(r["variant"], r["seed"]) for r in rows] == [  # seed-major
         ("yolov8n-seg", 0),
-        ("yolov8n-seg", 1),
         ("n-m16", 0),
+        ("yolov8n-seg", 1),
         ("n-m16", 1),
     ]
     with (out / "results.csv").open() as f:
         table = list(csv.DictReader(f))
-    assert len(table) == 4 and [r["seed"] for r in table] == ["0", "1", "0", "1"]
+    assert len(table) == 4 and [r["seed"] for r in table] == ["0", "0", "1", "1"]
     with (out / "summary.csv").open() as f:
         summary = {r["variant"]: r for r in csv.DictReader(f)}
-    a, b = (float(r["box_map50_95"]) for r in table[2:])  # n-m16, seeds 0 and 1, by hand
+    a, b = (float(r["box_map50_95"]) for r in table[1::2])  # n-m16, seeds 0 and 1, by hand
     got = summary["n-m16"]
     assert float(got["box_map50_95_mean"]) == pytest.approx((a + b) / 2, abs=1e-6)
     assert float(got["box_map50_95_spread"]) == pytest.approx(abs(a - b) / 2, abs=1e-6)
-    d0, d1 = (float(r["val_detected"]) for r in table[:2])
+    d0, d1 = (float(r["val_detected"]) for r in table[0::2])
     assert float(summary["yolov8n-seg"]["val_detected_mean"]) == pytest.approx((d0 + d1) / 2)
     assert summary["n-m16"]["seeds"] == "0 1" and summary["n-m16"]["runs"] == "2"
 
@@ -319,7 +319,7 @@ def test_two_arms_two_seeds_sweep_resumes_after_its_first_run(
     w0 = run_weights(m16 / "seed-0")[0].state_dict()
     w1 = run_weights(m16 / "seed-1")[0].state_dict()
     assert any(not np.array_equal(w0[k].numpy(), w1[k].numpy()) for k in w0)  # seeds differ
-    assert row["params"] < rows[1]["params"]  # 16 mask coefficients: a smaller head
+    assert row["params"] < rows[0]["params"]  # 16 mask coefficients: a smaller head
     text = (out / "results.md").read_text()
     assert "± " in text and "## Per-seed rows" in text and "n-m16 →" not in text
     assert (out / "results.png").stat().st_size > 10_000
