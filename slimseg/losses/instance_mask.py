@@ -78,6 +78,7 @@ class InstanceMaskLoss:
             [gt_all.shape[2] / input_hw[1], gt_all.shape[1] / input_hw[0]] * 2,
             device=proto.device,
         )
+        per_image = self._on_grid if self.spec.resolution == "proto" else self._upsampled
         total = proto.new_zeros(())
         for i in range(proto.shape[0]):  # per image: the fg anchors of one image
             sel = assigned.fg[i]
@@ -85,14 +86,7 @@ class InstanceMaskLoss:
                 continue
             gt_rows = rows[i].gather(0, assigned.gt_index[i][sel])  # [n] rows of ``masks``
             boxes = assigned.boxes[i][sel] * scale  # target pixels
-            if self.spec.resolution == "proto":
-                total = total + self._on_grid(
-                    proto[i], coeffs[i][sel], gt_all, thin, gt_rows, boxes
-                )
-            else:
-                total = total + self._upsampled(
-                    proto[i], coeffs[i][sel], gt_all, thin, gt_rows, boxes
-                )
+            total = total + per_image(proto[i], coeffs[i][sel], gt_all, thin, gt_rows, boxes)
         return total / assigned.fg.sum()
 
     def _terms(
@@ -102,8 +96,8 @@ class InstanceMaskLoss:
         weight: torch.Tensor | None,
         area: torch.Tensor,
     ) -> torch.Tensor:
-        """``logits, gt [n, P]`` over the box pixels (outside-box pixels already zero in both
-        ``gt`` and the returned sum via the caller's crop) → ``[n]`` per-anchor loss."""
+        """``logits, gt [n, P]``, ``weight`` broadcastable to them (zero outside the box where
+        the caller passes whole maps), ``area [n]`` or a scalar → ``[n]`` per-anchor loss."""
         bce = F.binary_cross_entropy_with_logits(logits, gt, reduction="none")
         if weight is not None:
             bce = bce * weight

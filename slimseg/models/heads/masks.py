@@ -41,7 +41,7 @@ class Proto(nn.Module):
             raise ValueError(f"stride {stride} with skips {sorted(skip_channels)} is not valid")
         if stride == 2 and hidden % 4:
             raise ValueError(f"stride 2 needs hidden channels divisible by 4, got {hidden}")
-        self.stride, self.skip_strides = stride, tuple(sorted(skip_channels, reverse=True))
+        self.skip_strides = tuple(sorted(skip_channels, reverse=True))
         fine = hidden // 4 if stride == 2 else hidden
         self.cv1 = ConvBNAct(c_in, hidden, 3, fused=fused)
         self.upsample = nn.ConvTranspose2d(hidden, hidden, 2, 2, 0, bias=True)
