@@ -149,9 +149,25 @@ def train_epoch(
     return clock
 
 
-def loader_rate(ref: ModuleType, data_yaml: Path, imgsz: int, batch: int, images: int) -> float:
+def pipeline_rate(dataset: Any, collate: Any, batch: int, warmup: int, images: int) -> float:
+    """Images/s of ``collate([dataset[i] ...])`` over ``images`` samples in order, after
+    ``warmup`` untimed ones (they fill the mosaic partner buffers; a real epoch is much
+    longer than that, so its rate is the steady state)."""
+    n = len(dataset)
+    for s in range(0, warmup, batch):
+        collate([dataset[(s + k) % n] for k in range(batch)])
+    start = time.perf_counter()
+    for s in range(warmup, warmup + images, batch):
+        collate([dataset[(s + k) % n] for k in range(batch)])
+    return images / (time.perf_counter() - start)
+
+
+def loader_rate(
+    ref: ModuleType, data_yaml: Path, imgsz: int, batch: int, warmup: int, images: int
+) -> float:
     """Images/s of the reference's training dataset + collate in this process (one
-    worker's pipeline: decode, mosaic, affine, HSV, flip, formatting, collation)."""
+    worker's pipeline: decode, mosaic, affine, HSV, flip, formatting, collation), with its
+    default ``cache=False`` (every sample decodes its image)."""
     from ultralytics.cfg import get_cfg
     from ultralytics.data import build_yolo_dataset
     from ultralytics.data.utils import check_det_dataset
@@ -159,9 +175,4 @@ def loader_rate(ref: ModuleType, data_yaml: Path, imgsz: int, batch: int, images
     cfg = get_cfg(overrides={"imgsz": imgsz, "task": "segment", "close_mosaic": 0})
     data = check_det_dataset(str(data_yaml))
     dataset = build_yolo_dataset(cfg, data["train"], batch, data, mode="train", stride=32)
-    collate = dataset.collate_fn
-    n = len(dataset)
-    start = time.perf_counter()
-    for s in range(0, images, batch):
-        collate([dataset[(s + k) % n] for k in range(batch)])
-    return images / (time.perf_counter() - start)
+    return pipeline_rate(dataset, dataset.collate_fn, batch, warmup, images)

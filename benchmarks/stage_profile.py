@@ -27,7 +27,7 @@ import torch
 
 import slimseg.losses.yolov8_seg as loss_mod
 from slimseg.data.augment import AugmentConfig, masks_to_boxes
-from slimseg.data.collate import make_collate
+from slimseg.data.collate import make_collate, network_input
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
 from slimseg.data.mosaic import mosaic4
@@ -123,7 +123,7 @@ def profile_train(data_yaml: Path, model: str, imgsz: int, batch: int, steps: in
             with s.time("collate"):
                 b = collate(samples)
             with s.time("forward"):
-                raw = net(b["images"])
+                raw = net(network_input(b["images"]))
             start = time.perf_counter()
             before = s.seconds["assigner"]
             loss, _ = module.criterion(raw, b)
@@ -166,7 +166,7 @@ def profile_val(
             break
         with torch.no_grad():
             with st.time("network"):
-                pred, proto = net(b["images"])
+                pred, proto = net(network_input(b["images"]))
             with st.time("NMS"):
                 dets = non_max_suppression(pred, net.num_classes, tcfg.conf, tcfg.iou, tcfg.max_det)
             with st.time("frame detections (all)"):

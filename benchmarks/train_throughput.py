@@ -5,7 +5,9 @@ it with each toolkit's own training loop and loader (in the main process, mosaic
 optimizer step per batch), alternating reference, slimseg, reference, slimseg, ... so both
 see the same machine load. Images/s counts the batches after ``--warmup`` (the first ones
 pay for allocator and kernel warm-up). A second table times each toolkit's training data
-pipeline alone (decode, mosaic, affine, HSV, flip, collate), what one loader worker does.
+pipeline alone (decode, mosaic, affine, HSV, flip, collate), what one loader worker does,
+after one untimed mosaic-buffer's worth of samples (both toolkits draw mosaic partners from a
+buffer of recently decoded images) and without slimseg's decoded-sample cache.
 
     python benchmarks/train_throughput.py [--model yolov8n-seg] [--imgsz 320 640] [--rounds 2]
 
@@ -19,7 +21,6 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import lightning as L
@@ -33,6 +34,7 @@ from slimseg.data.augment import AugmentConfig
 from slimseg.data.collate import make_collate
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
+from slimseg.data.dataset import mosaic_buffer_size
 from slimseg.data.synth import generate
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.train import train
@@ -68,15 +70,15 @@ def slimseg_epoch(
 
 
 def slimseg_loader_rate(data_yaml: Path, imgsz: int, batch: int, images: int) -> float:
-    """Images/s of slimseg's training dataset + collate in this process (one worker)."""
+    """Images/s of slimseg's training dataset + collate in this process (one worker), without
+    the decoded-sample cache (a data set larger than the cache: every sample decodes its
+    image, as the reference's default does)."""
     dm = SegDataModule(load_data_config(data_yaml), imgsz, batch, 0, AugmentConfig(), seed=0)
     dm.setup("fit")
-    dataset, collate = dm.train_set, make_collate()
-    n = len(dataset)
-    start = time.perf_counter()
-    for s in range(0, images, batch):
-        collate([dataset[(s + k) % n] for k in range(batch)])
-    return images / (time.perf_counter() - start)
+    dataset = dm.train_set
+    dataset.cache_bytes = 0
+    warmup = mosaic_buffer_size(batch)
+    return reference_impl.pipeline_rate(dataset, make_collate(), batch, warmup, images)
 
 
 def _mean(values: list[float]) -> float:
@@ -115,7 +117,12 @@ def main() -> None:
                     if ref is not None:
                         loader["reference"].append(
                             reference_impl.loader_rate(
-                                ref, ref_data, imgsz, args.batch, args.loader_images
+                                ref,
+                                ref_data,
+                                imgsz,
+                                args.batch,
+                                mosaic_buffer_size(args.batch),
+                                args.loader_images,
                             )
                         )
                     loader["slimseg"].append(
@@ -137,7 +144,12 @@ def main() -> None:
                     torch.set_num_threads(args.threads)
                     loader["reference"].append(
                         reference_impl.loader_rate(
-                            ref, ref_data, imgsz, args.batch, args.loader_images
+                            ref,
+                            ref_data,
+                            imgsz,
+                            args.batch,
+                            mosaic_buffer_size(args.batch),
+                            args.loader_images,
                         )
                     )
                 clock = slimseg_epoch(

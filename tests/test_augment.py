@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from slimseg.data.augment import AugmentConfig, masks_to_boxes
-from slimseg.data.collate import downsample_masks, make_collate
+from slimseg.data.collate import downsample_masks, make_collate, network_input
 from slimseg.data.dataset import YoloDataset
 from slimseg.data.letterbox import boxes_to_frame, letterbox_image, letterbox_params
 from slimseg.data.sample import Sample
@@ -101,11 +102,21 @@ def test_validation_is_letterbox_only(base: list[Sample]) -> None:
 
 def test_collate_layout(base: list[Sample]) -> None:
     ds = YoloDataset(base, 128, AugmentConfig(mosaic=0.0), seed=0)
-    batch = make_collate(4)([ds[i] for i in range(3)])
+    samples = [ds[i] for i in range(3)]
+    batch = make_collate(4)(samples)
     m = batch["targets"].shape[0]
-    assert batch["images"].shape == (3, 3, 128, 128) and batch["images"].max() <= 1
+    assert batch["images"].shape == (3, 3, 128, 128) and batch["images"].dtype == torch.uint8
     assert batch["targets"].shape == (m, 6) and batch["masks"].shape == (m, 32, 32)
     assert set(batch["targets"][:, 0].int().tolist()) <= {0, 1, 2}
+    # uint8 CHW copies of the samples' HWC images; the network input is contiguous NCHW
+    images = batch["images"]
+    assert images.dtype == torch.uint8 and images.is_contiguous()
+    for i in range(3):
+        assert torch.equal(images[i], torch.from_numpy(samples[i].image).permute(2, 0, 1))
+    x = network_input(images)
+    assert x.dtype == torch.float32 and x.is_contiguous() and torch.equal(x, images.float() / 255)
+    with pytest.raises(TypeError, match="uint8"):
+        network_input(x)
 
 
 def test_downsample_masks_is_block_majority() -> None:
@@ -159,3 +170,51 @@ def test_decoded_sample_cache_changes_no_sample(base: list[Sample], mosaic: floa
     tiny = YoloDataset(list(base), 96, cfg, seed=4, cache_mib=0)
     tiny[0]
     assert not tiny._cache
+
+
+class _CountingBase(list):
+    """A list of samples that records which indices were read (decoded)."""
+
+    def __init__(self, samples: list[Sample]) -> None:
+        super().__init__(samples)
+        self.reads: list[int] = []
+
+    def __getitem__(self, index):
+        self.reads.append(index)
+        return super().__getitem__(index)
+
+
+def test_mosaic_partners_come_from_the_recent_buffer() -> None:
+    rng = np.random.default_rng(0)
+    base = _CountingBase([_random_sample(rng, 48, 64, i) for i in range(40)])
+    ds = YoloDataset(base, 64, AugmentConfig(mosaic=1.0), seed=2, mosaic_buffer=8)
+    order = list(rng.permutation(len(base)))
+    seen: list[tuple[str, ...]] = []
+    for step, i in enumerate(order):
+        before = len(base.reads)
+        partners = ds[int(i)].meta["mosaic"]
+        seen.append(tuple(partners))
+        assert partners[0] == f"{i}.png"
+        if step >= 10:  # full after 2 or 3 samples; 8 later ones fill it with primaries only
+            assert len(base.reads) - before <= 1
+            # the 8 most recently requested primaries (each decoded or refreshed then)
+            window = {f"{j}.png" for j in order[step - 7 : step + 1]}
+            assert set(partners) <= window, (step, partners, window)
+    # one decode per sample once full, instead of four: 40 samples plus a few filling extras
+    assert len(base.reads) <= len(base) + 3 * 8
+    assert len(set(seen)) == len(seen)
+
+
+def test_reseed_empties_the_buffer_so_an_epoch_depends_only_on_its_seed(
+    base: list[Sample],
+) -> None:
+    a = YoloDataset(base, 96, AugmentConfig(), seed=0, mosaic_buffer=4)
+    b = YoloDataset(base, 96, AugmentConfig(), seed=0, mosaic_buffer=4)
+    for i in range(len(base)):  # a has a full buffer from "epoch 0", b has never run
+        a[i]
+    a.reseed(11)
+    b.reseed(11)
+    for i in reversed(range(len(base))):
+        x, y = a[i], b[i]
+        assert x.meta["mosaic"] == y.meta["mosaic"]
+        assert np.array_equal(x.image, y.image) and np.array_equal(x.masks, y.masks)

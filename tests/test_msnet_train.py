@@ -101,4 +101,4 @@ def test_semantic_val_of_a_detector_is_a_clear_error() -> None:
 
     model = build_model("yolov8n", num_classes=6).eval()
     with pytest.raises(SlimsegError, match="not a segmenter"):
-        semantic_batch(model, {"images": torch.zeros(1, 3, 64, 64)})
+        semantic_batch(model, {"images": torch.zeros(1, 3, 64, 64, dtype=torch.uint8)})

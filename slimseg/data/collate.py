@@ -22,19 +22,38 @@ def downsample_masks(masks: np.ndarray, ratio: int) -> np.ndarray:
     return (2 * blocks >= ratio * ratio).astype(np.uint8)
 
 
+def network_input(images: torch.Tensor, device: torch.device | str | None = None) -> torch.Tensor:
+    """Batch images ``uint8 [B, 3, H, W]`` → the network's input, ``float32 [B, 3, H, W]`` in
+    [0, 1], on ``device`` (default: where the images are).
+
+    The conversion happens after the transfer, so a loader worker and the host-to-device copy
+    handle a quarter of the bytes; the result is contiguous NCHW (the memory format the
+    network is timed and trained in on the CPU).
+    """
+    if images.dtype != torch.uint8:
+        raise TypeError(f"expected uint8 batch images, got {images.dtype}")
+    x = images.to(device, non_blocking=True) if device is not None else images
+    return x.contiguous().float().div_(255.0)
+
+
 def make_collate(mask_ratio: int = 4, semantic: bool = False) -> Callable[[list[Sample]], dict]:
     """Collate function producing a batch dict.
 
-    ``images``: ``float32 [B, 3, H, W]`` in [0, 1] (RGB); ``targets``: ``float32 [M, 6]`` rows
-    ``(batch_index, class, x1, y1, x2, y2)`` in input pixels; ``masks``: ``uint8
-    [M, H/r, W/r]`` aligned with ``targets``; plus ``image_ids``, ``paths``, ``meta``. With
-    ``semantic=True`` (semantic models) also ``semantic``: ``int64 [B, H, W]`` class maps
-    (0 = background, class + 1, later instances painted over earlier ones; letterbox padding
-    of validation samples = ``IGNORE_INDEX``).
+    ``images``: ``uint8 [B, 3, H, W]`` RGB, contiguous (:func:`network_input` makes the
+    network's float input of them, after the transfer to the device); ``targets``:
+    ``float32 [M, 6]`` rows ``(batch_index, class, x1, y1, x2, y2)`` in input pixels;
+    ``masks``: ``uint8 [M, H/r, W/r]`` aligned with ``targets``; plus ``image_ids``,
+    ``paths``, ``meta``. With ``semantic=True`` (semantic models) also ``semantic``:
+    ``int64 [B, H, W]`` class maps (0 = background, class + 1, later instances painted over
+    earlier ones; letterbox padding of validation samples = ``IGNORE_INDEX``).
     """
 
     def collate(samples: list[Sample]) -> dict:
-        images = torch.from_numpy(np.stack([s.image for s in samples])).permute(0, 3, 1, 2)
+        h, w = samples[0].image.shape[:2]
+        stacked = np.empty((len(samples), 3, h, w), np.uint8)  # HWC -> CHW: one uint8 copy
+        for i, s in enumerate(samples):
+            stacked[i] = s.image.transpose(2, 0, 1)
+        images = torch.from_numpy(stacked)
         rows, masks, class_maps = [], [], []
         for i, s in enumerate(samples):
             if semantic:
@@ -48,9 +67,8 @@ def make_collate(mask_ratio: int = 4, semantic: bool = False) -> Callable[[list[
             idx = np.full((n, 1), i, np.float32)
             rows.append(np.concatenate([idx, s.classes[:, None].astype(np.float32), s.boxes], 1))
             masks.append(downsample_masks(s.masks, mask_ratio))
-        h, w = samples[0].image.shape[:2]
         return {
-            "images": images.float().div_(255.0),
+            "images": images,
             "targets": torch.from_numpy(np.concatenate(rows)) if rows else torch.zeros(0, 6),
             "masks": torch.from_numpy(np.concatenate(masks))
             if masks

@@ -12,7 +12,7 @@ from slimseg.data.augment import AugmentConfig
 from slimseg.data.coco import CocoDataset
 from slimseg.data.collate import make_collate
 from slimseg.data.config import DataConfig
-from slimseg.data.dataset import TRAIN_CACHE_MIB, YoloDataset
+from slimseg.data.dataset import TRAIN_CACHE_MIB, YoloDataset, mosaic_buffer_size
 
 
 class EpochSampler(Sampler[int]):
@@ -84,7 +84,12 @@ class SegDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and self.train_set is None:
             self.train_set = YoloDataset(
-                self._base("train"), self.imgsz, self.augment, self.seed, TRAIN_CACHE_MIB
+                self._base("train"),
+                self.imgsz,
+                self.augment,
+                self.seed,
+                TRAIN_CACHE_MIB,
+                mosaic_buffer_size(self.batch_size),
             )
         if self.val_set is None:
             self.val_set = YoloDataset(self._base("val"), self.imgsz)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
@@ -17,6 +18,24 @@ from slimseg.data.sample import Sample
 #: four times per epoch (the samples are the same, only the decoding is saved).
 TRAIN_CACHE_MIB = 1024
 
+#: Mosaic partners are drawn from the most recently decoded source samples, as in the
+#: reference implementation: at most this many batches' worth (of the loader's batch size) ...
+MOSAIC_BUFFER_BATCHES = 8
+#: ... and at most this many samples (and never more than the dataset holds) ...
+MOSAIC_BUFFER_MAX = 1000
+#: ... and at most this many MiB of decoded images and masks per loader process.
+MOSAIC_BUFFER_MIB = 512
+
+
+def mosaic_buffer_size(batch: int) -> int:
+    """Recently decoded samples a training loader keeps as mosaic partners (the reference's
+    rule: 8 batches, at most 1000)."""
+    return min(MOSAIC_BUFFER_BATCHES * max(batch, 1), MOSAIC_BUFFER_MAX)
+
+
+def _nbytes(sample: Sample) -> int:
+    return sum(a.nbytes for a in (sample.image, sample.masks, sample.boxes, sample.classes))
+
 
 class YoloDataset(Dataset):
     """Wraps a dataset of ``Sample`` and yields network-sized samples.
@@ -28,6 +47,15 @@ class YoloDataset(Dataset):
 
     ``cache_mib``: decoded source samples kept in this process, up to that many MiB (first
     come, kept; arrays read-only), e.g. :data:`TRAIN_CACHE_MIB`; 0 = decode every time.
+
+    Mosaic partners: the sample asked for is decoded and joins a buffer of the last
+    ``mosaic_buffer`` decoded samples (capped at the dataset's size and at
+    :data:`MOSAIC_BUFFER_MIB`); its three partners are
+    drawn uniformly from that buffer, so a mosaic costs one decode instead of four (the
+    reference implementation's scheme, :func:`mosaic_buffer_size`). While the buffer is
+    still filling (the first few samples after :meth:`reseed`), partners are drawn from the
+    whole dataset and join the buffer too. :meth:`reseed` empties it, so the samples of an
+    epoch depend only on the seed (resume sees the same batches).
     """
 
     def __init__(
@@ -37,11 +65,16 @@ class YoloDataset(Dataset):
         augment: AugmentConfig | None = None,
         seed: int = 0,
         cache_mib: int = 0,
+        mosaic_buffer: int = 64,
     ) -> None:
         self.base = base
         self.cache_bytes = cache_mib * 2**20
         self._cache: dict[int, Sample] = {}
         self._cached_bytes = 0
+        self.buffer_size = max(1, min(mosaic_buffer, len(base)))
+        self._recent: OrderedDict[int, Sample] = OrderedDict()
+        self._recent_bytes = 0
+        self._buffer_full = False
         self.imgsz = imgsz
         self.augment = augment
         self.seed = seed
@@ -56,6 +89,8 @@ class YoloDataset(Dataset):
         self.rng = np.random.default_rng(seed)
         if self.transform is not None:
             self.transform.set_random_seed(seed)
+        self._recent.clear()
+        self._recent_bytes, self._buffer_full = 0, False
 
     def __len__(self) -> int:
         return len(self.base)
@@ -66,10 +101,9 @@ class YoloDataset(Dataset):
         if hit is not None:
             return hit
         sample = self.base[index]
-        arrays = [sample.image, sample.masks, sample.boxes, sample.classes]
-        size = sum(a.nbytes for a in arrays)
+        size = _nbytes(sample)
         if self._cached_bytes + size <= self.cache_bytes:
-            for a in arrays:
+            for a in (sample.image, sample.masks, sample.boxes, sample.classes):
                 a.flags.writeable = False  # shared by every later use: never modified
             self._cache[index] = sample
             self._cached_bytes += size
@@ -79,15 +113,38 @@ class YoloDataset(Dataset):
         if self.augment is None:
             return self._letterbox(self.base[index])
         if self.mosaic_enabled and self.rng.random() < self.augment.mosaic:
-            others = self.rng.integers(0, len(self.base), 3)
-            sample = mosaic4(
-                [self._source(index), *(self._source(int(i)) for i in others)],
-                self.imgsz,
-                self.rng,
-            )
+            sample = mosaic4(self._mosaic_sources(index), self.imgsz, self.rng)
         else:
             sample = self._source(index)
         return apply_transform(self.transform, sample, self.augment.min_area)
+
+    def _buffered(self, index: int) -> Sample:
+        """``base[index]`` (decoded or cached), now the newest entry of the partner buffer."""
+        sample = self._recent.pop(index, None)
+        if sample is None:
+            sample = self._source(index)
+        else:
+            self._recent_bytes -= _nbytes(sample)
+        for a in (sample.image, sample.masks):
+            a.flags.writeable = False  # a partner of later mosaics: never modified
+        self._recent[index] = sample
+        self._recent_bytes += _nbytes(sample)
+        cap = MOSAIC_BUFFER_MIB * 2**20
+        while len(self._recent) > self.buffer_size or (
+            self._recent_bytes > cap and len(self._recent) > 1
+        ):
+            self._recent_bytes -= _nbytes(self._recent.popitem(last=False)[1])
+            self._buffer_full = True
+        self._buffer_full |= len(self._recent) == self.buffer_size
+        return sample
+
+    def _mosaic_sources(self, index: int) -> list[Sample]:
+        """The sample ``index`` and its three mosaic partners (see the class docstring)."""
+        first = self._buffered(index)
+        if not self._buffer_full:  # filling: partners from the whole dataset
+            return [first, *(self._buffered(int(i)) for i in self.rng.integers(0, len(self), 3))]
+        pool = list(self._recent.values())
+        return [first, *(pool[int(k)] for k in self.rng.integers(0, len(pool), 3))]
 
     def _letterbox(self, sample: Sample) -> Sample:
         h, w = sample.image.shape[:2]

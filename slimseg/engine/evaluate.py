@@ -18,7 +18,7 @@ from torch import nn
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from slimseg.data.collate import make_collate
+from slimseg.data.collate import make_collate, network_input
 from slimseg.data.dataset import YoloDataset
 from slimseg.data.semantic import instances_to_semantic
 from slimseg.errors import SlimsegError
@@ -54,7 +54,7 @@ def semantic_batch(
     at input resolution, painted by ascending confidence
     (:func:`~slimseg.data.semantic.instances_to_semantic`).
     """
-    images = batch["images"].to(_device(model))
+    images = network_input(batch["images"], _device(model))
     t0 = time.perf_counter()
     out = model(images)
     t1 = time.perf_counter()
@@ -119,7 +119,7 @@ def detect_batch(
 
     ``timings`` (optional) accumulates ``inference`` and ``postprocess`` seconds.
     """
-    images = batch["images"].to(_device(model))
+    images = network_input(batch["images"], _device(model))
     t0 = time.perf_counter()
     out = model(images)
     t1 = time.perf_counter()

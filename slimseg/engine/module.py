@@ -10,6 +10,7 @@ import torch.distributed as dist
 from lightning.pytorch.loggers import TensorBoardLogger
 from torch import nn
 
+from slimseg.data.collate import network_input
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.criterion import build_criterion
 from slimseg.engine.ema import ModelEMA
@@ -116,7 +117,7 @@ class DetectorModule(L.LightningModule):
                     group["momentum"] = momentum
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        loss, terms = self.criterion(self.model(batch["images"]), batch)
+        loss, terms = self.criterion(self.model(network_input(batch["images"])), batch)
         if not torch.isfinite(loss):
             raise NonFiniteLossError(
                 f"loss became {loss.item()} at epoch {self.current_epoch} step {self.global_step} "

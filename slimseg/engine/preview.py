@@ -7,7 +7,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from slimseg.data.collate import make_collate
+from slimseg.data.collate import make_collate, network_input
 from slimseg.data.dataset import YoloDataset
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample, tile
@@ -53,7 +53,7 @@ def _panels(
     out = []
     if is_semantic(model):
         with torch.no_grad():
-            logits = model(batch["images"].to(next(model.parameters()).device)).cpu()
+            logits = model(network_input(batch["images"], next(model.parameters()).device)).cpu()
         for i, meta in enumerate(batch["meta"]):
             source = dataset.base[i].image
             class_map = logits_to_frame(logits[i], meta["letterbox"], source.shape[:2])
