@@ -208,7 +208,7 @@ def compare_postprocess(
         if n >= images:
             break
         with torch.no_grad():
-            pred, proto = net(b["images"])
+            pred, proto = net(network_input(b["images"]))
             dets = non_max_suppression(pred, net.num_classes, tcfg.conf, tcfg.iou, tcfg.max_det)
             for d, pr, meta in zip(dets, proto, b["meta"], strict=True):
                 t0 = time.perf_counter()

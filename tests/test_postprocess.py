@@ -16,7 +16,7 @@ from slimseg.eval.postprocess import (
     encode_rle,
     to_frame_detections,
 )
-from slimseg.ops.masks import assemble_masks, masks_to_frame
+from slimseg.ops.masks import assemble_masks, mask_windows, masks_to_frame, window_to_frame
 from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
 
 
@@ -215,6 +215,60 @@ def test_assemble_box_local_equals_full_frame_reference(proto_crop: bool) -> Non
     assert not probs[1].any() and probs[0].min() > 0
     masks = assemble_masks(coeffs, proto, boxes, (80, 96), chunk=5, proto_crop=proto_crop)
     assert torch.equal(masks, probs > 0.5)
+
+
+@pytest.mark.parametrize("ratio", [1, 2, 4, 3])
+def test_assemble_power_of_two_ratios_equal_full_frame_interpolation_bit_for_bit(
+    ratio: int,
+) -> None:
+    """Power-of-two ratios crop + F.interpolate per window: the very pixels of upsampling the
+    whole map; other ratios take the gather path (equal up to float rounding)."""
+    g = torch.Generator().manual_seed(5)
+    hp, wp = 12, 20
+    h, w = ratio * hp, ratio * wp
+    proto = torch.randn(6, hp, wp, generator=g) * 2
+    n = 70
+    xy = torch.rand(n, 2, generator=g) * torch.tensor([w + 8.0, h + 8.0]) - 8
+    boxes = torch.cat([xy, xy + torch.rand(n, 2, generator=g) * torch.tensor([w, h])], 1)
+    boxes[0] = torch.tensor([0.0, 0.0, w, h])
+    boxes[1] = torch.tensor([w - 3.0, h - 2.0, w + 9.0, h + 9.0])  # at the bottom-right border
+    coeffs = torch.randn(n, 6, generator=g)
+    probs = assemble_masks(coeffs, proto, boxes, (h, w), None, chunk=16)
+    full = (coeffs @ proto.view(6, -1)).sigmoid().view(n, 1, hp, wp)
+    full = F.interpolate(full, size=(h, w), mode="bilinear", align_corners=False)[:, 0]
+    cy, cx = torch.arange(h) + 0.5, torch.arange(w) + 0.5
+    b = boxes[:, :, None]
+    inside = ((cy >= b[:, 1]) & (cy < b[:, 3]))[:, :, None] & ((cx >= b[:, 0]) & (cx < b[:, 2]))[
+        :, None, :
+    ]
+    if ratio == 3:
+        torch.testing.assert_close(probs, full * inside, atol=2e-6, rtol=0)
+    else:
+        assert torch.equal(probs, full * inside)
+        assert torch.equal(
+            assemble_masks(coeffs, proto, boxes, (h, w), chunk=16), (full > 0.5) & inside
+        )
+
+
+@pytest.mark.parametrize("frame_hw", [(45, 71), (150, 260), (20, 33), (64, 40), (64, 64)])
+def test_window_to_frame_equals_the_dense_path(frame_hw: tuple[int, int]) -> None:
+    g = torch.Generator().manual_seed(6)
+    proto = torch.randn(4, 16, 16, generator=g) * 3
+    n = 40
+    xy = torch.rand(n, 2, generator=g) * 70 - 6
+    boxes = torch.cat([xy, xy + torch.rand(n, 2, generator=g) * 50], 1)
+    boxes[0] = torch.tensor([0.0, 0.0, 64.0, 64.0])
+    coeffs = torch.randn(n, 4, generator=g)
+    p = letterbox_params(*frame_hw, 64)
+    dense = masks_to_frame(assemble_masks(coeffs, proto, boxes, (64, 64), None), p, frame_hw)
+    got = torch.zeros_like(dense)
+    for k, probs, top, left in mask_windows(coeffs, proto, boxes, (64, 64), None, chunk=9):
+        values, top_f, left_f = window_to_frame(probs, top, left, p, frame_hw, boxes[k])
+        for d, i in enumerate(k.tolist()):  # windows lie inside the frame
+            rows = top_f[d] + torch.arange(values.shape[1])
+            cols = left_f[d] + torch.arange(values.shape[2])
+            got[i, rows[:, None], cols[None, :]] = values[d]
+    assert dense[0].any() and torch.equal(got, dense)
 
 
 def test_masks_to_frame_inverts_the_letterbox_exactly() -> None:

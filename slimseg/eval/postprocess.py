@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from pycocotools import mask as mask_utils
 
 from slimseg.data.letterbox import LetterboxParams, boxes_to_frame
-from slimseg.ops.masks import assemble_masks, frame_windows, mask_windows, masks_to_frame
+from slimseg.ops.masks import assemble_masks, mask_windows, masks_to_frame, window_to_frame
 from slimseg.ops.nms import Detections
 from slimseg.ops.rle import window_rles
 
@@ -188,23 +188,21 @@ def _frame_rles(
     idx = within_class_limit(dets.classes, mask_limit).nonzero().squeeze(1)
     coeffs, boxes = dets.coeffs.detach()[idx], dets.boxes.detach()[idx]
     if (p.new_h, p.new_w) == (h, w):  # no resize: input-resolution windows, minus the padding
+        # a box clipped to the frame's part of the input crops the same frame pixels, and
+        # leaves every window pixel in the padding False (as window_rles needs)
+        lo = torch.tensor([p.left, p.top, p.left, p.top], device=boxes.device)
+        boxes = torch.minimum(torch.maximum(boxes.float(), lo), lo + torch.tensor([w, h, w, h]))
         for k, values, top, left in mask_windows(coeffs, proto, boxes, (p.out_h, p.out_w)):
             top, left = top - p.top, left - p.left  # frame pixels
-            rows = top[:, None] + torch.arange(values.shape[1], device=top.device)
-            cols = left[:, None] + torch.arange(values.shape[2], device=left.device)
-            in_frame = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None]
-            encoded = window_rles(values & in_frame, top, left, (h, w))
+            encoded = window_rles(values, top, left, (h, w))
             for i, r in zip(idx[k].tolist(), encoded, strict=True):
                 rles[i] = r
         return rles
-    for s in range(0, len(idx), chunk):
-        at_input = assemble_masks(
-            coeffs[s : s + chunk], proto, boxes[s : s + chunk], (p.out_h, p.out_w), None, chunk
-        )
-        for k, values, top, left in frame_windows(at_input, p, (h, w), boxes[s : s + chunk]):
-            encoded = window_rles(values, top, left, (h, w))
-            for i, r in zip(idx[s + k].tolist(), encoded, strict=True):
-                rles[i] = r
+    hw_in = (p.out_h, p.out_w)
+    for k, probs, top, left in mask_windows(coeffs, proto, boxes, hw_in, None, chunk):
+        values, top, left = window_to_frame(probs, top, left, p, (h, w), boxes[k])
+        for i, r in zip(idx[k].tolist(), window_rles(values, top, left, (h, w)), strict=True):
+            rles[i] = r
     return rles
 
 

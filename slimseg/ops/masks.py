@@ -88,9 +88,15 @@ def _resize_window(
     span_y: tuple[torch.Tensor, torch.Tensor],
     out_hw: tuple[int, int],
     threshold: float | None,
+    src_hw: tuple[int, int] | None = None,
+    origin: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Bilinear resize (half-pixel centres) of ``src [m, Hs, Ws]`` to ``out_hw``, computed only
     on a window around each detection's output span ``(first [m], count [m])`` per axis.
+
+    Window-local source: with ``src_hw`` (the size of the map being resized) and ``origin``
+    (row ``[m]``, column ``[m]`` of ``src[d, 1, 1]`` in that map), ``src`` holds only a window
+    of each map with a border of one zero pixel, the map being 0 outside it.
 
     Returns ``values [m, sy, sx]`` (``bool`` thresholded at ``threshold``, or float when it is
     ``None``; 0 on window pixels outside the spans) and the window's top row and left column
@@ -98,9 +104,14 @@ def _resize_window(
     ``(top[d] + i, left[d] + j)``, always inside ``out_hw``."""
     h, w = out_hw
     m, hs, ws = src.shape
+    map_h, map_w = (hs, ws) if src_hw is None else src_hw
     sx, sy = int(span_x[1].max()), int(span_y[1].max())
-    _, vx, ix0, ix1, lx = _bilinear_taps(*span_x, sx, w, ws)
-    _, vy, iy0, iy1, ly = _bilinear_taps(*span_y, sy, h, hs)
+    _, vx, ix0, ix1, lx = _bilinear_taps(*span_x, sx, w, map_w)
+    _, vy, iy0, iy1, ly = _bilinear_taps(*span_y, sy, h, map_h)
+    if origin is not None:  # map taps -> the local window; outside it -> its zero border
+        oy, ox = origin[0][:, None] - 1, origin[1][:, None] - 1
+        ix0, ix1 = ((ix0 - ox).clamp(0, ws - 1), (ix1 - ox).clamp(0, ws - 1))
+        iy0, iy1 = ((iy0 - oy).clamp(0, hs - 1), (iy1 - oy).clamp(0, hs - 1))
     # x first, then y (the order of torch's and OpenCV's bilinear kernels).
     g0 = torch.gather(src, 2, ix0[:, None, :].expand(m, hs, sx))
     g1 = torch.gather(src, 2, ix1[:, None, :].expand(m, hs, sx))
@@ -114,6 +125,64 @@ def _resize_window(
     top = torch.minimum(span_y[0], torch.full_like(span_y[0], h - sy))
     left = torch.minimum(span_x[0], torch.full_like(span_x[0], w - sx))
     return values, top, left
+
+
+def _integer_ratio(size_out: int, size_in: int) -> int | None:
+    """``size_out / size_in`` when it is a power of two (1, 2, 4, ...), else ``None``: then
+    every bilinear weight is a multiple of ``1 / (2 · ratio)``, exact in float32."""
+    r, rem = divmod(size_out, size_in)
+    return r if rem == 0 and r & (r - 1) == 0 else None
+
+
+def _source_span(
+    first: torch.Tensor, count: torch.Tensor, ratio: int, size_in: int
+) -> tuple[torch.Tensor, int]:
+    """Along one axis, the first source pixel ``[N]`` and the length (chunk maximum) of a
+    source window whose ``ratio``-fold bilinear upsampling covers each detection's output
+    pixels ``first .. first+count-1`` with every tap it needs: one source pixel of margin
+    before (so the crop's own border clamp never reaches them) and the second tap of the last
+    pixel after; shifted left where it would leave ``0..size_in-1``."""
+    # source position of output pixel o: (o + 0.5) / r - 0.5 = (2o + 1 - r) / 2r
+    last = first + count - 1
+    i0_last = torch.div(2 * last + 1 - ratio, 2 * ratio, rounding_mode="floor").clamp(min=0)
+    start = (torch.div(first, ratio, rounding_mode="floor") - 1).clamp(min=0)
+    end = (i0_last + 2).clamp(max=size_in)
+    need = torch.where(count > 0, end - start, torch.ones_like(start))
+    span = int(need.max())
+    return torch.minimum(start, torch.full_like(start, size_in - span)).clamp(min=0), span
+
+
+def _upsample_window(
+    src: torch.Tensor,
+    span_x: tuple[torch.Tensor, torch.Tensor],
+    span_y: tuple[torch.Tensor, torch.Tensor],
+    ratio: int,
+    threshold: float | None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_resize_window` for an exact power-of-two upsampling ``ratio`` (output =
+    ``ratio`` × the size of ``src [m, Hs, Ws]``): each detection's source window is cropped and
+    upsampled by ``F.interpolate`` (bilinear, half-pixel centres). Its weights are multiples
+    of ``1 / (2 · ratio)`` whatever the crop's offset, so the pixels equal those of upsampling
+    the whole map, bit for bit. Same returns as :func:`_resize_window` (windows of
+    ``ratio`` × the source window)."""
+    m, hs, ws = src.shape
+    x0, lx = _source_span(*span_x, ratio, ws)
+    y0, ly = _source_span(*span_y, ratio, hs)
+    rows = y0[:, None] + torch.arange(ly, device=src.device)
+    cols = x0[:, None] + torch.arange(lx, device=src.device)
+    flat = (rows[:, :, None] * ws + cols[:, None, :]).view(m, ly * lx)
+    crop = torch.gather(src.reshape(m, hs * ws), 1, flat).view(m, ly, lx)
+    up = F.interpolate(crop[:, None], size=(ratio * ly, ratio * lx), mode="bilinear")[:, 0]
+    top, left = ratio * y0, ratio * x0
+    oy = top[:, None] + torch.arange(ratio * ly, device=src.device)
+    ox = left[:, None] + torch.arange(ratio * lx, device=src.device)
+    in_y = (oy >= span_y[0][:, None]) & (oy < (span_y[0] + span_y[1])[:, None])
+    in_x = (ox >= span_x[0][:, None]) & (ox < (span_x[0] + span_x[1])[:, None])
+    if threshold is None:
+        return up.mul_(in_y[:, :, None]).mul_(in_x[:, None, :]), top, left
+    values = (up > threshold).view(torch.uint8)  # uint8 products: faster than bool ands
+    values.mul_(in_y.view(torch.uint8)[:, :, None]).mul_(in_x.view(torch.uint8)[:, None, :])
+    return values.view(torch.bool), top, left
 
 
 def _scatter_windows(
@@ -165,13 +234,20 @@ def mask_windows(
     y0, ny = _pixel_span(b[:, 1], b[:, 3], h)
     order = (nx * ny).argsort(descending=True)
     to_proto = torch.tensor([wp / w, hp / h, wp / w, hp / h], device=b.device)
+    ratio = _integer_ratio(h, hp)
+    if ratio != _integer_ratio(w, wp):
+        ratio = None
     for s in range(0, n, chunk):
         k = order[s : s + chunk]
         m = k.numel()
         prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
         if proto_crop:
             prob = prob * _proto_window(b[k] * to_proto, hp, wp)
-        values, top, left = _resize_window(prob, (x0[k], nx[k]), (y0[k], ny[k]), (h, w), threshold)
+        spans = (x0[k], nx[k]), (y0[k], ny[k])
+        if ratio is None:
+            values, top, left = _resize_window(prob, *spans, (h, w), threshold)
+        else:
+            values, top, left = _upsample_window(prob, *spans, ratio, threshold)
         yield k, values, top, left
 
 
@@ -249,6 +325,50 @@ def masks_to_frame(
     return out.view(n, h, w)
 
 
+def _frame_spans(
+    boxes: torch.Tensor, p: LetterboxParams, orig_hw: tuple[int, int]
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Per axis (x, then y), the first frame pixel and pixel count ``[N]`` whose bilinear
+    taps can reach a non-zero content pixel of each box's input-resolution mask."""
+    h, w = orig_hw
+    b = boxes.detach().float()
+    spans = []
+    for lo, hi, size, offset, new, dst in (
+        (b[:, 0], b[:, 2], p.out_w, p.left, p.new_w, w),
+        (b[:, 1], b[:, 3], p.out_h, p.top, p.new_h, h),
+    ):
+        # Content pixels [c0, c1) that can be non-zero; frame pixels whose taps reach them,
+        # u = (x + 0.5) · new / dst − 0.5 in [c0 − 1, c1), plus one pixel of margin.
+        first, count = _pixel_span(lo, hi, size)
+        c0 = (first - offset).clamp(0, new).float()
+        c1 = (first + count - offset).clamp(0, new).float()
+        f0 = (torch.ceil((c0 - 0.5) * (dst / new) - 0.5) - 1).clamp(0, dst)
+        f1 = (torch.ceil((c1 + 0.5) * (dst / new) - 0.5) + 1).clamp(0, dst)
+        f1 = torch.where(c1 > c0, f1, f0)
+        spans.append((f0.long(), (f1 - f0).long()))
+    return spans
+
+
+def window_to_frame(
+    values: torch.Tensor,
+    top: torch.Tensor,
+    left: torch.Tensor,
+    p: LetterboxParams,
+    orig_hw: tuple[int, int],
+    boxes: torch.Tensor,
+    threshold: float = 0.5,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`frame_windows` of masks given as input-resolution windows (what
+    :func:`mask_windows` yields with ``threshold=None``: ``values float [m, sy, sx]``, 0 outside
+    each detection's box, at ``(top, left) [m]`` in input pixels; ``boxes [m, 4]`` xyxy input
+    pixels): ``(values bool [m, fy, fx], top [m], left [m])`` in frame pixels, the same pixels
+    as the dense path, without ever building an input-size map."""
+    local = F.pad(values.float(), (1, 1, 1, 1))  # the zero border _resize_window reads
+    (fx, nx), (fy, ny) = _frame_spans(boxes, p, orig_hw)
+    origin = (top - p.top, left - p.left)  # window origin in content pixels
+    return _resize_window(local, (fx, nx), (fy, ny), orig_hw, threshold, (p.new_h, p.new_w), origin)
+
+
 def frame_windows(
     masks: torch.Tensor,
     p: LetterboxParams,
@@ -267,22 +387,7 @@ def frame_windows(
         return
     h, w = orig_hw
     content = masks[:, p.top : p.top + p.new_h, p.left : p.left + p.new_w]
-    b = boxes.detach().float()
-    spans = []
-    for lo, hi, size, offset, new, dst in (
-        (b[:, 0], b[:, 2], p.out_w, p.left, p.new_w, w),
-        (b[:, 1], b[:, 3], p.out_h, p.top, p.new_h, h),
-    ):
-        # Content pixels [c0, c1) that can be non-zero; frame pixels whose taps reach them,
-        # u = (x + 0.5) · new / dst − 0.5 in [c0 − 1, c1), plus one pixel of margin.
-        first, count = _pixel_span(lo, hi, size)
-        c0 = (first - offset).clamp(0, new).float()
-        c1 = (first + count - offset).clamp(0, new).float()
-        f0 = (torch.ceil((c0 - 0.5) * (dst / new) - 0.5) - 1).clamp(0, dst)
-        f1 = (torch.ceil((c1 + 0.5) * (dst / new) - 0.5) + 1).clamp(0, dst)
-        f1 = torch.where(c1 > c0, f1, f0)
-        spans.append((f0.long(), (f1 - f0).long()))
-    (fx, nx), (fy, ny) = spans
+    (fx, nx), (fy, ny) = _frame_spans(boxes, p, orig_hw)
     order = (nx * ny).argsort(descending=True)
     for s in range(0, n, chunk):
         k = order[s : s + chunk]
