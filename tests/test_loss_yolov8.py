@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from slimseg.data.collate import network_input
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
 from slimseg.data.synth import generate
@@ -18,7 +19,9 @@ def batch(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, int]:
     cfg = load_data_config(generate(out, 8, 2, 160, seed=11, progress=False).data_yaml)
     dm = SegDataModule(cfg, imgsz=160, batch_size=8, workers=0, seed=0)
     dm.setup("fit")
-    return next(iter(dm.train_dataloader())), len(cfg.names)
+    batch = next(iter(dm.train_dataloader()))
+    batch["images"] = network_input(batch["images"])
+    return batch, len(cfg.names)
 
 
 def test_pad_targets() -> None:

@@ -49,10 +49,10 @@ class YoloDataset(Dataset):
     come, kept; arrays read-only), e.g. :data:`TRAIN_CACHE_MIB`; 0 = decode every time.
 
     Mosaic partners: the sample asked for is decoded and joins a buffer of the last
-    ``mosaic_buffer`` decoded samples (capped at the dataset's size and at
-    :data:`MOSAIC_BUFFER_MIB`); its three partners are
-    drawn uniformly from that buffer, so a mosaic costs one decode instead of four (the
-    reference implementation's scheme, :func:`mosaic_buffer_size`). While the buffer is
+    ``mosaic_buffer`` decoded samples (default ``mosaic_buffer_size(8)``; capped at the
+    dataset's size and at :data:`MOSAIC_BUFFER_MIB`); its three partners are drawn uniformly
+    from that buffer, so a mosaic costs one decode instead of four (the reference
+    implementation's scheme, :func:`mosaic_buffer_size`). While the buffer is
     still filling (the first few samples after :meth:`reseed`), partners are drawn from the
     whole dataset and join the buffer too. :meth:`reseed` empties it, so the samples of an
     epoch depend only on the seed (resume sees the same batches).
@@ -65,7 +65,7 @@ class YoloDataset(Dataset):
         augment: AugmentConfig | None = None,
         seed: int = 0,
         cache_mib: int = 0,
-        mosaic_buffer: int = 64,
+        mosaic_buffer: int = MOSAIC_BUFFER_BATCHES * 8,
     ) -> None:
         self.base = base
         self.cache_bytes = cache_mib * 2**20

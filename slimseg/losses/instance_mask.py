@@ -80,13 +80,16 @@ class InstanceMaskLoss:
         )
         per_image = self._on_grid if self.spec.resolution == "proto" else self._upsampled
         total = proto.new_zeros(())
+        # unbind once: indexing proto[i] per image would make every backward step allocate and
+        # zero-fill a gradient the size of the whole batch's prototypes
+        protos, coeff_rows = proto.unbind(0), coeffs.unbind(0)
         for i in range(proto.shape[0]):  # per image: the fg anchors of one image
             sel = assigned.fg[i]
             if not sel.any():
                 continue
             gt_rows = rows[i].gather(0, assigned.gt_index[i][sel])  # [n] rows of ``masks``
             boxes = assigned.boxes[i][sel] * scale  # target pixels
-            total = total + per_image(proto[i], coeffs[i][sel], gt_all, thin, gt_rows, boxes)
+            total = total + per_image(protos[i], coeff_rows[i][sel], gt_all, thin, gt_rows, boxes)
         return total / assigned.fg.sum()
 
     def _terms(
