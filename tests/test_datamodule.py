@@ -52,3 +52,30 @@ def test_data_show_writes_a_grid(synth_yaml: Path, tmp_path: Path) -> None:
     assert main([*argv, "--columns", "3", "--out", str(out)]) == 0
     img = cv2.imread(str(out))
     assert img.shape == (2 * 96 + 2, 3 * 96 + 4, 3)
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_persistent_workers_follow_the_epoch_and_the_mosaic_switch(
+    synth_yaml: Path, workers: int
+) -> None:
+    def loader() -> torch.utils.data.DataLoader:
+        dm = SegDataModule(load_data_config(synth_yaml), 96, 3, workers, seed=2, mosaic_epochs=1)
+        dm.setup("fit")
+        return dm.train_dataloader()
+
+    dl = loader()
+    assert dl.persistent_workers == (workers > 0)
+    epoch0 = list(dl)
+    assert all("mosaic" in m for b in epoch0 for m in b["meta"])
+    dl.sampler.set_epoch(1)
+    epoch1 = list(dl)  # the same worker processes when persistent; mosaic closed
+    assert not any("mosaic" in m for b in epoch1 for m in b["meta"])
+    # a fresh loader started at epoch 1 (a resumed run) sees the very same batches
+    dl2 = loader()
+    dl2.sampler.set_epoch(1)
+    for a, b in zip(epoch1, list(dl2), strict=True):
+        assert torch.equal(a["images"], b["images"]) and torch.equal(a["targets"], b["targets"])
+    # and epoch 0 again gives epoch 0's batches (the augmentation is re-seeded per epoch)
+    dl2.sampler.set_epoch(0)
+    for a, b in zip(epoch0, list(dl2), strict=True):
+        assert torch.equal(a["images"], b["images"]) and torch.equal(a["targets"], b["targets"])

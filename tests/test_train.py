@@ -131,7 +131,9 @@ class _Killed(RuntimeError):
 def test_killed_and_resumed_run_ends_where_an_uninterrupted_run_does(
     data_yaml: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    cfg = TINY.override(epochs=2)
+    # two persistent loader workers, mosaic closed for the second epoch: the epoch's seed and
+    # the mosaic switch must reach the workers of both runs alike
+    cfg = TINY.override(epochs=2, workers=2, close_mosaic=1)
     _, straight = train(
         "yolov8n-seg", data_yaml, cfg, tmp_path / "a", accelerator="cpu", progress=False
     )

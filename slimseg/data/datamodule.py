@@ -6,54 +6,62 @@ from collections.abc import Iterator
 
 import lightning as L
 import torch
-from torch.utils.data import DataLoader, Sampler, get_worker_info
+from torch.utils.data import DataLoader, Sampler
 
 from slimseg.data.augment import AugmentConfig
 from slimseg.data.coco import CocoDataset
 from slimseg.data.collate import make_collate
 from slimseg.data.config import DataConfig
-from slimseg.data.dataset import TRAIN_CACHE_MIB, YoloDataset, mosaic_buffer_size
+from slimseg.data.dataset import TRAIN_CACHE_MIB, EpochIndex, YoloDataset, mosaic_buffer_size
 
 
-class EpochSampler(Sampler[int]):
-    """Shuffles with ``seed + epoch`` and re-seeds the dataset's augmentation per epoch.
+class EpochSampler(Sampler[EpochIndex]):
+    """Shuffles with ``seed + epoch``; each index carries the epoch and its mosaic switch.
 
-    Lightning calls ``set_epoch`` before each training epoch, so the order and the augmentation
-    of epoch ``e`` depend only on ``(seed, e)``: a resumed run sees the same batches as an
-    uninterrupted one. ``generator`` is the DataLoader's (worker seeds are drawn from it); it is
-    re-seeded per epoch too.
+    Lightning calls ``set_epoch`` before each training epoch; the dataset re-seeds its
+    augmentation from ``(seed, epoch, loader worker)`` when the first index of an epoch reaches
+    it (:class:`~slimseg.data.dataset.EpochIndex`), in whichever process loads it. So the
+    order and the augmentation of epoch ``e`` depend only on ``(seed, e)`` and the worker
+    count, a resumed run sees the same batches as an uninterrupted one, and persistent loader
+    workers (which never see the main process' dataset again) follow the epoch and the
+    mosaic switch, on for the first ``mosaic_epochs`` epochs (``None``: all). ``generator`` is
+    the DataLoader's; it is re-seeded per epoch too.
     """
 
-    def __init__(self, dataset: YoloDataset, seed: int, generator: torch.Generator) -> None:
+    def __init__(
+        self,
+        dataset: YoloDataset,
+        seed: int,
+        generator: torch.Generator,
+        mosaic_epochs: int | None = None,
+    ) -> None:
         self.dataset, self.seed, self.generator = dataset, seed, generator
+        self.mosaic_epochs = mosaic_epochs
         self.set_epoch(0)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
         self.generator.manual_seed(self.seed + epoch)
-        self.dataset.reseed(self.seed * 1_000_003 + epoch)
 
     def __len__(self) -> int:
         return len(self.dataset)
 
-    def __iter__(self) -> Iterator[int]:
+    def __iter__(self) -> Iterator[EpochIndex]:
         # a private generator: the order must not depend on who else drew from the shared one
         order = torch.Generator().manual_seed(self.seed * 7919 + self.epoch)
-        return iter(torch.randperm(len(self.dataset), generator=order).tolist())
-
-
-def _seed_worker(_worker_id: int) -> None:
-    """Each worker re-seeds its augmentation from torch's per-worker, per-epoch seed."""
-    info = get_worker_info()
-    if info is not None and isinstance(info.dataset, YoloDataset):
-        info.dataset.reseed(torch.initial_seed() % 2**32)
+        mosaic = self.mosaic_epochs is None or self.epoch < self.mosaic_epochs
+        for i in torch.randperm(len(self.dataset), generator=order).tolist():
+            yield EpochIndex(i, self.epoch, mosaic)
 
 
 class SegDataModule(L.LightningDataModule):
     """Train/val loaders for a dataset config (see ``slimseg.data.config``).
 
-    Batches are dicts from ``slimseg.data.collate.make_collate``. Workers are re-created every
-    epoch (not persistent) so the trainer's ``mosaic_enabled`` switch reaches them.
+    Batches are dicts from ``slimseg.data.collate.make_collate``. Loader workers are
+    persistent (started once per fit, their decoded-sample caches kept across epochs): the
+    epoch's seed and mosaic switch reach them with each index (:class:`EpochSampler`).
+    ``mosaic_epochs``: epochs that use mosaic, from the first (``None``: all; training passes
+    ``epochs - close_mosaic``).
     """
 
     def __init__(
@@ -66,8 +74,10 @@ class SegDataModule(L.LightningDataModule):
         seed: int = 0,
         mask_ratio: int = 4,
         semantic: bool = False,
+        mosaic_epochs: int | None = None,
     ) -> None:
         super().__init__()
+        self.mosaic_epochs = mosaic_epochs
         self.data = data
         self.imgsz, self.batch_size, self.workers = imgsz, batch_size, workers
         self.augment = augment or AugmentConfig()
@@ -96,14 +106,26 @@ class SegDataModule(L.LightningDataModule):
 
     def _loader(self, dataset: YoloDataset, shuffle: bool) -> DataLoader:
         generator = torch.Generator().manual_seed(self.seed)
+        sampler = None
+        if shuffle:
+            sampler = EpochSampler(dataset, self.seed, generator, self.mosaic_epochs)
+            # Lightning creates the first epoch's iterator (whose workers fetch ahead) before
+            # it calls set_epoch: start at the trainer's epoch, or a resumed run would load
+            # epoch 0's batches for its first epoch
+            trainer = self.trainer
+            # (the epoch Lightning itself passes to set_epoch: a run resumed from an end-of-epoch
+            # checkpoint has processed that epoch, though not yet completed it)
+            sampler.set_epoch(
+                0 if trainer is None else trainer.fit_loop.epoch_progress.current.processed
+            )
         return DataLoader(
             dataset,
             batch_size=self.batch_size,
-            sampler=EpochSampler(dataset, self.seed, generator) if shuffle else None,
+            sampler=sampler,
             num_workers=self.workers,
             collate_fn=make_collate(self.mask_ratio, self.semantic),
             pin_memory=torch.cuda.is_available(),
-            worker_init_fn=_seed_worker,
+            persistent_workers=self.workers > 0,
             generator=generator,
         )
 

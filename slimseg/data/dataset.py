@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
-from torch.utils.data import Dataset
+from torch.utils.data import Dataset, get_worker_info
 
 from slimseg.data.augment import AugmentConfig, apply_transform, build_transform, masks_to_boxes
 from slimseg.data.letterbox import letterbox_image, letterbox_mask, letterbox_params
@@ -33,6 +34,15 @@ def mosaic_buffer_size(batch: int) -> int:
     return min(MOSAIC_BUFFER_BATCHES * max(batch, 1), MOSAIC_BUFFER_MAX)
 
 
+class EpochIndex(NamedTuple):
+    """A training-sample request that carries its epoch's state to whichever process loads it
+    (a persistent loader worker never sees the main process' dataset object again)."""
+
+    index: int
+    epoch: int
+    mosaic: bool  # whether this epoch uses mosaic (off for the closing epochs)
+
+
 def _nbytes(sample: Sample) -> int:
     return sum(a.nbytes for a in (sample.image, sample.masks, sample.boxes, sample.classes))
 
@@ -56,6 +66,11 @@ class YoloDataset(Dataset):
     still filling (the first few samples after :meth:`reseed`), partners are drawn from the
     whole dataset and join the buffer too. :meth:`reseed` empties it, so the samples of an
     epoch depend only on the seed (resume sees the same batches).
+
+    Indices may be :class:`EpochIndex` (what the training sampler yields): the first one of a
+    new epoch re-seeds the process that loads it with :meth:`epoch_seed` (seed, epoch, loader
+    worker), and each says whether its epoch uses mosaic (``mosaic_enabled`` and it must both
+    be true), so persistent workers follow both.
     """
 
     def __init__(
@@ -75,6 +90,7 @@ class YoloDataset(Dataset):
         self._recent: OrderedDict[int, Sample] = OrderedDict()
         self._recent_bytes = 0
         self._buffer_full = False
+        self._epoch: int | None = None  # the epoch of the last EpochIndex request
         self.imgsz = imgsz
         self.augment = augment
         self.seed = seed
@@ -83,6 +99,10 @@ class YoloDataset(Dataset):
         self.rng = np.random.default_rng(seed)
         if self.transform is not None:
             self.transform.set_random_seed(seed)
+
+    def epoch_seed(self, epoch: int, worker: int) -> int:
+        """The augmentation seed of ``epoch`` in loader worker ``worker`` (0: main process)."""
+        return int(np.random.SeedSequence([self.seed, epoch, worker]).generate_state(1)[0])
 
     def reseed(self, seed: int) -> None:
         """Re-seed augmentation (called per worker and per epoch for reproducibility)."""
@@ -109,10 +129,18 @@ class YoloDataset(Dataset):
             self._cached_bytes += size
         return sample
 
-    def __getitem__(self, index: int) -> Sample:
+    def __getitem__(self, index: int | EpochIndex) -> Sample:
+        if isinstance(index, EpochIndex):  # the first request of an epoch re-seeds this process
+            if index.epoch != self._epoch:
+                worker = get_worker_info()
+                self.reseed(self.epoch_seed(index.epoch, 0 if worker is None else worker.id))
+                self._epoch = index.epoch
+            mosaic, index = self.mosaic_enabled and index.mosaic, index.index
+        else:
+            mosaic = self.mosaic_enabled
         if self.augment is None:
             return self._letterbox(self.base[index])
-        if self.mosaic_enabled and self.rng.random() < self.augment.mosaic:
+        if mosaic and self.rng.random() < self.augment.mosaic:
             sample = mosaic4(self._mosaic_sources(index), self.imgsz, self.rng)
         else:
             sample = self._source(index)

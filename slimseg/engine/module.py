@@ -96,12 +96,6 @@ class DetectorModule(L.LightningModule):
         if self.ema is not None:
             self.ema.module.to(self.device)
 
-    def on_train_epoch_start(self) -> None:
-        dm = self.trainer.datamodule
-        if dm is not None and getattr(dm, "train_set", None) is not None:
-            closing = self.current_epoch >= self.cfg.epochs - self.cfg.close_mosaic
-            dm.train_set.mosaic_enabled = dm.train_set.mosaic_enabled and not closing
-
     def on_train_batch_start(self, batch: dict, batch_idx: int) -> None:
         nb = max(self.trainer.num_training_batches, 1)
         step = self.global_step

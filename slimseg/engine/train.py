@@ -263,6 +263,7 @@ def _train(
         cfg.seed,
         mask_ratio=target_mask_ratio(spec),
         semantic=module.semantic,
+        mosaic_epochs=cfg.epochs - cfg.close_mosaic,
     )
     if _is_launcher_process():
         os.environ[RUN_DIR_ENV] = str(out)  # DDP child ranks inherit the folder chosen here
