@@ -141,7 +141,7 @@ class YoloDataset(Dataset):
         if self.augment is None:
             return self._letterbox(self.base[index])
         if mosaic and self.rng.random() < self.augment.mosaic:
-            sample = mosaic4(self._mosaic_sources(index), self.imgsz, self.rng)
+            sample = mosaic4(self.mosaic_sources(index), self.imgsz, self.rng)
         else:
             sample = self._source(index)
         return apply_transform(self.transform, sample, self.augment.min_area)
@@ -166,8 +166,9 @@ class YoloDataset(Dataset):
         self._buffer_full |= len(self._recent) == self.buffer_size
         return sample
 
-    def _mosaic_sources(self, index: int) -> list[Sample]:
-        """The sample ``index`` and its three mosaic partners (see the class docstring)."""
+    def mosaic_sources(self, index: int) -> list[Sample]:
+        """The decoded sample ``index`` and its three mosaic partners, the inputs of one
+        mosaic (see the class docstring); draws from this dataset's generator."""
         first = self._buffered(index)
         if not self._buffer_full:  # filling: partners from the whole dataset
             return [first, *(self._buffered(int(i)) for i in self.rng.integers(0, len(self), 3))]
