@@ -113,63 +113,45 @@ def main() -> None:
             rates: dict[str, list[float]] = {"reference": [], "slimseg": []}
             loader: dict[str, list[float]] = {"reference": [], "slimseg": []}
             for r in range(args.rounds):
-                if args.loader_only:
+                if not args.loader_only:
                     if ref is not None:
-                        loader["reference"].append(
-                            reference_impl.loader_rate(
-                                ref,
-                                ref_data,
-                                imgsz,
-                                args.batch,
-                                mosaic_buffer_size(args.batch),
-                                args.loader_images,
-                            )
+                        clock = reference_impl.train_epoch(
+                            ref,
+                            ref_data,
+                            args.model,
+                            imgsz,
+                            args.batch,
+                            args.threads,
+                            args.warmup,
+                            root / "ref-runs",
                         )
-                    loader["slimseg"].append(
-                        slimseg_loader_rate(data, imgsz, args.batch, args.loader_images)
-                    )
-                    continue
-                if ref is not None:
-                    clock = reference_impl.train_epoch(
-                        ref,
-                        ref_data,
+                        rates["reference"].append(clock.images_per_s())
+                        torch.set_num_threads(args.threads)
+                    clock = slimseg_epoch(
+                        data,
                         args.model,
                         imgsz,
                         args.batch,
                         args.threads,
                         args.warmup,
-                        root / "ref-runs",
+                        root / f"run-{imgsz}-{r}",
                     )
-                    rates["reference"].append(clock.images_per_s())
-                    torch.set_num_threads(args.threads)
+                    rates["slimseg"].append(clock.images_per_s())
+                    print(
+                        f"{imgsz}px round {r + 1}: "
+                        + ", ".join(f"{k} {v[-1]:.2f}" for k, v in rates.items() if v)
+                        + " images/s",
+                        flush=True,
+                    )
+                if ref is not None:
+                    warmup = mosaic_buffer_size(args.batch)
                     loader["reference"].append(
                         reference_impl.loader_rate(
-                            ref,
-                            ref_data,
-                            imgsz,
-                            args.batch,
-                            mosaic_buffer_size(args.batch),
-                            args.loader_images,
+                            ref, ref_data, imgsz, args.batch, warmup, args.loader_images
                         )
                     )
-                clock = slimseg_epoch(
-                    data,
-                    args.model,
-                    imgsz,
-                    args.batch,
-                    args.threads,
-                    args.warmup,
-                    root / f"run-{imgsz}-{r}",
-                )
-                rates["slimseg"].append(clock.images_per_s())
                 loader["slimseg"].append(
                     slimseg_loader_rate(data, imgsz, args.batch, args.loader_images)
-                )
-                print(
-                    f"{imgsz}px round {r + 1}: "
-                    + ", ".join(f"{k} {v[-1]:.2f}" for k, v in rates.items() if v)
-                    + " images/s",
-                    flush=True,
                 )
             for rows, measured in ((train_rows, rates), (loader_rows, loader)):
                 if not measured["slimseg"]:

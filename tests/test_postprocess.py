@@ -250,15 +250,22 @@ def test_assemble_power_of_two_ratios_equal_full_frame_interpolation_bit_for_bit
         )
 
 
-@pytest.mark.parametrize("frame_hw", [(45, 71), (150, 260), (20, 33), (64, 40), (64, 64)])
-def test_window_to_frame_equals_the_dense_path(frame_hw: tuple[int, int]) -> None:
-    g = torch.Generator().manual_seed(6)
+def _detections_on_64px(seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``proto [4, 16, 16]``, 40 boxes ``[40, 4]`` on a 64 px input (one covering all of it,
+    some partly outside), ``coeffs [40, 4]``."""
+    g = torch.Generator().manual_seed(seed)
     proto = torch.randn(4, 16, 16, generator=g) * 3
     n = 40
     xy = torch.rand(n, 2, generator=g) * 70 - 6
     boxes = torch.cat([xy, xy + torch.rand(n, 2, generator=g) * 50], 1)
     boxes[0] = torch.tensor([0.0, 0.0, 64.0, 64.0])
     coeffs = torch.randn(n, 4, generator=g)
+    return proto, boxes, coeffs
+
+
+@pytest.mark.parametrize("frame_hw", [(45, 71), (150, 260), (20, 33), (64, 40), (64, 64)])
+def test_window_to_frame_equals_the_dense_path(frame_hw: tuple[int, int]) -> None:
+    proto, boxes, coeffs = _detections_on_64px(seed=6)
     p = letterbox_params(*frame_hw, 64)
     dense = masks_to_frame(assemble_masks(coeffs, proto, boxes, (64, 64), None), p, frame_hw)
     got = torch.zeros_like(dense)
@@ -293,13 +300,8 @@ def test_masks_to_frame_inverts_the_letterbox_exactly() -> None:
 
 @pytest.mark.parametrize("frame_hw", [(45, 71), (150, 260), (20, 33), (64, 40)])
 def test_masks_to_frame_box_local_equals_dense(frame_hw: tuple[int, int]) -> None:
-    g = torch.Generator().manual_seed(4)
-    proto = torch.randn(4, 16, 16, generator=g) * 3
-    n = 40
-    xy = torch.rand(n, 2, generator=g) * 70 - 6
-    boxes = torch.cat([xy, xy + torch.rand(n, 2, generator=g) * 50], 1)
-    boxes[0] = torch.tensor([0.0, 0.0, 64.0, 64.0])
-    coeffs = torch.randn(n, 4, generator=g)
+    proto, boxes, coeffs = _detections_on_64px(seed=4)
+    n = len(boxes)
     p = letterbox_params(*frame_hw, 64)
     probs = assemble_masks(coeffs, proto, boxes, (64, 64), None)
     dense = masks_to_frame(probs, p, frame_hw, chunk=9)
