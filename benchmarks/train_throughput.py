@@ -7,7 +7,9 @@ see the same machine load. Images/s counts the batches after ``--warmup`` (the f
 pay for allocator and kernel warm-up). A second table times each toolkit's training data
 pipeline alone (decode, mosaic, affine, HSV, flip, collate), what one loader worker does,
 after one untimed mosaic-buffer's worth of samples (both toolkits draw mosaic partners from a
-buffer of recently decoded images) and without slimseg's decoded-sample cache.
+buffer of recently decoded images) and without slimseg's decoded-sample cache, on a set of
+its own, one buffer plus ``--loader-images`` large: every timed sample decodes its image
+once, as in an epoch of a data set much larger than the buffer.
 
     python benchmarks/train_throughput.py [--model yolov8n-seg] [--imgsz 320 640] [--rounds 2]
 
@@ -110,6 +112,9 @@ def main() -> None:
         for imgsz, n_images in zip(args.imgsz, args.images, strict=True):
             data = generate(root / f"d{imgsz}", n_images, 8, imgsz, 0, progress=False).data_yaml
             ref_data = reference_impl.export_yolo_data(data, root / f"r{imgsz}") if ref else None
+            n_loader = mosaic_buffer_size(args.batch) + args.loader_images
+            ldata = generate(root / f"l{imgsz}", n_loader, 1, imgsz, 1, progress=False).data_yaml
+            ref_ldata = reference_impl.export_yolo_data(ldata, root / f"rl{imgsz}") if ref else None
             rates: dict[str, list[float]] = {"reference": [], "slimseg": []}
             loader: dict[str, list[float]] = {"reference": [], "slimseg": []}
             for r in range(args.rounds):
@@ -147,11 +152,11 @@ def main() -> None:
                     warmup = mosaic_buffer_size(args.batch)
                     loader["reference"].append(
                         reference_impl.loader_rate(
-                            ref, ref_data, imgsz, args.batch, warmup, args.loader_images
+                            ref, ref_ldata, imgsz, args.batch, warmup, args.loader_images
                         )
                     )
                 loader["slimseg"].append(
-                    slimseg_loader_rate(data, imgsz, args.batch, args.loader_images)
+                    slimseg_loader_rate(ldata, imgsz, args.batch, args.loader_images)
                 )
             for rows, measured in ((train_rows, rates), (loader_rows, loader)):
                 if not measured["slimseg"]:

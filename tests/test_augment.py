@@ -146,12 +146,15 @@ def test_bad_augment_field_is_named(tmp_path) -> None:
 
 def test_downsample_masks_equals_the_float_block_mean() -> None:
     rng = np.random.default_rng(3)
-    masks = (rng.random((5, 32, 48)) < rng.random((5, 1, 1))).astype(np.uint8)
-    for ratio in (2, 4, 8):
+    for ratio in (2, 3, 4, 8, 15):
+        masks = (rng.random((6, 4 * ratio, 6 * ratio)) < rng.random((6, 1, 1))).astype(np.uint8)
+        masks[0], masks[1] = 0, 1
         n, h, w = masks.shape
         blocks = masks.reshape(n, h // ratio, ratio, w // ratio, ratio).astype(np.float32)
         expected = (blocks.mean(axis=(2, 4)) >= 0.5).astype(np.uint8)
         np.testing.assert_array_equal(downsample_masks(masks, ratio), expected)
+    with pytest.raises(ValueError, match="too large"):
+        downsample_masks(np.zeros((1, 16, 16), np.uint8), 16)
 
 
 @pytest.mark.parametrize("mosaic", [1.0, 0.0])
@@ -218,3 +221,23 @@ def test_reseed_empties_the_buffer_so_an_epoch_depends_only_on_its_seed(
         x, y = a[i], b[i]
         assert x.meta["mosaic"] == y.meta["mosaic"]
         assert np.array_equal(x.image, y.image) and np.array_equal(x.masks, y.masks)
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 33])
+def test_bit_packed_masks_transform_exactly_like_single_masks(n: int) -> None:
+    from slimseg.data.augment import build_transform, pack_masks, unpack_masks
+
+    rng = np.random.default_rng(n)
+    transform = build_transform(AugmentConfig(), 96, train=True)
+    for trial in range(4):
+        h, w = int(rng.integers(40, 150)), int(rng.integers(40, 150))
+        image = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+        masks = (rng.random((n, h, w)) < rng.random((n, 1, 1))).astype(np.uint8)
+        assert np.array_equal(unpack_masks(pack_masks(masks), n), masks)
+        transform.set_random_seed(trial)
+        one_by_one = transform(image=image, masks=list(masks) or [np.zeros((h, w), np.uint8)])
+        transform.set_random_seed(trial)
+        packed = transform(image=image, mask=pack_masks(masks))
+        assert np.array_equal(packed["image"], one_by_one["image"])
+        expected = np.asarray(one_by_one["masks"], np.uint8)[:n]
+        assert np.array_equal(unpack_masks(packed["mask"], n), expected.reshape(n, 96, 96))

@@ -123,15 +123,39 @@ def masks_to_boxes(masks: np.ndarray) -> np.ndarray:
     return boxes
 
 
+def pack_masks(masks: np.ndarray) -> np.ndarray:
+    """0/1 ``uint8 [N, H, W]`` → ``uint8 [H, W, ceil(N / 8)]``, 8 masks per byte (mask ``k`` in
+    bit ``k % 8`` of channel ``k // 8``; at least one channel)."""
+    n, h, w = masks.shape
+    planes = np.zeros((max(1, -(-n // 8)), h, w), np.uint8)
+    shifted = np.empty((h, w), np.uint8)
+    for k in range(n):  # one contiguous pass per mask (numpy's packbits across masks is slow)
+        np.left_shift(masks[k], k % 8, out=shifted)
+        planes[k // 8] |= shifted
+    return np.ascontiguousarray(planes.transpose(1, 2, 0))
+
+
+def unpack_masks(packed: np.ndarray, n: int) -> np.ndarray:
+    """Inverse of :func:`pack_masks`: ``uint8 [H, W, C]`` (or ``[H, W]``) → ``[n, H, W]``."""
+    h, w = packed.shape[:2]
+    planes = np.ascontiguousarray(packed.reshape(h, w, -1).transpose(2, 0, 1))
+    out = np.empty((n, h, w), np.uint8)
+    for k in range(n):
+        np.right_shift(planes[k // 8], k % 8, out=out[k])
+        out[k] &= 1
+    return out
+
+
 def apply_transform(transform: A.Compose, sample: Sample, min_area: int = 1) -> Sample:
-    """Run ``transform`` on a sample's image and masks; recompute boxes; drop tiny instances."""
-    h, w = sample.image.shape[:2]
-    masks = sample.masks if len(sample.masks) else np.zeros((1, h, w), np.uint8)
-    out = transform(image=sample.image, masks=masks)
+    """Run ``transform`` on a sample's image and masks; recompute boxes; drop tiny instances.
+
+    The masks travel bit-packed (:func:`pack_masks`, 8 per byte of a multi-channel mask):
+    every geometric step maps masks by nearest-neighbour (each output pixel copies one source
+    pixel, in every channel alike), so the bits come out exactly as if each mask had been
+    transformed alone, at a fraction of the work."""
+    out = transform(image=sample.image, mask=pack_masks(sample.masks))
     image = out["image"]
-    new_masks = np.asarray(out["masks"], dtype=np.uint8)[: len(sample.masks)]
-    if len(sample.masks) == 0:
-        new_masks = np.zeros((0, *image.shape[:2]), np.uint8)
+    new_masks = unpack_masks(out["mask"], len(sample.masks))
     # visible pixels per mask (masks are 0/1); count_nonzero per mask is ~5x a sum over axes
     visible = np.fromiter((np.count_nonzero(m) for m in new_masks), np.int64, len(new_masks))
     keep = visible >= max(min_area, 1)
