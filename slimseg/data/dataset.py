@@ -14,9 +14,9 @@ from slimseg.data.letterbox import letterbox_image, letterbox_mask, letterbox_pa
 from slimseg.data.mosaic import mosaic4
 from slimseg.data.sample import Sample
 
-#: Decoded training images (and masks) a loader process keeps, in MiB: a mosaic sample reads
-#: four source images, so a training set that fits is decoded once per process instead of about
-#: four times per epoch (the samples are the same, only the decoding is saved).
+#: Decoded training images (and masks) a loader process keeps, in MiB: a training set that fits
+#: is decoded once per process (persistent workers keep it across epochs) instead of once per
+#: epoch and sample (the samples are the same, only the decoding is saved).
 TRAIN_CACHE_MIB = 1024
 
 #: Mosaic partners are drawn from the most recently decoded source samples, as in the

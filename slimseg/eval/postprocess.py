@@ -190,8 +190,9 @@ def _frame_rles(
     if (p.new_h, p.new_w) == (h, w):  # no resize: input-resolution windows, minus the padding
         # a box clipped to the frame's part of the input crops the same frame pixels, and
         # leaves every window pixel in the padding False (as window_rles needs)
-        lo = torch.tensor([p.left, p.top, p.left, p.top], device=boxes.device)
-        boxes = torch.minimum(torch.maximum(boxes.float(), lo), lo + torch.tensor([w, h, w, h]))
+        lo = torch.tensor([p.left, p.top, p.left, p.top], device=boxes.device, dtype=torch.float32)
+        hi = lo + torch.tensor([w, h, w, h], device=boxes.device, dtype=torch.float32)
+        boxes = torch.minimum(torch.maximum(boxes.float(), lo), hi)
         for k, values, top, left in mask_windows(coeffs, proto, boxes, (p.out_h, p.out_w)):
             top, left = top - p.top, left - p.left  # frame pixels
             encoded = window_rles(values, top, left, (h, w))
