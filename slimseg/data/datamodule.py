@@ -109,12 +109,11 @@ class SegDataModule(L.LightningDataModule):
         sampler = None
         if shuffle:
             sampler = EpochSampler(dataset, self.seed, generator, self.mosaic_epochs)
-            # Lightning creates the first epoch's iterator (whose workers fetch ahead) before
-            # it calls set_epoch: start at the trainer's epoch, or a resumed run would load
-            # epoch 0's batches for its first epoch
+            # Lightning creates the first epoch's iterator (whose workers fetch ahead) before it
+            # calls set_epoch: start at the epoch it will pass (a run resumed from an end-of-
+            # epoch checkpoint has processed that epoch, not yet completed it), or a resumed run
+            # would load epoch 0's batches for its first epoch
             trainer = self.trainer
-            # (the epoch Lightning itself passes to set_epoch: a run resumed from an end-of-epoch
-            # checkpoint has processed that epoch, though not yet completed it)
             sampler.set_epoch(
                 0 if trainer is None else trainer.fit_loop.epoch_progress.current.processed
             )
