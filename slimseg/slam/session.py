@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -201,6 +202,41 @@ def clean(out: Path, masks: Path | None) -> None:
             shutil.rmtree(p)
 
 
+class EngineOptions(Protocol):
+    """What :func:`engine_settings` reads of a plan (:class:`Plan` and the sweep's plan)."""
+
+    engine: str
+    features: int
+    runs: int
+    vocab: Path | None
+    realtime: bool
+    speed: float
+    progress: bool
+
+
+def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> EvalSettings:
+    """The tracking settings of ``plan`` for ``seq``; for ORB-SLAM3 its settings file is
+    written into ``folder``."""
+    settings = None
+    if plan.engine == "orbslam3":
+        h, w = seq.load(0)[0].shape[:2]
+        orb = OrbSettings(features=plan.features, fps=fps_of(seq))
+        settings = write_settings(folder / "orbslam3_settings.yaml", seq.camera, w, h, orb)
+    return EvalSettings(
+        engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
+        realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
+        progress=plan.progress,
+    )  # fmt: skip
+
+
+def ground_truth(seq: TumSequence) -> list:
+    """The sequence's ``groundtruth.txt`` poses (at least 3, else a one-line error)."""
+    gt = read_tum(seq.root / "groundtruth.txt")
+    if len(gt) < 3:
+        raise SlimsegError(f"{seq.root / 'groundtruth.txt'} has {len(gt)} poses: need 3 or more")
+    return gt
+
+
 def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[dict], RunInfo]:
     """Everything after option parsing; returns the summary rows and the table's header."""
     seq = plan.sequence
@@ -208,9 +244,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     say(f"intrinsics: {seq.camera_source} (fx {seq.camera.fx}, fy {seq.camera.fy}, "
         f"cx {seq.camera.cx}, cy {seq.camera.cy})")  # fmt: skip
     clean(out, plan.masks)
-    gt = read_tum(seq.root / "groundtruth.txt")
-    if len(gt) < 3:
-        raise SlimsegError(f"{seq.root / 'groundtruth.txt'} has {len(gt)} poses: need 3 or more")
+    gt = ground_truth(seq)
     masked = mask_conditions(plan, out, say)
     conds: list[Condition] = []
     if "raw" in plan.names:
@@ -225,16 +259,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
             say("oracle: skipped, the sequence has no background/ (synthetic sequences only)")
     if not conds:
         raise SlimsegError("nothing to evaluate: every requested condition was skipped")
-    settings = None
-    if plan.engine == "orbslam3":
-        h, w = seq.load(0)[0].shape[:2]
-        orb = OrbSettings(features=plan.features, fps=fps_of(seq))
-        settings = write_settings(out / "orbslam3_settings.yaml", seq.camera, w, h, orb)
-    cfg = EvalSettings(
-        engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
-        realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
-        progress=plan.progress,
-    )  # fmt: skip
+    cfg = engine_settings(plan, seq, out)
     results: list[ConditionResult] = []
     for cond in conds:
         res = evaluate_condition(seq, cond, gt, cfg, out / "trajectories")

@@ -24,13 +24,18 @@ from slimseg.dynamic.settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.tum import TumSequence
 from slimseg.errors import SlimsegError
 from slimseg.slam.conditions import Condition
-from slimseg.slam.evaluate import ConditionResult, EvalSettings, evaluate_condition
+from slimseg.slam.evaluate import ConditionResult, evaluate_condition
 from slimseg.slam.metrics import still_floor
 from slimseg.slam.report import csv_text, run_rows
-from slimseg.slam.session import check_engine, clean, fps_of, gt_at_frames, make_predictor
-from slimseg.slam.settings import OrbSettings, write_settings
+from slimseg.slam.session import (
+    check_engine,
+    clean,
+    engine_settings,
+    ground_truth,
+    gt_at_frames,
+    make_predictor,
+)
 from slimseg.slam.sweep import SweepPoint, check_mode, sweep_points
-from slimseg.slam.trajectory import read_tum
 from slimseg.utils.atomic import write_text
 
 log = logging.getLogger(__name__)
@@ -127,18 +132,9 @@ def _one_sequence(
     gt_path = seq.root / "groundtruth.txt"
     if not gt_path.is_file():
         raise SlimsegError(f"{gt_path} is missing: a trajectory cannot be scored without it")
-    gt = read_tum(gt_path)
-    if len(gt) < 3:
-        raise SlimsegError(f"{gt_path} has {len(gt)} poses: need 3 or more")
+    gt = ground_truth(seq)
     clean(folder, None)
-    settings = None
-    if plan.engine == "orbslam3":
-        h, w = seq.load(0)[0].shape[:2]
-        orb = OrbSettings(features=plan.features, fps=fps_of(seq))
-        settings = write_settings(folder / "orbslam3_settings.yaml", seq.camera, w, h, orb)
-    cfg = EvalSettings(engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
-                       realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
-                       progress=plan.progress)  # fmt: skip
+    cfg = engine_settings(plan, seq, folder)
     floor = still_floor(gt_at_frames(gt, seq))
     result = SequenceSweep(label, seq, points, vocab_label, floor=floor)
     tracks = folder / "trajectories"
