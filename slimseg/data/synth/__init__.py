@@ -4,16 +4,19 @@ No download: ``generate(out, train, val, imgsz, seed)`` renders everything from 
 (byte-identical for the same arguments); its report names the written ``data.yaml``. Modules:
 
 - :mod:`.categories`: ``CATEGORIES`` (COCO names, ids, mobility priors);
-- :mod:`.painter`, :mod:`.shapes`: per-category shape samplers and renderers;
+- :mod:`.painter`, :mod:`.style`, :mod:`.shapes`, :mod:`.person`: per-category shape samplers
+  and renderers (:mod:`.person`: the articulated, walking person);
 - :mod:`.texture`, :mod:`.camera`: procedural room (wall, floor, clutter) seen by a pinhole;
 - :mod:`.scene`: one frame (layered instances, depth, sensor effects), ``render_image``;
-- :mod:`.sequence`: TUM RGB-D sequences with dynamic masks and static backgrounds;
+- :mod:`.world`, :mod:`.sequence`: TUM RGB-D sequences (room, objects, walkers, camera path;
+  rendered frames with dynamic masks and static backgrounds);
 - :mod:`.coco_writer`, :mod:`.generate`: COCO json, data.yaml (written atomically).
 """
 
 from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES, Category
 from slimseg.data.synth.coco_writer import MIN_AREA, encode_mask, frame_annotations
 from slimseg.data.synth.generate import SynthReport, generate
+from slimseg.data.synth.person import walking_pose
 from slimseg.data.synth.scene import (
     DEPTH_SCALE,
     STREAM_TRAIN,
@@ -26,12 +29,13 @@ from slimseg.data.synth.scene import (
 )
 from slimseg.data.synth.sequence import (
     SequenceFrame,
-    build_world,
     render_sequence_frame,
     timestamp,
     write_sequence,
 )
-from slimseg.data.synth.shapes import Style, sample_style, walking_pose
+from slimseg.data.synth.shapes import sample_style
+from slimseg.data.synth.style import Style
+from slimseg.data.synth.world import build_world
 
 __all__ = [
     "CATEGORIES",

@@ -15,7 +15,8 @@ import numpy as np
 
 from slimseg.data.synth.camera import Intrinsics, Pose, Room, Surface, render_room, surface_window
 from slimseg.data.synth.categories import BY_NAME, CATEGORIES
-from slimseg.data.synth.shapes import Style, draw, sample_style
+from slimseg.data.synth.shapes import draw, sample_style
+from slimseg.data.synth.style import Style
 from slimseg.data.synth.texture import make_texture
 
 DEPTH_SCALE = 5000.0  # TUM: uint16 depth / 5000 = metres; 0 = invalid

@@ -3,240 +3,34 @@
 Each category has a sampler ``style = sample_style(name, rng)`` that fixes colours, proportions
 and pose once (so a sequence can redraw the same object every frame), and a drawer that paints
 the style into a :class:`~slimseg.data.synth.painter.Painter` centred at ``(cx, cy)`` with
-``size`` = the object's nominal height in pixels. Shapes are described in a local frame in
-units of that height (x right, y down, the object spanning y in [-0.5, 0.5]); ``flip`` mirrors
-x and ``tilt`` rotates the whole object (radians).
+``size`` = the object's nominal height in pixels (shapes are described in a
+:class:`~slimseg.data.synth.style.LocalFrame`). The rigid categories (dog, sports ball,
+bottle, chair, tv) live here; the articulated person in :mod:`slimseg.data.synth.person`.
 """
 
 from __future__ import annotations
 
-import colorsys
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from slimseg.data.synth.categories import BY_NAME
 from slimseg.data.synth.painter import Color, Painter
+from slimseg.data.synth.person import draw_person, sample_person
+from slimseg.data.synth.style import LocalFrame, Style, any_color, jitter, pick, scale
 
 # Half-size of the square patch an instance can cover, in units of its height.
 PATCH_REACH = 0.95
 
-
-@dataclass(frozen=True)
-class Style:
-    """Everything random about one object: ``colors`` (RGB uint8 triples) and ``params``."""
-
-    category: str
-    colors: dict[str, Color] = field(default_factory=dict)
-    params: dict[str, float] = field(default_factory=dict)
-
-    def with_params(self, **params: float) -> Style:
-        """A copy with some ``params`` replaced (e.g. a new pose for the next frame)."""
-        return replace(self, params={**self.params, **params})
-
-
-class _Local:
-    """Local object frame (units of height) -> frame pixels."""
-
-    def __init__(self, cx: float, cy: float, size: float, tilt: float, flip: float) -> None:
-        self.c = np.array([cx, cy], np.float64)
-        self.size = float(size)
-        ca, sa = np.cos(tilt), np.sin(tilt)
-        self.m = np.array([[ca * flip, -sa], [sa * flip, ca]]) * self.size
-
-    def __call__(self, *pts: tuple[float, float]) -> np.ndarray:
-        return np.asarray(pts, np.float64) @ self.m.T + self.c
-
-    def p(self, x: float, y: float) -> np.ndarray:
-        """One local point -> ``float64 [2]`` frame pixel."""
-        return self((x, y))[0]
-
-    def s(self, length: float) -> float:
-        """A local length -> pixels."""
-        return length * self.size
-
-
-# -- colours ---------------------------------------------------------------------------------
-def _hsv(h: float, s: float, v: float) -> Color:
-    r, g, b = colorsys.hsv_to_rgb(h % 1.0, float(np.clip(s, 0, 1)), float(np.clip(v, 0, 1)))
-    return (int(r * 255), int(g * 255), int(b * 255))
-
-
-def _any_color(rng: np.random.Generator) -> Color:
-    return _hsv(rng.random(), rng.uniform(0.2, 1.0), rng.uniform(0.25, 1.0))
-
-
-def _scale(c: Color, f: float) -> Color:
-    return tuple(int(np.clip(v * f, 0, 255)) for v in c)  # type: ignore[return-value]
-
-
-def _jitter(rng: np.random.Generator, c: Color, amount: int = 18) -> Color:
-    d = rng.integers(-amount, amount + 1, 3)
-    return tuple(int(np.clip(v + dv, 0, 255)) for v, dv in zip(c, d, strict=True))  # type: ignore[return-value]
-
-
-_SKIN = ((255, 219, 172), (241, 194, 125), (224, 172, 105), (198, 134, 66), (141, 85, 36))
-_HAIR = ((20, 15, 10), (60, 40, 25), (110, 70, 40), (200, 160, 90), (150, 150, 150))
 _FUR = ((120, 80, 40), (30, 25, 20), (200, 170, 120), (230, 225, 215), (160, 110, 60))
 _WOOD = ((133, 94, 66), (160, 120, 80), (102, 68, 45), (193, 154, 107))
 
 
-def _pick(rng: np.random.Generator, palette: tuple[Color, ...]) -> Color:
-    return _jitter(rng, palette[int(rng.integers(len(palette)))])
-
-
-# -- person ----------------------------------------------------------------------------------
-def _sample_person(rng: np.random.Generator) -> Style:
-    profile = float(rng.random() < 0.4)
-    build = rng.uniform(0.8, 1.3)
-    shirt = _any_color(rng)
-    colors = {
-        "skin": _pick(rng, _SKIN),
-        "hair": _pick(rng, _HAIR),
-        "shirt": shirt,
-        "pants": _scale(_any_color(rng), 0.7),
-        "shoes": _scale(_any_color(rng), 0.35),
-    }
-    colors["sleeve"] = shirt if rng.random() < 0.5 else colors["skin"]
-    colors["shin"] = colors["pants"] if rng.random() < 0.75 else colors["skin"]
-    params = {
-        "profile": profile,
-        "build": build,
-        "head": rng.uniform(0.058, 0.075),
-        "flip": float(rng.choice([-1.0, 1.0])),
-        "tilt": rng.normal(0.0, 0.05),
-        "hair_long": float(rng.random() < 0.3),
-        "shade_dir": rng.uniform(0, 2 * np.pi),
-        "shade_gain": rng.uniform(0.05, 0.3),
-    }
-    if profile:
-        swing = rng.uniform(-0.7, 0.7)
-        params |= {
-            "arm_l1": swing,
-            "arm_l2": swing + rng.uniform(0.0, 1.3),
-            "arm_r1": -swing + rng.normal(0, 0.2),
-            "arm_r2": -swing + rng.uniform(0.0, 1.3),
-            "leg_l1": -0.8 * swing,
-            "leg_l2": -0.8 * swing - rng.uniform(0.0, 1.0),
-            "leg_r1": 0.8 * swing,
-            "leg_r2": 0.8 * swing - rng.uniform(0.0, 0.6),
-        }
-    else:
-        abd_l, abd_r = rng.uniform(0.05, 2.7, 2)
-        hip_l, hip_r = rng.uniform(-0.05, 0.45, 2)
-        params |= {
-            "arm_l1": -abd_l,
-            "arm_l2": -abd_l + rng.uniform(-1.4, 1.4),
-            "arm_r1": abd_r,
-            "arm_r2": abd_r + rng.uniform(-1.4, 1.4),
-            "leg_l1": -hip_l,
-            "leg_l2": -hip_l + rng.uniform(-0.5, 0.5),
-            "leg_r1": hip_r,
-            "leg_r2": hip_r + rng.uniform(-0.5, 0.5),
-        }
-    return Style("person", colors, params)
-
-
-def walking_pose(phase: float, amplitude: float = 0.45) -> dict[str, float]:
-    """Joint angles of a side-view walking gait at ``phase`` (radians, one stride = 2*pi)."""
-    s, c = np.sin(phase), np.cos(phase)
-    knee_l = 0.9 * amplitude * max(0.0, c) + 0.1
-    knee_r = 0.9 * amplitude * max(0.0, -c) + 0.1
-    return {
-        "profile": 1.0,
-        "leg_l1": amplitude * s,
-        "leg_l2": amplitude * s - knee_l,
-        "leg_r1": -amplitude * s,
-        "leg_r2": -amplitude * s - knee_r,
-        "arm_l1": -0.8 * amplitude * s,
-        "arm_l2": -0.8 * amplitude * s + 0.35,
-        "arm_r1": 0.8 * amplitude * s,
-        "arm_r2": 0.8 * amplitude * s + 0.35,
-    }
-
-
-def _chain(root: np.ndarray, a1: float, l1: float, a2: float, l2: float) -> list[np.ndarray]:
-    """Joint positions of a two-segment limb hanging from ``root`` (angles from straight down)."""
-    j1 = root + l1 * np.array([np.sin(a1), np.cos(a1)])
-    j2 = j1 + l2 * np.array([np.sin(a2), np.cos(a2)])
-    return [root, j1, j2]
-
-
-def _draw_person(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None:
-    p, col = st.params, st.colors
-    t = _Local(cx, cy, size, p["tilt"], p["flip"])
-    b, hr = p["build"], p["head"]
-    prof = p["profile"] > 0.5
-    sw, hw = (0.02, 0.015) if prof else (0.105 * b, 0.075 * b)
-    tw_top, tw_bot = (0.06 * b, 0.055 * b) if prof else (0.13 * b, 0.1 * b)
-    y_sh, y_hip = -0.5 + 2 * hr + 0.035, 0.02
-    w_ua, w_fa, w_th, w_sh = 0.05 * b, 0.042 * b, 0.078 * b, 0.058 * b
-
-    def limb_pts(side: str, kind: str) -> list[np.ndarray]:
-        sign = -1.0 if side == "l" else 1.0
-        if kind == "arm":
-            root = np.array([sign * sw, y_sh + 0.02])
-            return _chain(root, p[f"arm_{side}1"], 0.16, p[f"arm_{side}2"], 0.15)
-        root = np.array([sign * hw, y_hip])
-        return _chain(root, p[f"leg_{side}1"], 0.245, p[f"leg_{side}2"], 0.235)
-
-    def draw_leg(side: str, dim: float) -> None:
-        hip, knee, ankle = (t.p(*q) for q in limb_pts(side, "leg"))
-        sign = 1.0 if prof else (-1.0 if side == "l" else 1.0)
-        toe = ankle + (t.p(sign * 0.065, 0.0) - t.p(0.0, 0.0))
-        pt.limb(ankle, toe, t.s(0.045), t.s(0.035), _scale(col["shoes"], dim))
-        pt.limb(knee, ankle, t.s(w_sh), t.s(w_sh * 0.85), _scale(col["shin"], dim))
-        pt.limb(hip, knee, t.s(w_th), t.s(w_sh), _scale(col["pants"], dim))
-
-    def draw_arm(side: str, dim: float) -> None:
-        sh, el, wr = (t.p(*q) for q in limb_pts(side, "arm"))
-        pt.limb(el, wr, t.s(w_fa), t.s(w_fa * 0.8), _scale(col["sleeve"], dim))
-        pt.circle(wr, t.s(0.027 * b), _scale(col["skin"], dim))
-        pt.limb(sh, el, t.s(w_ua), t.s(w_fa), _scale(col["shirt"], dim))
-
-    far = 0.8 if prof else 1.0
-    draw_leg("r", far)
-    if prof:
-        draw_arm("r", far)
-    draw_leg("l", 1.0)
-    torso = t((-tw_top, y_sh), (tw_top, y_sh), (tw_bot, y_hip + 0.03), (-tw_bot, y_hip + 0.03))
-    pt.poly(torso, col["shirt"])
-    pt.poly(
-        t(
-            (-tw_bot, y_hip - 0.02),
-            (tw_bot, y_hip - 0.02),
-            (tw_bot, y_hip + 0.05),
-            (-tw_bot, y_hip + 0.05),
-        ),
-        col["pants"],
-    )
-    if not prof:
-        draw_arm("r", 1.0)
-    draw_arm("l", 1.0)
-    head = t.p(0.015 if prof else 0.0, -0.5 + hr)
-    pt.limb(
-        t.p(0.0, -0.5 + 1.6 * hr), t.p(0.0, y_sh + 0.01), t.s(0.045 * b), t.s(0.05 * b), col["skin"]
-    )
-    if p["hair_long"] > 0.5:
-        pt.limb(
-            head,
-            t.p(-0.02 if prof else 0.0, -0.5 + 2.6 * hr),
-            t.s(2 * hr),
-            t.s(1.8 * hr),
-            col["hair"],
-        )
-    pt.circle(head, t.s(hr), col["skin"])
-    ang = np.degrees(np.arctan2(t.m[1, 0], t.m[0, 0]))
-    pt.ellipse(head, (t.s(hr * 1.05), t.s(hr * 1.05)), ang, col["hair"], arc=(180.0, 360.0))
-    pt.shade_linear(np.array([cx, cy]), p["shade_dir"], size / 2, p["shade_gain"])
-
-
 # -- dog -------------------------------------------------------------------------------------
 def _sample_dog(rng: np.random.Generator) -> Style:
-    fur = _pick(rng, _FUR)
-    colors = {"fur": fur, "patch": _pick(rng, _FUR), "nose": (25, 20, 20)}
-    colors["ear"] = _scale(fur, rng.uniform(0.6, 1.0))
+    fur = pick(rng, _FUR)
+    colors = {"fur": fur, "patch": pick(rng, _FUR), "nose": (25, 20, 20)}
+    colors["ear"] = scale(fur, rng.uniform(0.6, 1.0))
     params = {
         "flip": float(rng.choice([-1.0, 1.0])),
         "tilt": rng.normal(0.0, 0.04),
@@ -255,7 +49,7 @@ def _sample_dog(rng: np.random.Generator) -> Style:
 
 def _draw_dog(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None:
     p, col = st.params, st.colors
-    t = _Local(cx, cy, size, p["tilt"], p["flip"])
+    t = LocalFrame(cx, cy, size, p["tilt"], p["flip"])
     bl, bh, lw = p["body_len"], p["body_h"], p["leg_w"]
     by = -0.05
     ang = np.degrees(np.arctan2(t.m[1, 0], t.m[0, 0]))
@@ -263,7 +57,7 @@ def _draw_dog(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None
     def leg(x: float, a: float, dim: float) -> None:
         top = np.array([x, by + 0.05])
         foot = top + 0.45 * np.array([np.sin(a), np.cos(a)])
-        c = _scale(col["fur"], dim)
+        c = scale(col["fur"], dim)
         pt.limb(t.p(*top), t.p(*foot), t.s(lw), t.s(lw * 0.8), c)
 
     leg(bl * 0.75 + 0.04, p["leg_fr"], 0.75)
@@ -304,8 +98,8 @@ def _draw_dog(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None
 
 # -- sports ball -----------------------------------------------------------------------------
 def _sample_ball(rng: np.random.Generator) -> Style:
-    c1 = _any_color(rng)
-    c2 = _any_color(rng) if rng.random() < 0.6 else (240, 240, 240)
+    c1 = any_color(rng)
+    c2 = any_color(rng) if rng.random() < 0.6 else (240, 240, 240)
     params = {
         "pattern": float(rng.integers(4)),  # 0 plain, 1 stripes, 2 halves, 3 spots
         "angle": rng.uniform(0, np.pi),
@@ -351,9 +145,9 @@ def _sample_bottle(rng: np.random.Generator) -> Style:
     glass = (
         ((40, 110, 50), (110, 60, 20), (60, 120, 190), (200, 210, 215))[int(rng.integers(4))]
         if rng.random() < 0.6
-        else _any_color(rng)
+        else any_color(rng)
     )
-    colors = {"body": _jitter(rng, glass), "cap": _any_color(rng), "label": _any_color(rng)}
+    colors = {"body": jitter(rng, glass), "cap": any_color(rng), "label": any_color(rng)}
     lying = rng.random() < 0.25
     params = {
         "bw": rng.uniform(0.1, 0.19),
@@ -370,7 +164,7 @@ def _sample_bottle(rng: np.random.Generator) -> Style:
 
 def _draw_bottle(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None:
     p, col = st.params, st.colors
-    t = _Local(cx, cy, size, p["tilt"], p["flip"])
+    t = LocalFrame(cx, cy, size, p["tilt"], p["flip"])
     bw, nw, ysh, yn = p["bw"], p["nw"], p["shoulder"], p["neck"]
     rc = min(0.05, bw * 0.5)
     pt.poly(
@@ -385,7 +179,7 @@ def _draw_bottle(pt: Painter, st: Style, cx: float, cy: float, size: float) -> N
     if p["label"] > 0.5:
         y0 = ysh + 0.12
         pt.poly(t((-bw, y0), (bw, y0), (bw, y0 + 0.22), (-bw, y0 + 0.22)), col["label"], False)
-    hl = _scale(col["body"], 1.35)
+    hl = scale(col["body"], 1.35)
     pt.line(t.p(-bw * 0.45, ysh + 0.04), t.p(-bw * 0.45, 0.45), t.s(bw * 0.25), hl)
     ang = p["tilt"]
     pt.shade_linear(np.array([cx, cy]), ang, t.s(bw), p["shade_gain"])
@@ -393,8 +187,8 @@ def _draw_bottle(pt: Painter, st: Style, cx: float, cy: float, size: float) -> N
 
 # -- chair -----------------------------------------------------------------------------------
 def _sample_chair(rng: np.random.Generator) -> Style:
-    base = _pick(rng, _WOOD) if rng.random() < 0.6 else _any_color(rng)
-    colors = {"frame": base, "seat": _jitter(rng, _scale(base, rng.uniform(0.8, 1.2)), 25)}
+    base = pick(rng, _WOOD) if rng.random() < 0.6 else any_color(rng)
+    colors = {"frame": base, "seat": jitter(rng, scale(base, rng.uniform(0.8, 1.2)), 25)}
     params = {
         "side": float(rng.random() < 0.5),
         "flip": float(rng.choice([-1.0, 1.0])),
@@ -413,10 +207,10 @@ def _sample_chair(rng: np.random.Generator) -> Style:
 
 def _draw_chair(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None:
     p, col = st.params, st.colors
-    t = _Local(cx, cy, size, p["tilt"], p["flip"])
+    t = LocalFrame(cx, cy, size, p["tilt"], p["flip"])
     ys, hw, lw, sp = p["seat_y"], p["seat_w"] / 2, p["leg_w"], p["splay"]
     st_h = 0.05
-    frame, dark = col["frame"], _scale(col["frame"], 0.7)
+    frame, dark = col["frame"], scale(col["frame"], 0.7)
 
     def leg(x: float, dx: float, y_end: float, c: Color) -> None:
         pt.limb(t.p(x, ys + st_h), t.p(x + dx, y_end), t.s(lw), t.s(lw * 0.85), c)
@@ -464,10 +258,10 @@ def _draw_chair(pt: Painter, st: Style, cx: float, cy: float, size: float) -> No
 # -- tv --------------------------------------------------------------------------------------
 def _sample_tv(rng: np.random.Generator) -> Style:
     colors = {
-        "bezel": _jitter(rng, (25, 25, 28), 15),
-        "screen_a": _any_color(rng),
-        "screen_b": _any_color(rng),
-        "stand": _jitter(rng, (50, 50, 55), 20),
+        "bezel": jitter(rng, (25, 25, 28), 15),
+        "screen_a": any_color(rng),
+        "screen_b": any_color(rng),
+        "stand": jitter(rng, (50, 50, 55), 20),
     }
     params = {
         "aspect": rng.uniform(1.3, 1.75),
@@ -484,7 +278,7 @@ def _sample_tv(rng: np.random.Generator) -> Style:
 
 def _draw_tv(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None:
     p, col = st.params, st.colors
-    t = _Local(cx, cy, size, p["tilt"], p["flip"])
+    t = LocalFrame(cx, cy, size, p["tilt"], p["flip"])
     if p["stand"] > 0.5:
         y0, y1 = -0.5, 0.22
         pt.poly(
@@ -510,12 +304,12 @@ def _draw_tv(pt: Painter, st: Style, cx: float, cy: float, size: float) -> None:
         on = sub.mask > 0
         pt.rgb[on] = sub.rgb[on]
     else:
-        pt.poly(screen, _scale(col["bezel"], 1.6), mask=False)
+        pt.poly(screen, scale(col["bezel"], 1.6), mask=False)
         pt.line(t.p(-hw * 0.6, y0 + 0.1), t.p(-hw * 0.2, y1 - 0.1), t.s(0.08), (70, 72, 78))
 
 
 _SAMPLERS: dict[str, Callable[[np.random.Generator], Style]] = {
-    "person": _sample_person,
+    "person": sample_person,
     "dog": _sample_dog,
     "sports ball": _sample_ball,
     "bottle": _sample_bottle,
@@ -523,7 +317,7 @@ _SAMPLERS: dict[str, Callable[[np.random.Generator], Style]] = {
     "tv": _sample_tv,
 }
 _DRAWERS: dict[str, Callable[[Painter, Style, float, float, float], None]] = {
-    "person": _draw_person,
+    "person": draw_person,
     "dog": _draw_dog,
     "sports ball": _draw_ball,
     "bottle": _draw_bottle,
