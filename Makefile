@@ -18,9 +18,10 @@ demo: $(STAMP)  ## the main job on the embedded default (no download)
 test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included)
 	$(BIN)/python -m pytest -q
 
-lint: $(STAMP)
+lint: $(STAMP)  ## ruff, and the layer order of docs/architecture.md (import-linter)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports --no-cache
 
 format: $(STAMP)
 	$(BIN)/ruff format .

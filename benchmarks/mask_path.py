@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from slimseg.data.letterbox import letterbox_params
 from slimseg.deploy.bench import _session_call, alternating_median_ms
 from slimseg.deploy.onnx_export import export_onnx
+from slimseg.detections import Detections
 from slimseg.eval.complexity import measure_flops
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.models.registry import build_model
-from slimseg.ops.nms import Detections
+from slimseg.ops.letterbox import letterbox_params
 from slimseg.utils.threads import torch_threads
 
 PAIRS = (("yolov8n-seg", "yolov8n-seg-hr"), ("yolov8n-seg-gs-rep", "yolov8n-seg-gs-rep-hr"))

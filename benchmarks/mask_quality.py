@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from slimseg.data.synth import generate
+from slimseg.detections import decode_rle, encode_rle
 from slimseg.eval.ceiling import coarse_masks
 from slimseg.eval.coco_eval import load_gt
 from slimseg.eval.mask_quality import mask_quality
-from slimseg.eval.postprocess import decode_rle, encode_rle
 
 
 def detections(gt_path: Path, per_image: int, seed: int = 0) -> list[dict]:

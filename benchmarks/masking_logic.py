@@ -17,7 +17,7 @@ import numpy as np
 from slimseg.dynamic.pipeline import (
     MODES,
     FrameInputs,
-    FrameSettings,
+    FrameRules,
     orb_keypoints,
     process_frame,
 )
@@ -58,7 +58,7 @@ def main() -> None:
             t = time.perf_counter()
             process_frame(
                 inputs=FrameInputs(kps, boxes, classes, masks, (H, W), depth_m=depth),
-                settings=FrameSettings(mobility, mode),
+                settings=FrameRules(mobility, mode),
                 rng=np.random.default_rng(1),
             )
             times.append(time.perf_counter() - t)

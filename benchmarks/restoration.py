@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from slimseg.data.synth import generate
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import check_motion, orb_features
 from slimseg.dynamic.restore import (
@@ -32,7 +33,6 @@ from slimseg.dynamic.restore import (
     restore_frame,
     select_references,
 )
-from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.utils.table import format_table
 
 

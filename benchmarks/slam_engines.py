@@ -22,10 +22,10 @@ import cv2
 import numpy as np
 
 from slimseg.data.synth import generate
-from slimseg.dynamic.tum import TumSequence
+from slimseg.data.tum import TumSequence
 from slimseg.slam.conditions import Condition, condition_frames
 from slimseg.slam.engines import run_dense, run_orbslam3
-from slimseg.slam.settings import write_settings
+from slimseg.slam.orbslam3_config import write_settings
 from slimseg.slam.vocab import build_vocabulary
 from slimseg.utils.table import format_table
 

@@ -35,12 +35,13 @@ from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
 from slimseg.data.mosaic import mosaic4
 from slimseg.data.sample import Sample
-from slimseg.deploy.checkpoint import load_weights
+from slimseg.detections import encode_rle
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.ema import ModelEMA
-from slimseg.engine.module import DetectorModule
+from slimseg.engine.module import ZooModule
 from slimseg.eval import postprocess
 from slimseg.eval.coco_eval import CocoEvaluator
+from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import get_spec
 from slimseg.ops.nms import non_max_suppression
 from slimseg.utils.table import format_table
@@ -74,7 +75,7 @@ class Stages:
 
 
 def train_sample(ds: Any, index: int, rng: np.random.Generator, st: Stages) -> Sample:
-    """``YoloDataset.__getitem__`` (train) with a clock around each step."""
+    """``ZooDataset.__getitem__`` (train) with a clock around each step."""
     aug = ds.augment
     with st.time("data decode"):  # the sources of a mosaic come from the partner buffer
         if ds.mosaic_enabled and rng.random() < aug.mosaic:
@@ -114,7 +115,7 @@ def profile_train(data_yaml: Path, model: str, imgsz: int, batch: int, steps: in
         ds.mosaic_sources(len(ds) - 1 - i)
     spec = get_spec(model, len(cfg.names))
     tcfg = TrainConfig(imgsz=imgsz, batch=batch, workers=0)
-    module = DetectorModule(spec.to_dict(), tcfg.__dict__, list(cfg.names))
+    module = ZooModule(spec.to_dict(), tcfg.__dict__, list(cfg.names))
     net = module.model.train()
     opt = module.configure_optimizers()
     ema = ModelEMA(net, tcfg.ema_decay)
@@ -160,7 +161,7 @@ def profile_val(
         net, _ = load_weights(weights)
     else:
         spec = get_spec(model, len(cfg.names))
-        net = DetectorModule(spec.to_dict(), {}, list(cfg.names)).model
+        net = ZooModule(spec.to_dict(), {}, list(cfg.names)).model
     net.eval()
     evaluator = CocoEvaluator.from_dataset(dm.val_set.base)
     st, n = Stages(), 0
@@ -206,7 +207,7 @@ def compare_postprocess(
     net = load_weights(weights)[0] if weights is not None else None
     if net is None:
         spec = get_spec(model, len(cfg.names))
-        net = DetectorModule(spec.to_dict(), {}, list(cfg.names)).model
+        net = ZooModule(spec.to_dict(), {}, list(cfg.names)).model
     net.eval()
     tcfg = TrainConfig()
     dense_s = window_s = 0.0
@@ -219,7 +220,7 @@ def compare_postprocess(
             dets = non_max_suppression(pred, net.num_classes, tcfg.conf, tcfg.iou, tcfg.max_det)
             for d, pr, meta in zip(dets, proto, b["meta"], strict=True):
                 t0 = time.perf_counter()
-                full = postprocess.encode_rle(postprocess.to_frame_detections(d, pr, meta).masks)
+                full = encode_rle(postprocess.to_frame_detections(d, pr, meta).masks)
                 t1 = time.perf_counter()
                 win = postprocess.to_frame_detections(
                     d, pr, meta, rle=True, mask_limit=postprocess.COCO_MAX_DETS

@@ -33,7 +33,7 @@ from slimseg.data.collate import make_collate, network_input
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
 from slimseg.data.synth import generate
-from slimseg.engine.module import DetectorModule
+from slimseg.engine.module import ZooModule
 from slimseg.models.registry import get_spec
 from slimseg.utils.table import format_table
 
@@ -88,7 +88,7 @@ def main() -> None:
             dm.setup("fit")
             ob = make_collate()([dm.train_set[i] for i in range(args.batch)])
             names = load_data_config(data).names
-            module = DetectorModule(get_spec("yolov8n-seg", len(names)).to_dict(), {}, names)
+            module = ZooModule(get_spec("yolov8n-seg", len(names)).to_dict(), {}, names)
             net_s = module.model.train()
             x = network_input(ob["images"])
             times: dict[str, list[tuple[float, float, float]]] = {"reference": [], "slimseg": []}

@@ -2,7 +2,6 @@
 
 from slimseg.layers.fuse import fuse_model as fuse
 from slimseg.models.registry import build_model, get_spec, list_models
-
-__version__ = "0.1.0"
+from slimseg.version import __version__
 
 __all__ = ["__version__", "build_model", "fuse", "get_spec", "list_models"]

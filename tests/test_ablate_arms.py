@@ -22,9 +22,9 @@ from slimseg.ablate.summary import mean_spread, summarize
 from slimseg.ablate.sweep import run_sweep, sweep_runs
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig
-from slimseg.deploy.checkpoint import WeightsInfo
 from slimseg.deploy.predictor import Predictor
 from slimseg.errors import SlimsegError
+from slimseg.models.checkpoint import WeightsInfo
 from slimseg.models.registry import build_model, get_spec
 from slimseg.models.specs import ModelSpec, load_spec
 from slimseg.utils.shipped import shipped_dir

@@ -8,9 +8,9 @@ import torch
 
 from slimseg.data.augment import AugmentConfig, masks_to_boxes
 from slimseg.data.collate import downsample_masks, make_collate, network_input
-from slimseg.data.dataset import YoloDataset
-from slimseg.data.letterbox import boxes_to_frame, letterbox_image, letterbox_params
+from slimseg.data.dataset import ZooDataset
 from slimseg.data.sample import Sample
+from slimseg.ops.letterbox import boxes_to_frame, letterbox_image, letterbox_params
 from slimseg.utils.shipped import shipped_dir
 
 
@@ -70,7 +70,7 @@ def test_boxes_round_trip_through_letterbox() -> None:
 
 @pytest.mark.parametrize("mosaic", [0.0, 1.0])
 def test_augmented_boxes_enclose_masks_within_1px(base: list[Sample], mosaic: float) -> None:
-    ds = YoloDataset(base, 128, AugmentConfig(mosaic=mosaic), seed=3)
+    ds = ZooDataset(base, 128, AugmentConfig(mosaic=mosaic), seed=3)
     total = 0
     for i in range(len(ds)):
         s = ds[i]
@@ -83,15 +83,15 @@ def test_augmented_boxes_enclose_masks_within_1px(base: list[Sample], mosaic: fl
 
 
 def test_augmentation_is_seeded(base: list[Sample]) -> None:
-    a = YoloDataset(base, 96, AugmentConfig(), seed=7)
-    b = YoloDataset(base, 96, AugmentConfig(), seed=7)
+    a = ZooDataset(base, 96, AugmentConfig(), seed=7)
+    b = ZooDataset(base, 96, AugmentConfig(), seed=7)
     for i in range(4):
         assert np.array_equal(a[i].image, b[i].image)
         assert np.array_equal(a[i].masks, b[i].masks)
 
 
 def test_validation_is_letterbox_only(base: list[Sample]) -> None:
-    ds = YoloDataset(base, 160)
+    ds = ZooDataset(base, 160)
     s, src = ds[0], base[0]
     p = s.meta["letterbox"]
     assert s.meta["orig_shape"] == src.image.shape[:2]
@@ -101,7 +101,7 @@ def test_validation_is_letterbox_only(base: list[Sample]) -> None:
 
 
 def test_collate_layout(base: list[Sample]) -> None:
-    ds = YoloDataset(base, 128, AugmentConfig(mosaic=0.0), seed=0)
+    ds = ZooDataset(base, 128, AugmentConfig(mosaic=0.0), seed=0)
     samples = [ds[i] for i in range(3)]
     batch = make_collate(4)(samples)
     m = batch["targets"].shape[0]
@@ -160,8 +160,8 @@ def test_downsample_masks_equals_the_float_block_mean() -> None:
 @pytest.mark.parametrize("mosaic", [1.0, 0.0])
 def test_decoded_sample_cache_changes_no_sample(base: list[Sample], mosaic: float) -> None:
     cfg = AugmentConfig(mosaic=mosaic)
-    plain = YoloDataset(base, 96, cfg, seed=4)
-    cached = YoloDataset(base, 96, cfg, seed=4, cache_mib=64)
+    plain = ZooDataset(base, 96, cfg, seed=4)
+    cached = ZooDataset(base, 96, cfg, seed=4, cache_mib=64)
     for _ in range(3):  # later passes are served from the cache
         for i in range(len(base)):
             a, b = plain[i], cached[i]
@@ -170,7 +170,7 @@ def test_decoded_sample_cache_changes_no_sample(base: list[Sample], mosaic: floa
             np.testing.assert_array_equal(a.classes, b.classes)
     assert len(cached._cache) == len(base)
     assert not base[0].image.flags.writeable  # shared arrays cannot be modified in place
-    tiny = YoloDataset(list(base), 96, cfg, seed=4, cache_mib=0)
+    tiny = ZooDataset(list(base), 96, cfg, seed=4, cache_mib=0)
     tiny[0]
     assert not tiny._cache
 
@@ -190,7 +190,7 @@ class _CountingBase(list):
 def test_mosaic_partners_come_from_the_recent_buffer() -> None:
     rng = np.random.default_rng(0)
     base = _CountingBase([_random_sample(rng, 48, 64, i) for i in range(40)])
-    ds = YoloDataset(base, 64, AugmentConfig(mosaic=1.0), seed=2, mosaic_buffer=8)
+    ds = ZooDataset(base, 64, AugmentConfig(mosaic=1.0), seed=2, mosaic_buffer=8)
     order = list(rng.permutation(len(base)))
     seen: list[tuple[str, ...]] = []
     for step, i in enumerate(order):
@@ -211,8 +211,8 @@ def test_mosaic_partners_come_from_the_recent_buffer() -> None:
 def test_reseed_empties_the_buffer_so_an_epoch_depends_only_on_its_seed(
     base: list[Sample],
 ) -> None:
-    a = YoloDataset(base, 96, AugmentConfig(), seed=0, mosaic_buffer=4)
-    b = YoloDataset(base, 96, AugmentConfig(), seed=0, mosaic_buffer=4)
+    a = ZooDataset(base, 96, AugmentConfig(), seed=0, mosaic_buffer=4)
+    b = ZooDataset(base, 96, AugmentConfig(), seed=0, mosaic_buffer=4)
     for i in range(len(base)):  # a has a full buffer from "epoch 0", b has never run
         a[i]
     a.reseed(11)

@@ -14,9 +14,9 @@ from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
 from slimseg.data.coco import CocoDataset
+from slimseg.detections import FrameDetections
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator, format_metrics_table
-from slimseg.eval.postprocess import FrameDetections
 
 CAT_IDS = (5, 9, 12)  # contiguous 0 person, 1 chair, 2 dog (no ground truth)
 NAMES = ("person", "chair", "dog")

@@ -10,8 +10,8 @@ import pytest
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
-from slimseg.deploy.checkpoint import WeightsInfo, save_weights
-from slimseg.dynamic.tum import TumSequence, mask_name
+from slimseg.data.tum import TumSequence, mask_name
+from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
 

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from slimseg.dynamic.pipeline import FrameInputs, FrameSettings, process_frame
+from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
 from slimseg.dynamic.semantic import class_map_to_instances, instances_of
 
 
@@ -44,7 +44,7 @@ def test_semantic_person_points_become_dynamic() -> None:
     kps = rng.uniform(0, 100, (400, 2)).astype(np.float32)
     result = process_frame(
         inputs=FrameInputs(kps, boxes, classes, masks, (100, 100)),
-        settings=FrameSettings(np.array([1.0, 0.25]), "seg"),
+        settings=FrameRules(np.array([1.0, 0.25]), "seg"),
     )
     x, y = (np.clip(np.round(kps[:, i]).astype(int), 0, 99) for i in (0, 1))  # as the logic
     on_person = cmap[y, x] == 1

@@ -18,7 +18,7 @@ from slimseg.dynamic.epipolar import (
     epipolar_distance,
     orb_features,
 )
-from slimseg.dynamic.pipeline import FrameInputs, FrameSettings, process_frame
+from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
 
 H, W = 240, 320
 FB = 12.0  # focal length (px) × baseline (m) of the camera step
@@ -108,13 +108,13 @@ def test_epipolar_modes_keep_only_the_mover_dynamic() -> None:
     args = (f1.keypoints, boxes, np.array([0, 0]), seg, (H, W))
     on_static, on_mover = _on(seg[0], f1.keypoints), _on(seg[1], f1.keypoints)
     plain = process_frame(
-        inputs=FrameInputs(*args), settings=FrameSettings(mobility, "seg", min_static=10)
+        inputs=FrameInputs(*args), settings=FrameRules(mobility, "seg", min_static=10)
     )
     assert plain.dynamic[on_static].all() and plain.dynamic[on_mover].all()
     for mode in ("semantic+epipolar", "fusion+epipolar"):
         r = process_frame(
             inputs=FrameInputs(*args, descriptors=f1.descriptors, previous=PreviousFrame(f0)),
-            settings=FrameSettings(mobility, mode, min_static=10),
+            settings=FrameRules(mobility, mode, min_static=10),
         )
         assert r.checked == [0, 1]
         assert not r.dynamic[on_static].any()
@@ -122,7 +122,7 @@ def test_epipolar_modes_keep_only_the_mover_dynamic() -> None:
         assert r.mask[masks["mover"]].all() and not r.mask[masks["static"]].any()
         first = process_frame(
             inputs=FrameInputs(*args, descriptors=f1.descriptors),
-            settings=FrameSettings(mobility, mode, min_static=10),
+            settings=FrameRules(mobility, mode, min_static=10),
         )
         assert np.array_equal(first.dynamic, plain.dynamic)  # no previous frame: like seg
 
@@ -143,7 +143,7 @@ def test_too_few_points_stay_undecided_and_dynamic() -> None:
             descriptors=f1.descriptors,
             previous=PreviousFrame(f0),
         ),
-        settings=FrameSettings(np.array([1.0], np.float32), "semantic+epipolar", min_static=10),
+        settings=FrameRules(np.array([1.0], np.float32), "semantic+epipolar", min_static=10),
     )
     on_tiny = _on(tiny, f1.keypoints)
     assert on_tiny.any() and out.dynamic[on_tiny].all()
@@ -176,5 +176,5 @@ def test_bad_input_is_reported() -> None:
                 (H, W),
                 previous=PreviousFrame(f0),
             ),
-            settings=FrameSettings(np.array([1.0], np.float32), "fusion+epipolar"),
+            settings=FrameRules(np.array([1.0], np.float32), "fusion+epipolar"),
         )

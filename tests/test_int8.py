@@ -21,14 +21,14 @@ from onnx import numpy_helper
 import slimseg
 from slimseg.cli.main import main
 from slimseg.deploy.calibration import load_calibration_set
-from slimseg.deploy.checkpoint import WeightsInfo, save_weights
 from slimseg.deploy.int8_placement import plan_placement
 from slimseg.deploy.int8_quantize import check_onnxruntime
 from slimseg.deploy.metadata import from_metadata_props
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor
+from slimseg.detections import encode_rle
 from slimseg.errors import SlimsegError
-from slimseg.eval.postprocess import encode_rle
+from slimseg.models.checkpoint import WeightsInfo, save_weights
 
 NAMES = ["person", "chair", "car"]
 IMGSZ = 96

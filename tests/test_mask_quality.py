@@ -20,13 +20,14 @@ import slimseg
 from slimseg.cli.main import main
 from slimseg.data.collate import downsample_masks
 from slimseg.data.synth import generate
-from slimseg.deploy.checkpoint import WeightsInfo, save_weights
+from slimseg.detections import decode_rle, encode_rle
 from slimseg.eval.boundary import MaskStack, band_width, boundary_band, boundary_iou
 from slimseg.eval.ceiling import ceiling_detections, coarse_masks
 from slimseg.eval.coco_eval import load_gt
 from slimseg.eval.mask_quality import format_mask_quality_table, mask_quality
-from slimseg.eval.postprocess import COCO_MAX_DETS, decode_rle, encode_rle
+from slimseg.eval.postprocess import COCO_MAX_DETS
 from slimseg.eval.skeleton import greedy_match, local_width, skeletonize
+from slimseg.models.checkpoint import WeightsInfo, save_weights
 
 HW = (64, 96)  # not square: a transposition slip shows
 

@@ -13,8 +13,8 @@ import yaml
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
-from slimseg.deploy.checkpoint import load_weights
 from slimseg.errors import SlimsegError
+from slimseg.models.checkpoint import load_weights
 
 RECIPE = {
     "epochs": 2,
@@ -96,7 +96,7 @@ def test_yolo_segmenter_scored_with_semantic_metrics(
 
 
 def test_semantic_val_of_a_detector_is_a_clear_error() -> None:
-    from slimseg.engine.evaluate import semantic_batch
+    from slimseg.eval.validation import semantic_batch
     from slimseg.models.registry import build_model
 
     model = build_model("yolov8n", num_classes=6).eval()

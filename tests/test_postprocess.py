@@ -8,16 +8,11 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from slimseg.data.letterbox import boxes_to_frame, letterbox_mask, letterbox_params
-from slimseg.eval.postprocess import (
-    FrameDetections,
-    batch_to_frame_detections,
-    decode_rle,
-    encode_rle,
-    to_frame_detections,
-)
+from slimseg.detections import Detections, FrameDetections, decode_rle, encode_rle
+from slimseg.eval.postprocess import batch_to_frame_detections, to_frame_detections
+from slimseg.ops.letterbox import boxes_to_frame, letterbox_mask, letterbox_params
 from slimseg.ops.masks import assemble_masks, mask_windows, masks_to_frame, window_to_frame
-from slimseg.ops.nms import Detections, non_max_suppression, yolov3_to_rows
+from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
 
 
 def make_pred(rows: list[tuple], nc: int, nm: int = 0) -> torch.Tensor:

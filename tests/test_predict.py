@@ -14,11 +14,12 @@ import torch
 
 import slimseg
 from slimseg.cli import predict as predict_cli
-from slimseg.data.letterbox import letterbox_image, letterbox_params
-from slimseg.deploy.checkpoint import WeightsInfo, save_weights
 from slimseg.deploy.metadata import build_metadata, to_metadata_props
-from slimseg.deploy.predictor import Prediction, Predictor, combined_mask
+from slimseg.deploy.predictor import Predictor, combined_mask
+from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
+from slimseg.models.checkpoint import WeightsInfo, save_weights
+from slimseg.ops.letterbox import letterbox_image, letterbox_params
 
 NAMES = ["person", "chair", "car"]
 MOBILITY = [1.0, 0.1, 0.8]

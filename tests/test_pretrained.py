@@ -11,7 +11,8 @@ import yaml
 from torch import nn
 
 import slimseg
-from slimseg.engine.pretrained import (
+from slimseg.errors import SlimsegError
+from slimseg.models.pretrained import (
     NO_COUNTERPART,
     SHAPE_MISMATCH,
     coco80_rows_for,
@@ -20,13 +21,12 @@ from slimseg.engine.pretrained import (
     map_reference_state_dict,
     rows_for_names,
 )
-from slimseg.errors import SlimsegError
 from slimseg.utils.shipped import shipped_dir
 
 COCO20 = shipped_dir("data") / "coco20.yaml"
 
 # Our module prefix → reference layer prefix, written from the documented reference layout
-# (architecture.md §1.1), independently of slimseg.engine.pretrained.
+# (architecture.md §1.1), independently of slimseg.models.pretrained.
 _PREFIXES = [
     ("backbone.stem.0.", "model.0."),
     ("backbone.stem.1.", "model.1."),

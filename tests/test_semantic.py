@@ -9,16 +9,16 @@ import pytest
 import torch
 
 from slimseg.data.collate import make_collate
-from slimseg.data.letterbox import letterbox_params
 from slimseg.data.sample import Sample
 from slimseg.data.semantic import (
-    IGNORE_INDEX,
     ignore_padding,
     instances_to_semantic,
     semantic_target,
 )
 from slimseg.eval.semantic_metrics import ConfusionMatrix, format_semantic_table, semantic_metrics
 from slimseg.losses.semantic import SemanticLoss
+from slimseg.ops.letterbox import letterbox_params
+from slimseg.ops.semantic import IGNORE_INDEX
 
 
 def _masks(h: int, w: int, *boxes: tuple[int, int, int, int]) -> np.ndarray:

@@ -15,8 +15,7 @@ import pytest
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
 from slimseg.data.synth.sequence import build_world
-from slimseg.dynamic.intrinsics import CALIBRATIONS, calibration_for
-from slimseg.dynamic.tum import TumSequence
+from slimseg.data.tum import CALIBRATIONS, TumSequence, calibration_for
 from slimseg.errors import SlimsegError
 from slimseg.slam.metrics import score, still_floor
 from slimseg.slam.trajectory import matrix_to_tum, quat_to_matrix, tum_to_matrices
@@ -169,7 +168,7 @@ def vocab(xyz_seq: Path) -> Path:
 def test_vocabulary_loads_and_tracks_in_orbslam3(xyz_seq: Path, vocab: Path) -> None:
     pytest.importorskip("pyorbslam3", reason="the [slam] extra")
     from slimseg.slam.engines import run_orbslam3
-    from slimseg.slam.settings import write_settings
+    from slimseg.slam.orbslam3_config import write_settings
 
     seq = TumSequence(xyz_seq)
     settings = write_settings(xyz_seq.parent / "s.yaml", seq.camera, 320, 240)
@@ -277,9 +276,9 @@ def test_core_imports_without_the_slam_extra(tmp_path: Path) -> None:
 
 
 def test_rows_mark_losses_and_runs_that_never_initialised() -> None:
+    from slimseg.slam.condition_runs import ConditionResult, RunResult
     from slimseg.slam.conditions import Condition
     from slimseg.slam.engines import EngineRun
-    from slimseg.slam.evaluate import ConditionResult, RunResult
     from slimseg.slam.metrics import TrajectoryScore
 
     def run(i: int, lost: int, ate: float | None) -> RunResult:

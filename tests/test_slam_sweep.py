@@ -15,15 +15,22 @@ import torch
 from slimseg.cli.main import main
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.data.synth import generate
+from slimseg.data.tum import TumSequence
 from slimseg.deploy.metadata import (
     build_metadata,
     input_dilation_px,
     masking_from_metadata,
 )
-from slimseg.deploy.prediction import Prediction
+from slimseg.detections import Prediction
 from slimseg.dynamic.detection_cache import CachedDetections, build_cache, mask_with
-from slimseg.dynamic.settings import DEFAULT, PAPERS, PRESETS, SLIMSEG, SettingsError, preset
-from slimseg.dynamic.tum import TumSequence
+from slimseg.dynamic.masking_settings import (
+    DEFAULT,
+    PAPERS,
+    PRESETS,
+    SLIMSEG,
+    SettingsError,
+    preset,
+)
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
 from slimseg.slam.sweep import (
     SweepError,

@@ -10,11 +10,11 @@ import torch
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
-from slimseg.deploy.checkpoint import load_weights
 from slimseg.engine import module as module_mod
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.module import NonFiniteLossError
 from slimseg.engine.train import train
+from slimseg.models.checkpoint import load_weights
 
 TINY = TrainConfig(
     epochs=1,
@@ -138,14 +138,14 @@ def test_killed_and_resumed_run_ends_where_an_uninterrupted_run_does(
         "yolov8n-seg", data_yaml, cfg, tmp_path / "a", accelerator="cpu", progress=False
     )
 
-    original = module_mod.DetectorModule.on_train_batch_start
+    original = module_mod.ZooModule.on_train_batch_start
 
     def kill_in_second_epoch(self, batch: dict, batch_idx: int) -> None:
         if self.current_epoch == 1:
             raise _Killed("simulated kill")
         original(self, batch, batch_idx)
 
-    monkeypatch.setattr(module_mod.DetectorModule, "on_train_batch_start", kill_in_second_epoch)
+    monkeypatch.setattr(module_mod.ZooModule, "on_train_batch_start", kill_in_second_epoch)
     with pytest.raises(_Killed):
         train("yolov8n-seg", data_yaml, cfg, tmp_path / "b", accelerator="cpu", progress=False)
     monkeypatch.undo()
@@ -169,7 +169,7 @@ def test_init_from_our_weights_reports_what_loaded(run_dir: Path) -> None:
     from slimseg.models.registry import get_spec
 
     spec = get_spec("yolov8n-seg-rep", 6).to_dict()
-    target = module_mod.DetectorModule(spec, TINY.__dict__, ["c"] * 6)
+    target = module_mod.ZooModule(spec, TINY.__dict__, ["c"] * 6)
     report = transfer_weights(target, run_dir / "weights" / "best.pt")
     assert report.startswith("loaded ") and "kept the initial values" in report  # head differs
     source, _ = load_weights(run_dir / "weights" / "best.pt")

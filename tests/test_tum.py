@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from slimseg.data.synth import generate
-from slimseg.dynamic.tum import (
+from slimseg.data.tum import (
     TUM_FR1,
     TumSequence,
     associate,
     mask_name,
-    read_groundtruth,
     read_list,
+    read_trajectory,
 )
 from slimseg.errors import SlimsegError
 
@@ -85,7 +85,7 @@ def test_synth_sequence_loads_in_metres(synth_seq: Path) -> None:
     assert t == seq.frames[0][0][0]
     assert mask_name(t) in {p.name for p in (synth_seq / "dynamic").iterdir()}
     assert mask_name(t) == Path(seq.frames[0][0][1]).name
-    gt = read_groundtruth(synth_seq / "groundtruth.txt")
+    gt = read_trajectory(synth_seq / "groundtruth.txt")
     assert gt.shape == (4, 8) and np.allclose(np.linalg.norm(gt[:, 4:], axis=1), 1, atol=1e-4)
 
 
@@ -133,7 +133,7 @@ def test_read_groundtruth_malformed(tmp_path: Path) -> None:
     p = tmp_path / "groundtruth.txt"
     p.write_text("# gt\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n")
     with pytest.raises(SlimsegError, match=r"groundtruth\.txt:3"):
-        read_groundtruth(p)
+        read_trajectory(p)
 
 
 def test_mask_name() -> None:

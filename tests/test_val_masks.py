@@ -10,15 +10,10 @@ import pytest
 import torch
 from pycocotools import mask as mask_utils
 
-from slimseg.data.letterbox import letterbox_params
+from slimseg.detections import Detections, encode_rle
 from slimseg.eval.coco_eval import CocoEvaluator
-from slimseg.eval.postprocess import (
-    COCO_MAX_DETS,
-    encode_rle,
-    to_frame_detections,
-    within_class_limit,
-)
-from slimseg.ops.nms import Detections
+from slimseg.eval.postprocess import COCO_MAX_DETS, to_frame_detections, within_class_limit
+from slimseg.ops.letterbox import letterbox_params
 from slimseg.ops.rle import window_rles
 
 FRAMES = ((96, 96), (64, 80))  # (h, w): no resize at 96 px input, and a letterboxed resize

@@ -32,10 +32,10 @@ from slimseg.ablate.arms import Arm, parse_arms
 from slimseg.ablate.latency import BenchOptions
 from slimseg.ablate.metrics import DEFAULT_METRICS, resolve_metrics
 from slimseg.engine.config import TrainConfig, load_train_config
-from slimseg.errors import SlimsegError
-from slimseg.models.specs import SpecError, spec_from_mapping
+from slimseg.errors import ConfigError, SlimsegError
 from slimseg.ops.nms import PREDICT_CONF
 from slimseg.utils.shipped import resolve_config, shipped_names
+from slimseg.utils.strict_dataclass import dataclass_from_mapping
 from slimseg.utils.yaml_io import read_yaml
 
 SYNTH = "synth"
@@ -137,11 +137,11 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
     path = resolve_config(path, "ablation", "ablation config")
     raw = read_yaml(path, "ablation config")
     if not isinstance(raw, dict):
-        raise SpecError(f"{path}: expected a mapping with name, variants, data, train")
+        raise ConfigError(f"{path}: expected a mapping with name, variants, data, train")
     raw = dict(raw)
     train_raw = raw.pop("train", None)
     if not isinstance(train_raw, dict) or "recipe" not in train_raw:
-        raise SpecError(f"{path}: field 'train' needs a mapping with 'recipe' (a train YAML)")
+        raise ConfigError(f"{path}: field 'train' needs a mapping with 'recipe' (a train YAML)")
     train_raw = dict(train_raw)
     recipe_value = str(train_raw.pop("recipe"))
     recipe = _relative(path, recipe_value)
@@ -150,11 +150,11 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
             recipe = resolve_config(recipe_value, "train", "train recipe")
         except SlimsegError:
             shipped = ", ".join(shipped_names("train"))
-            raise SpecError(
+            raise ConfigError(
                 f"{path}: train.recipe {recipe} does not exist (shipped recipes: {shipped})"
             ) from None
     base = dataclasses.asdict(load_train_config(recipe))
-    train = spec_from_mapping(TrainConfig, base | train_raw, f"{path}: train")
+    train = dataclass_from_mapping(TrainConfig, base | train_raw, f"{path}: train")
     if data is not None:
         raw["data"] = data
     elif isinstance(raw.get("data"), str) and raw["data"] != SYNTH:
@@ -162,11 +162,11 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
     arms = parse_arms(raw.pop("variants", None), path)
     if isinstance(raw.get("bench"), dict) and isinstance(raw["bench"].get("imgsz"), int):
         raw["bench"] = raw["bench"] | {"imgsz": [raw["bench"]["imgsz"]]}  # one size
-    cfg = spec_from_mapping(AblationConfig, raw | {"train": {}, "variants": []}, str(path))
+    cfg = dataclass_from_mapping(AblationConfig, raw | {"train": {}, "variants": []}, str(path))
     cfg = dataclasses.replace(cfg, variants=arms, train=train, source=str(path))
     _check(cfg, path)
     if cfg.data_path is not None and not cfg.data_path.is_file():
-        raise SpecError(
+        raise ConfigError(
             f"{path}: data {cfg.data_path} does not exist; build it (see "
             "configs/data/coco20-example.yaml) or pass --data DATA.yaml"
         )
@@ -174,22 +174,22 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
 
 
 def _check(cfg: AblationConfig, path: Path) -> None:
-    """Constraints across fields (the types are checked by ``spec_from_mapping``)."""
+    """Constraints across fields (the types are checked by ``dataclass_from_mapping``)."""
     if cfg.seeds is not None and (
         not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds) or min(cfg.seeds) < 0
     ):
-        raise SpecError(f"{path}: seeds must be a non-empty list of distinct ints >= 0")
+        raise ConfigError(f"{path}: seeds must be a non-empty list of distinct ints >= 0")
     resolve_metrics(cfg.metrics, str(path))
     sizes = cfg.bench.imgsz
     if sizes is not None and (
         not sizes or len(set(sizes)) != len(sizes) or any(s < 32 or s % 32 for s in sizes)
     ):
-        raise SpecError(
+        raise ConfigError(
             f"{path}: bench.imgsz must be one or more distinct multiples of 32, got {list(sizes)}"
         )
     b = cfg.bench
     if b.runs < 1 or b.warmup < 0 or b.threads < 1 or not 0.0 <= b.conf < 1.0:
-        raise SpecError(
+        raise ConfigError(
             f"{path}: bench needs runs >= 1, warmup >= 0, threads >= 1 and 0 <= conf < 1"
         )
 

@@ -27,9 +27,9 @@ import numpy as np
 from torch import nn
 
 from slimseg.deploy.bench import median_ms
-from slimseg.deploy.checkpoint import WeightsInfo
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor
+from slimseg.models.checkpoint import WeightsInfo
 from slimseg.ops.nms import PREDICT_CONF
 from slimseg.utils.threads import torch_threads
 

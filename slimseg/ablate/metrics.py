@@ -22,12 +22,12 @@ from torch import nn
 
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig
-from slimseg.data.dataset import YoloDataset
-from slimseg.deploy.checkpoint import WeightsInfo, load_weights
-from slimseg.engine.evaluate import evaluate_dataset, evaluate_mask_quality
-from slimseg.errors import SlimsegError
+from slimseg.data.dataset import ZooDataset
+from slimseg.errors import ConfigError, SlimsegError
 from slimseg.eval.mask_quality import PERSON
-from slimseg.models.specs import ModelSpec, SpecError
+from slimseg.eval.validation import validate_dataset, validate_mask_quality
+from slimseg.models.checkpoint import WeightsInfo, load_weights
+from slimseg.models.specs import ModelSpec
 
 
 class RowMetric(Protocol):
@@ -48,9 +48,9 @@ def run_weights(run_dir: Path) -> tuple[nn.Module, WeightsInfo]:
     return load_weights(Path(run_dir) / "weights" / "best.pt")
 
 
-def val_dataset(info: WeightsInfo, data_cfg: DataConfig) -> YoloDataset:
+def val_dataset(info: WeightsInfo, data_cfg: DataConfig) -> ZooDataset:
     """The val split letterboxed to the run's training imgsz (as its validation saw it)."""
-    return YoloDataset(CocoDataset.from_config(data_cfg, "val"), int(info.train_config["imgsz"]))
+    return ZooDataset(CocoDataset.from_config(data_cfg, "val"), int(info.train_config["imgsz"]))
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ class CocoMetric:
         metrics = info.metrics
         if "box" not in metrics:  # weights written without a validation: score them now
             t = info.train_config
-            metrics, _ = evaluate_dataset(
+            metrics, _ = validate_dataset(
                 model.fuse(),
                 val_dataset(info, data_cfg),
                 int(t["batch"]),
@@ -112,7 +112,7 @@ class MaskQualityMetric:
     def __call__(self, run_dir: Path, spec: ModelSpec, data_cfg: DataConfig) -> dict[str, float]:
         model, info = run_weights(run_dir)
         t = info.train_config
-        q = evaluate_mask_quality(
+        q = validate_mask_quality(
             model.fuse(),
             val_dataset(info, data_cfg),
             int(t["batch"]),
@@ -148,9 +148,9 @@ def resolve_metrics(names: Sequence[str], where: str) -> list[RowMetric]:
     """The metrics named in a sweep's ``metrics:`` (``where``: the config file)."""
     unknown = [n for n in names if n not in ROW_METRICS]
     if unknown:
-        raise SpecError(f"{where}: metrics {unknown} unknown; known: {', '.join(ROW_METRICS)}")
+        raise ConfigError(f"{where}: metrics {unknown} unknown; known: {', '.join(ROW_METRICS)}")
     if BASE_METRIC not in names or len(set(names)) != len(names):
-        raise SpecError(
+        raise ConfigError(
             f"{where}: metrics must list '{BASE_METRIC}' (the mAP columns) and no name twice"
         )
     return [ROW_METRICS[n] for n in names]

@@ -41,9 +41,9 @@ from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig, load_data_config
 from slimseg.data.images import read_image_rgb8
 from slimseg.data.synth import generate
-from slimseg.deploy.checkpoint import load_weights
 from slimseg.errors import SlimsegError
 from slimseg.eval.complexity import measure
+from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec
 from slimseg.utils.atomic import write_json, write_yaml

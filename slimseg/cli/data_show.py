@@ -8,7 +8,7 @@ from pathlib import Path
 from slimseg.data.augment import load_augment_config
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.dataset import ZooDataset
 from slimseg.data.visualize import draw_sample, tile
 from slimseg.utils.atomic import write_png
 
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_data_config(args.data)
     base = CocoDataset.from_config(cfg, "val" if args.val else "train")
     augment = None if args.val else load_augment_config(args.augment)
-    ds = YoloDataset(base, args.imgsz, augment, seed=args.seed)
+    ds = ZooDataset(base, args.imgsz, augment, seed=args.seed)
     count = min(args.count, len(ds))
     panels = [draw_sample(ds[i], cfg.names) for i in range(count)]
     out = write_png(Path(args.out), tile(panels, args.columns))

@@ -9,15 +9,15 @@ from pathlib import Path
 
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.dataset import ZooDataset
 from slimseg.data.synth import generate
-from slimseg.deploy.checkpoint import load_weights
 from slimseg.engine.config import load_train_config
-from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.engine.preview import prediction_grid
 from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.plots import plot_results
 from slimseg.eval.semantic_metrics import format_semantic_table
+from slimseg.eval.validation import validate_dataset
+from slimseg.models.checkpoint import load_weights
 from slimseg.utils.atomic import write_png
 
 DEMO_RECIPE = "cpu-demo"  # slimseg/configs/train/cpu-demo.yaml
@@ -70,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
     )
     print("[3/4] validating the best EMA weights, fused (as deployed)")
     model, info = load_weights(run_dir / "weights" / "best.pt", fused=True)
-    val_set = YoloDataset(CocoDataset.from_config(load_data_config(data_yaml), "val"), cfg.imgsz)
-    metrics, _ = evaluate_dataset(model, val_set, cfg.batch, progress=False)
+    val_set = ZooDataset(CocoDataset.from_config(load_data_config(data_yaml), "val"), cfg.imgsz)
+    metrics, _ = validate_dataset(model, val_set, cfg.batch, progress=False)
     semantic = "miou" in metrics  # msnet-*: mIoU / MPA instead of COCO mAP
     print(format_semantic_table(metrics) if semantic else format_metrics_table(metrics, info.names))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))

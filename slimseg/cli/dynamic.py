@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.data.tum import mask_name
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
-from slimseg.dynamic.tum import mask_name
 from slimseg.errors import SlimsegError
 from slimseg.utils.table import format_table
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slimseg.deploy.checkpoint import load_weights
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_quantize import CALIB_METHODS
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.errors import SlimsegError
+from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_model
 
 

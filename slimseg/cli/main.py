@@ -8,7 +8,6 @@ import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-from slimseg import __version__
 from slimseg.cli import (
     ablate,
     bench,
@@ -24,6 +23,7 @@ from slimseg.cli import (
     val,
 )
 from slimseg.errors import SlimsegError
+from slimseg.version import __version__
 
 # Each command module exposes ``add_parser(subparsers)`` and ``run(args) -> int``.
 COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic, slam_eval, slam)

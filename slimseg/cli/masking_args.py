@@ -1,12 +1,12 @@
 """The SLAM-facing masking options shared by ``slimseg dynamic`` and ``slimseg slam-eval``:
 ``--preset papers|slimseg`` and one flag per setting of
-:class:`slimseg.dynamic.settings.MaskingSettings` (a flag overrides the preset)."""
+:class:`slimseg.dynamic.masking_settings.MaskingSettings` (a flag overrides the preset)."""
 
 from __future__ import annotations
 
 import argparse
 
-from slimseg.dynamic.settings import DEFAULT_PRESET, PRESETS, MaskingSettings, preset
+from slimseg.dynamic.masking_settings import DEFAULT_PRESET, PRESETS, MaskingSettings, preset
 
 # flag -> (field, type, help)
 FLAGS: dict[str, tuple[str, type, str]] = {

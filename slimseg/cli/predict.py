@@ -26,7 +26,8 @@ from slimseg.data.images import read_rgb
 from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample
-from slimseg.deploy.predictor import BACKENDS, Prediction, Predictor, combined_mask
+from slimseg.deploy.predictor import BACKENDS, Predictor, combined_mask
+from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import write_json, write_png

@@ -137,7 +137,7 @@ def _restore_list(text: str | None, names: list[str]) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from slimseg.dynamic.tum import TumSequence
+    from slimseg.data.tum import TumSequence
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print

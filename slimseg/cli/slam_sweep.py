@@ -6,8 +6,8 @@ import argparse
 import json
 from collections.abc import Callable
 
+from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.pipeline import MODES
-from slimseg.dynamic.settings import MaskingSettings
 from slimseg.errors import SlimsegError
 
 DEFAULT_SWEEP_MODE = "fusion"
@@ -32,7 +32,7 @@ def run_sweep_command(
     args: argparse.Namespace, masking: MaskingSettings, say: Callable[[str], None]
 ) -> int:
     """Validate the sweep options, run it, print and write the tables."""
-    from slimseg.dynamic.tum import TumSequence
+    from slimseg.data.tum import TumSequence
     from slimseg.slam.sweep import parse_sweep
     from slimseg.slam.sweep_report import table, write_sweep
     from slimseg.slam.sweep_run import SweepPlan, run_sweep

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from slimseg.data.augment import load_augment_config
+from slimseg.data.config import SPLITS, load_data_config
 from slimseg.engine.config import load_train_config
 from slimseg.engine.precision import PRECISIONS
 from slimseg.eval.coco_eval import format_metrics_table
@@ -64,6 +65,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from slimseg.engine.train import train
 
+    data = load_data_config(args.data)
+    for split in SPLITS:  # before any model or run folder: a sequences-only yaml has neither
+        data.split(split)
     cfg = load_train_config(args.config).override(
         imgsz=args.imgsz,
         epochs=args.epochs,

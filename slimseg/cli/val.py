@@ -15,10 +15,8 @@ from torch import nn
 
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
-from slimseg.data.dataset import YoloDataset
-from slimseg.deploy.checkpoint import load_weights
+from slimseg.data.dataset import ZooDataset
 from slimseg.deploy.onnx_model import OnnxModel
-from slimseg.engine.evaluate import SEMANTIC_CONF, evaluate_dataset, is_semantic
 from slimseg.errors import SlimsegError
 from slimseg.eval.boundary import DILATION_RATIO, NARROW_BANDS
 from slimseg.eval.ceiling import ceiling_detections
@@ -29,6 +27,8 @@ from slimseg.eval.mask_quality import (
     mask_quality,
 )
 from slimseg.eval.semantic_metrics import format_semantic_table
+from slimseg.eval.validation import SEMANTIC_CONF, is_semantic, validate_dataset
+from slimseg.models.checkpoint import load_weights
 from slimseg.ops.nms import EVAL_CONF, NMS_IOU
 
 
@@ -142,9 +142,9 @@ def run(args: argparse.Namespace) -> int:
         )
     conf = args.conf if args.conf is not None else (SEMANTIC_CONF if semantic else EVAL_CONF)
     base = CocoDataset.from_config(data_cfg, args.split)
-    result, evaluator = evaluate_dataset(
+    result, evaluator = validate_dataset(
         model,
-        YoloDataset(base, imgsz),
+        ZooDataset(base, imgsz),
         args.batch,
         args.workers,
         conf=conf,

@@ -16,10 +16,10 @@ import albumentations as A
 import cv2
 import numpy as np
 
-from slimseg.data.letterbox import PAD_VALUE, letterbox_image, letterbox_mask, letterbox_params
 from slimseg.data.sample import Sample
-from slimseg.models.specs import spec_from_mapping
+from slimseg.ops.letterbox import PAD_VALUE, letterbox_image, letterbox_mask, letterbox_params
 from slimseg.utils.shipped import resolve_config
+from slimseg.utils.strict_dataclass import dataclass_from_mapping
 from slimseg.utils.yaml_io import read_yaml
 
 
@@ -43,11 +43,11 @@ def load_augment_config(path: str | Path | None) -> AugmentConfig:
         return AugmentConfig()
     path = resolve_config(path, "data", "augmentation config")
     data = read_yaml(path, "augmentation config") or {}
-    return spec_from_mapping(AugmentConfig, data, str(path))
+    return dataclass_from_mapping(AugmentConfig, data, str(path))
 
 
 class Letterbox(A.DualTransform):
-    """albumentations wrapper around ``slimseg.data.letterbox`` (the shared rule)."""
+    """albumentations wrapper around ``slimseg.ops.letterbox`` (the shared rule)."""
 
     def __init__(self, height: int, width: int, p: float = 1.0) -> None:
         super().__init__(p=p)

@@ -145,6 +145,11 @@ def _targets(
     if isinstance(source, DataConfig) or Path(source).suffix.lower() in (".yaml", ".yml"):
         cfg = source if isinstance(source, DataConfig) else load_data_config(source)
         wanted = [split] if split else [s for s in ("train", "val") if getattr(cfg, s)]
+        if not wanted:  # a yaml without splits lists sequences (slimseg.data.config)
+            raise SlimsegError(
+                f"{cfg.source}: no train/val image split to check (it lists only the TUM "
+                f"sequences {', '.join(cfg.sequences)}, which 'slimseg dynamic' reads)"
+            )
         out = []
         for name in wanted:
             s = cfg.split(name)

@@ -12,7 +12,7 @@ from slimseg.data.augment import AugmentConfig
 from slimseg.data.coco import CocoDataset
 from slimseg.data.collate import make_collate
 from slimseg.data.config import DataConfig
-from slimseg.data.dataset import TRAIN_CACHE_MIB, EpochIndex, YoloDataset, mosaic_buffer_size
+from slimseg.data.dataset import TRAIN_CACHE_MIB, EpochIndex, ZooDataset, mosaic_buffer_size
 
 
 class EpochSampler(Sampler[EpochIndex]):
@@ -30,7 +30,7 @@ class EpochSampler(Sampler[EpochIndex]):
 
     def __init__(
         self,
-        dataset: YoloDataset,
+        dataset: ZooDataset,
         seed: int,
         generator: torch.Generator,
         mosaic_epochs: int | None = None,
@@ -83,8 +83,8 @@ class SegDataModule(L.LightningDataModule):
         self.augment = augment or AugmentConfig()
         self.seed, self.mask_ratio = seed, mask_ratio
         self.semantic = semantic  # batches carry class-map targets (semantic models)
-        self.train_set: YoloDataset | None = None
-        self.val_set: YoloDataset | None = None
+        self.train_set: ZooDataset | None = None
+        self.val_set: ZooDataset | None = None
 
     def _base(self, split: str) -> CocoDataset:
         # depth maps are not a training target: skip reading them (40% of the decode time)
@@ -93,7 +93,7 @@ class SegDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and self.train_set is None:
-            self.train_set = YoloDataset(
+            self.train_set = ZooDataset(
                 self._base("train"),
                 self.imgsz,
                 self.augment,
@@ -102,9 +102,9 @@ class SegDataModule(L.LightningDataModule):
                 mosaic_buffer_size(self.batch_size),
             )
         if self.val_set is None:
-            self.val_set = YoloDataset(self._base("val"), self.imgsz)
+            self.val_set = ZooDataset(self._base("val"), self.imgsz)
 
-    def _loader(self, dataset: YoloDataset, shuffle: bool) -> DataLoader:
+    def _loader(self, dataset: ZooDataset, shuffle: bool) -> DataLoader:
         generator = torch.Generator().manual_seed(self.seed)
         sampler = None
         if shuffle:

@@ -10,9 +10,9 @@ import numpy as np
 from torch.utils.data import Dataset, get_worker_info
 
 from slimseg.data.augment import AugmentConfig, apply_transform, build_transform, masks_to_boxes
-from slimseg.data.letterbox import letterbox_image, letterbox_mask, letterbox_params
 from slimseg.data.mosaic import mosaic4
 from slimseg.data.sample import Sample
+from slimseg.ops.letterbox import letterbox_image, letterbox_mask, letterbox_params
 
 #: Decoded training images (and masks) a loader process keeps, in MiB: a training set that fits
 #: is decoded once per process (persistent workers keep it across epochs) instead of once per
@@ -47,7 +47,7 @@ def _nbytes(sample: Sample) -> int:
     return sum(a.nbytes for a in (sample.image, sample.masks, sample.boxes, sample.classes))
 
 
-class YoloDataset(Dataset):
+class ZooDataset(Dataset):
     """Wraps a dataset of ``Sample`` and yields network-sized samples.
 
     Train (``augment`` given): mosaic with probability ``augment.mosaic`` (switch off with

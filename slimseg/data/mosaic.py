@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from slimseg.data.letterbox import PAD_VALUE
 from slimseg.data.sample import Sample
+from slimseg.ops.letterbox import PAD_VALUE
 
 
 def mosaic4(samples: list[Sample], size: int, rng: np.random.Generator) -> Sample:

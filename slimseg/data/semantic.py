@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from slimseg.data.letterbox import LetterboxParams
-
-IGNORE_INDEX = 255
+from slimseg.ops.letterbox import LetterboxParams
+from slimseg.ops.semantic import IGNORE_INDEX
 
 
 def semantic_target(

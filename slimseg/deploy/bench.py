@@ -21,13 +21,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from slimseg.data.letterbox import letterbox_params
 from slimseg.deploy.calibration import CalibrationSet
 from slimseg.deploy.int8_quantize import quantize_onnx
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ort_session import cpu_session
+from slimseg.detections import Detections
 from slimseg.eval.postprocess import to_frame_detections
-from slimseg.ops.nms import PREDICT_CONF, Detections, non_max_suppression, yolov3_to_rows
+from slimseg.models.registry import detection_rows
+from slimseg.ops.letterbox import letterbox_params
+from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
 from slimseg.ops.semantic import logits_to_frame
 from slimseg.utils.threads import torch_threads
 
@@ -135,7 +137,6 @@ def _postprocess(model: nn.Module, out: object, imgsz: int) -> list[object]:
     if model.spec.task == "semantic":
         return [logits_to_frame(o, meta["letterbox"], meta["orig_shape"]) for o in out]
     pred, proto = out if isinstance(out, tuple) else (out, None)
-    if model.spec.family == "darknet-yolov3":
-        pred = yolov3_to_rows(pred)
+    pred = detection_rows(model.spec.family, pred)
     dets: list[Detections] = non_max_suppression(pred, model.num_classes, conf=PREDICT_CONF)
     return [to_frame_detections(d, None if proto is None else proto[0], meta) for d in dets]

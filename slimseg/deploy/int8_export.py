@@ -4,7 +4,7 @@ Pipeline: the parity-checked FP32 export (:func:`~slimseg.deploy.onnx_export.exp
 into a temporary folder) → calibration on real frames → symmetric Q/DQ graph
 (:func:`~slimseg.deploy.int8_quantize.quantize_onnx`) → COCO box and mask mAP50-95 of the FP32
 and the INT8 graph on the same val split with the same evaluator
-(:func:`~slimseg.engine.evaluate.evaluate_dataset` over
+(:func:`~slimseg.eval.validation.validate_dataset` over
 :class:`~slimseg.deploy.onnx_model.OnnxModel`) → refuse when either drops more than
 ``max_drop`` points → agreement with FP32 on the calibration frames → metadata → rename into
 place, plus the ``NAME.json`` sidecar.
@@ -24,15 +24,15 @@ from tqdm import tqdm
 
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig, load_data_config
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.dataset import ZooDataset
 from slimseg.deploy.calibration import CalibrationSet, load_calibration_set
 from slimseg.deploy.int8_placement import check_family
 from slimseg.deploy.int8_quantize import check_onnxruntime, quantize_onnx
 from slimseg.deploy.metadata import build_metadata, to_metadata_props
 from slimseg.deploy.onnx_export import detection_agreement, export_onnx
 from slimseg.deploy.onnx_model import OnnxModel
-from slimseg.engine.evaluate import evaluate_dataset
 from slimseg.errors import SlimsegError
+from slimseg.eval.validation import validate_dataset
 
 DEFAULT_MAX_DROP = 1.0  # mAP50-95 points, box and mask alike
 
@@ -70,7 +70,7 @@ def score_onnx(
     """COCO metrics of an exported graph on ``data``'s val split (``slimseg val``'s evaluator)."""
     model = OnnxModel(path)
     base = CocoDataset.from_config(data, "val")
-    result, _ = evaluate_dataset(model, YoloDataset(base, imgsz), batch, 0, progress=progress)
+    result, _ = validate_dataset(model, ZooDataset(base, imgsz), batch, 0, progress=progress)
     return result
 
 

@@ -11,9 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from slimseg import __version__
-from slimseg.data.letterbox import PAD_VALUE
-from slimseg.dynamic.settings import (
+from slimseg.dynamic.masking_settings import (
     DEFAULT,
     DEFAULT_PRESET,
     DILATION_REFERENCE_PX,
@@ -24,10 +22,12 @@ from slimseg.dynamic.settings import (
 )
 from slimseg.errors import SlimsegError
 from slimseg.models.base import ZooModel
+from slimseg.ops.letterbox import PAD_VALUE
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
+from slimseg.version import __version__
 
 # Eq. 1's starting mobility threshold of the default masking settings (docs/papers.md §2):
-# classes above it are dynamic. Read from slimseg.dynamic.settings, never retyped.
+# classes above it are dynamic. Read from slimseg.dynamic.masking_settings, never retyped.
 DEFAULT_MOBILITY_THRESHOLD = DEFAULT.m_th_start
 # Keys every slimseg export carries and a runtime cannot do without.
 REQUIRED_METADATA = ("names", "imgsz", "family", "task")

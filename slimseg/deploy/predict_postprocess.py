@@ -1,7 +1,7 @@
-"""Network outputs → :class:`~slimseg.deploy.prediction.Prediction` per frame.
+"""Network outputs → :class:`~slimseg.detections.Prediction` per frame.
 
 Instance models: :func:`~slimseg.ops.nms.non_max_suppression` (Darknet YOLOv3 rows first go
-through :func:`~slimseg.ops.nms.yolov3_to_rows`), then
+through :func:`~slimseg.models.registry.detection_rows`), then
 :func:`~slimseg.eval.postprocess.to_frame_detections` (boxes and masks on the source frame).
 Semantic models (``logits [B, K+1, H, W]``): cropped to the letterbox content, resized to the
 frame and argmaxed into :attr:`Prediction.class_map`
@@ -15,10 +15,11 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from slimseg.deploy.prediction import Prediction
+from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 from slimseg.eval.postprocess import to_frame_detections
-from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
+from slimseg.models.registry import detection_rows
+from slimseg.ops.nms import non_max_suppression
 from slimseg.ops.semantic import logits_to_frame
 
 
@@ -36,8 +37,7 @@ def instance_predictions(
     """``pred [B, 4 + nc (+ nm), A]`` (``[B, 5 + nc, A]`` for YOLOv3) and ``proto
     [B, nm, H/s, W/s]`` → one :class:`Prediction` per frame of ``metas``."""
     nc = len(names)
-    if family == "darknet-yolov3":
-        pred = yolov3_to_rows(pred)
+    pred = detection_rows(family, pred)
     if pred.ndim != 3 or pred.shape[1] < 4 + nc:
         raise SlimsegError(
             f"model output {tuple(pred.shape)} does not match {nc} classes in its metadata"

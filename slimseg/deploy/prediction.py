@@ -4,57 +4,10 @@ source-frame pixels) and :func:`combined_mask` (the SLAM mask of selected classe
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-
-@dataclass(eq=False)
-class Prediction:
-    """Detections of one frame in source-frame pixels, sorted by decreasing score.
-
-    ``boxes``: ``float32 [N, 4]`` xyxy, clipped to the frame; ``scores``: ``float32 [N]``;
-    ``classes``: ``int64 [N]``; ``names`` and ``mobility``: the class name and mobility prior
-    of each detection; ``masks``: ``bool [N, h, w]`` (``None`` for detection-only models);
-    ``image_hw``: ``(h, w)``; ``timings``: milliseconds spent in ``preprocess``,
-    ``inference`` and ``postprocess``.
-
-    Semantic models (MSNET) have no detections (empty ``boxes``/``scores``/``classes``,
-    ``masks`` ``None``); their output is ``class_map``: ``uint8 [h, w]`` on the source frame,
-    ``0`` = background, ``k + 1`` = class ``k`` (``int32`` if a model had over 254 classes).
-    It is ``None`` for detectors and instance segmenters. ``class_names``: the model's class
-    names (``class_names[k]`` is value ``k + 1`` of ``class_map``; empty for the others).
-    """
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    classes: np.ndarray
-    names: list[str]
-    mobility: list[float]
-    masks: np.ndarray | None
-    image_hw: tuple[int, int]
-    timings: dict[str, float] = field(default_factory=dict)
-    class_map: np.ndarray | None = None
-    class_names: list[str] = field(default_factory=list)
-
-    def __len__(self) -> int:
-        return len(self.scores)
-
-    def detections(self) -> list[dict[str, Any]]:
-        """JSON-ready detections: ``box`` xyxy, ``class``, ``name``, ``score``, ``mobility``."""
-        return [
-            {
-                "box": [round(float(v), 2) for v in box],
-                "class": int(cls),
-                "name": name,
-                "score": round(float(score), 5),
-                "mobility": float(mob),
-            }
-            for box, cls, name, score, mob in zip(
-                self.boxes, self.classes, self.names, self.scores, self.mobility, strict=True
-            )
-        ]
+from slimseg.detections import Prediction
 
 
 def combined_mask(prediction: Prediction, classes: Iterable[int | str] | None = None) -> np.ndarray:

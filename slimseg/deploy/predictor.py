@@ -29,9 +29,10 @@ import torch
 from slimseg.deploy.metadata import build_metadata, read_onnx_metadata
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.predict_postprocess import instance_predictions, semantic_predictions
-from slimseg.deploy.prediction import Prediction, combined_mask
+from slimseg.deploy.prediction import combined_mask
 from slimseg.deploy.preprocess import parse_imgsz, preprocess_frame
 from slimseg.deploy.runners import OnnxRunner, TorchRunner
+from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.threads import torch_threads
@@ -118,7 +119,7 @@ class Predictor:
 
     @classmethod
     def _from_torch(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
-        from slimseg.deploy.checkpoint import load_weights
+        from slimseg.models.checkpoint import load_weights
 
         with torch_threads(threads):
             model, info = load_weights(path, fused=True)

@@ -6,8 +6,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from slimseg.data.letterbox import LetterboxParams, letterbox_image, letterbox_params
 from slimseg.errors import SlimsegError
+from slimseg.ops.letterbox import LetterboxParams, letterbox_image, letterbox_params
 
 MAX_STRIDE = 32
 

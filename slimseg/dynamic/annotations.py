@@ -15,7 +15,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from slimseg.data.coco_rle import segm_to_rle
-from slimseg.deploy.predictor import Prediction
+from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 
 

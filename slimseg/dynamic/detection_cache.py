@@ -25,13 +25,13 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
-from slimseg.dynamic.pipeline import FrameInputs, FrameSettings, process_modes
+from slimseg.dynamic.masking_settings import MaskingSettings
+from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_modes
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
-from slimseg.dynamic.settings import MaskingSettings
-from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
@@ -182,7 +182,7 @@ def mask_with(
     """Apply ``mode`` under ``masking`` to every cached frame; write ``out/<rgb ts>.png``
     (uint8, 255 = dynamic), exactly what ``slimseg dynamic --mode mode`` writes for these
     settings (the epipolar modes get the previous frame's features, without depth)."""
-    settings = FrameSettings.from_masking(cache.mobility, mode, masking)
+    settings = FrameRules.from_masking(cache.mobility, mode, masking)
     rng = np.random.default_rng(0)  # as slimseg dynamic: depth-RANSAC's sampling
     have_truth = all(f.truth is not None for f in cache.frames)
     score = ModeScore() if have_truth and cache.frames else None

@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
+from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.seg_box import box_masks, dilate, fuse_seg_box
-from slimseg.dynamic.settings import PAPERS, MaskingSettings
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
@@ -82,11 +82,11 @@ class FrameInputs:
 
 
 @dataclass(frozen=True)
-class FrameSettings:
+class FrameRules:
     """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
     ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
     Eq. 3's ``frame_ratio``, Eq. 4's ``t_o`` (defaults: the equations as printed, the
-    ``papers`` preset of :mod:`slimseg.dynamic.settings`, no dilation; sequence runs and the
+    ``papers`` preset of :mod:`slimseg.dynamic.masking_settings`, no dilation; sequence runs and the
     CLI pass the ``slimseg`` preset through :meth:`from_masking`), and ``dynamic_mobility``:
     the prior above which a class counts as dynamic (boxes of depth-RANSAC, epipolar
     candidates), ``m_th_start`` if None."""
@@ -104,7 +104,7 @@ class FrameSettings:
     @classmethod
     def from_masking(
         cls, class_mobility: np.ndarray, mode: str, masking: MaskingSettings
-    ) -> FrameSettings:
+    ) -> FrameRules:
         """The frame settings of ``masking`` (its ``conf`` acts on the detector, not here)."""
         return cls(
             class_mobility, mode, masking.min_static, masking.dilation_px, None,
@@ -118,7 +118,7 @@ class FrameSettings:
 
 
 def process_frame(
-    *, inputs: FrameInputs, settings: FrameSettings, rng: np.random.Generator | None = None
+    *, inputs: FrameInputs, settings: FrameRules, rng: np.random.Generator | None = None
 ) -> FrameResult:
     """Classify the keypoints of one frame with ``settings.mode``; ``rng`` drives
     depth-RANSAC's sampling. Epipolar modes: see the module docstring."""
@@ -130,7 +130,7 @@ def process_frame(
 def process_modes(
     *,
     inputs: FrameInputs,
-    settings: FrameSettings,
+    settings: FrameRules,
     modes: Sequence[str],
     rng: np.random.Generator | None = None,
 ) -> dict[str, FrameResult]:
@@ -162,7 +162,7 @@ def process_modes(
 
 def _one_mode(
     inputs: FrameInputs,
-    settings: FrameSettings,
+    settings: FrameRules,
     mode: str,
     mob: np.ndarray,
     rng: np.random.Generator | None,

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.restore import (
     MAX_REFS,
     STRIDE,
@@ -34,7 +35,6 @@ from slimseg.dynamic.restore import (
     restore_frame,
     select_references,
 )
-from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png
 

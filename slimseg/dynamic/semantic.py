@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from slimseg.deploy.prediction import Prediction
+from slimseg.detections import Prediction
 
 
 def class_map_to_instances(

@@ -25,20 +25,20 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
+from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
     MODES,
     FrameInputs,
     FrameResult,
-    FrameSettings,
+    FrameRules,
     process_modes,
 )
 from slimseg.dynamic.semantic import instances_of
-from slimseg.dynamic.settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.utils.atomic import write_png
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
@@ -106,7 +106,7 @@ def run_sequence(
     step = max(len(seq.frames) // 6, 1)
     gt_instances = isinstance(predictor, AnnotationInstances)
     previous: PreviousFrame | None = None
-    settings = FrameSettings.from_masking(mobility, mode, masking)
+    settings = FrameRules.from_masking(mobility, mode, masking)
     conf = masking.conf
     for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
         rgb, depth, stamp = seq.load(i)

@@ -7,9 +7,9 @@ from pathlib import Path
 from typing import Any
 
 from slimseg.errors import SlimsegError
-from slimseg.models.specs import spec_from_mapping
 from slimseg.ops.nms import EVAL_CONF, MAX_DET, NMS_IOU
 from slimseg.utils.shipped import resolve_config
+from slimseg.utils.strict_dataclass import dataclass_from_mapping
 from slimseg.utils.yaml_io import read_yaml
 
 OPTIMIZERS = ("sgd", "adamw")
@@ -64,4 +64,4 @@ def load_train_config(path: str | Path | None) -> TrainConfig:
         return TrainConfig()
     path = resolve_config(path, "train", "train config")
     data = read_yaml(path, "train config") or {}
-    return spec_from_mapping(TrainConfig, data, str(path))
+    return dataclass_from_mapping(TrainConfig, data, str(path))

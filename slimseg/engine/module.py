@@ -14,14 +14,15 @@ from slimseg.data.collate import network_input
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.criterion import build_criterion
 from slimseg.engine.ema import ModelEMA
-from slimseg.engine.evaluate import detect_batch, iou_types_for, is_semantic, semantic_batch
 from slimseg.engine.preview import prediction_grid
 from slimseg.engine.schedule import lr_factor, warmup_values
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator
 from slimseg.eval.semantic_metrics import ConfusionMatrix
+from slimseg.eval.validation import detect_batch, iou_types_for, is_semantic, semantic_batch
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
+from slimseg.utils.strict_dataclass import dataclass_from_mapping
 
 
 class NonFiniteLossError(SlimsegError):
@@ -48,7 +49,7 @@ def parameter_groups(model: nn.Module, weight_decay: float) -> list[dict]:
     ]
 
 
-class DetectorModule(L.LightningModule):
+class ZooModule(L.LightningModule):
     """Trains ``build_from_spec(spec)``; validates (and checkpoints) its EMA weights.
 
     Validation: COCO box/mask mAP (``val/box_map50_95``, ...) for detectors and instance
@@ -69,7 +70,7 @@ class DetectorModule(L.LightningModule):
         super().__init__()
         self.save_hyperparameters()
         self.spec: ModelSpec = spec_from_mapping(ModelSpec, spec, "spec")
-        self.cfg: TrainConfig = spec_from_mapping(TrainConfig, train, "train")
+        self.cfg: TrainConfig = dataclass_from_mapping(TrainConfig, train, "train")
         self.names, self.mobility = list(names), list(mobility or [])
         self.model = build_from_spec(self.spec)
         self.criterion = build_criterion(self.model)

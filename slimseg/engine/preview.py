@@ -8,17 +8,17 @@ import torch
 from torch import nn
 
 from slimseg.data.collate import make_collate, network_input
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.dataset import ZooDataset
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample, tile
-from slimseg.engine.evaluate import detect_batch, is_semantic
+from slimseg.eval.validation import detect_batch, is_semantic
 from slimseg.ops.nms import NMS_IOU, PREDICT_CONF
 from slimseg.ops.semantic import logits_to_frame
 
 
 def prediction_grid(
     model: nn.Module,
-    dataset: YoloDataset,
+    dataset: ZooDataset,
     names: list[str],
     count: int = 8,
     columns: int = 4,
@@ -26,7 +26,7 @@ def prediction_grid(
 ) -> np.ndarray:
     """RGB grid of ``model``'s detections (score ≥ ``conf``) on the first ``count`` frames.
 
-    ``dataset`` must be a validation ``YoloDataset`` (letterbox only): its letterbox meta maps
+    ``dataset`` must be a validation ``ZooDataset`` (letterbox only): its letterbox meta maps
     detections back to each source frame, which is what the grid shows.
     """
     model.eval()
@@ -46,7 +46,7 @@ def prediction_grid(
 
 
 def _panels(
-    model: nn.Module, batch: dict, dataset: YoloDataset, names: list[str], conf: float
+    model: nn.Module, batch: dict, dataset: ZooDataset, names: list[str], conf: float
 ) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """``(index, source frame, drawn panel)``: class maps for semantic models, else masks
     and boxes."""

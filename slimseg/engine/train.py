@@ -29,19 +29,19 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from slimseg.data.augment import AugmentConfig
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
-from slimseg.deploy.checkpoint import (
+from slimseg.engine.config import TrainConfig
+from slimseg.engine.freeze import FreezeModules, frozen_children
+from slimseg.engine.module import ZooModule
+from slimseg.engine.precision import resolve_precision
+from slimseg.errors import SlimsegError
+from slimseg.losses.instance_mask import target_mask_ratio
+from slimseg.models.checkpoint import (
     NotSlimsegWeightsError,
     WeightsInfo,
     load_weights,
     save_weights,
 )
-from slimseg.engine.config import TrainConfig
-from slimseg.engine.freeze import FreezeModules, frozen_children
-from slimseg.engine.module import DetectorModule
-from slimseg.engine.precision import resolve_precision
-from slimseg.engine.pretrained import load_pretrained
-from slimseg.errors import SlimsegError
-from slimseg.losses.instance_mask import target_mask_ratio
+from slimseg.models.pretrained import load_pretrained
 from slimseg.models.registry import get_spec
 from slimseg.models.specs import ModelSpec
 from slimseg.utils.atomic import atomic_path
@@ -66,7 +66,7 @@ class RunWriter(L.Callback):
         self.out = out
         self.best = -1.0
 
-    def on_validation_end(self, trainer: L.Trainer, module: DetectorModule) -> None:
+    def on_validation_end(self, trainer: L.Trainer, module: ZooModule) -> None:
         if not trainer.is_global_zero or trainer.sanity_checking:
             return
         metrics = trainer.callback_metrics
@@ -146,7 +146,7 @@ def resolve_run_dir(out: Path, resume: bool) -> Path:
     return chosen
 
 
-def transfer_weights(module: DetectorModule, path: str | Path) -> str:
+def transfer_weights(module: ZooModule, path: str | Path) -> str:
     """Initialise from ``path``: slimseg weights/checkpoints (tensors with matching names and
     shapes) or a reference YOLOv8 state dict (mapped by structure, COCO class rows picked by
     name). Returns a report of what loaded and what was skipped."""
@@ -186,7 +186,7 @@ def train(
     callbacks: list[L.Callback] | None = None,
     precision: str = "auto",
     freeze: Sequence[str] = (),
-) -> tuple[DetectorModule, Path]:
+) -> tuple[ZooModule, Path]:
     """Train ``model`` on ``data`` with recipe ``cfg``; returns the module and run folder.
 
     ``model``: a zoo name, a spec YAML path, or a :class:`ModelSpec` (its class count is
@@ -231,7 +231,7 @@ def _train(
     callbacks: list[L.Callback] | None,
     precision: str,
     freeze: tuple[str, ...],
-) -> tuple[DetectorModule, Path]:
+) -> tuple[ZooModule, Path]:
     data_cfg = load_data_config(data)
     if isinstance(model, ModelSpec):
         spec = model.with_classes(len(data_cfg.names))
@@ -245,7 +245,7 @@ def _train(
     if resume and not last_ckpt.is_file():
         raise SlimsegError(f"{last_ckpt}: nothing to resume (no checkpoint in {out})")
     L.seed_everything(cfg.seed, workers=True, verbose=False)
-    module = DetectorModule(
+    module = ZooModule(
         spec.to_dict(), dataclasses.asdict(cfg), list(data_cfg.names), list(data_cfg.mobility)
     )
     if freeze:

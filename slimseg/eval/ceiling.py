@@ -26,8 +26,8 @@ from pycocotools import mask as mask_utils
 from pycocotools.coco import COCO
 
 from slimseg.data.collate import downsample_masks
+from slimseg.detections import decode_rle, encode_rle
 from slimseg.eval.coco_eval import load_gt
-from slimseg.eval.postprocess import decode_rle, encode_rle
 from slimseg.ops.masks import assemble_masks
 
 #: Coefficient scale of the ceiling's prototypes (sigmoid(8) = 0.99966).

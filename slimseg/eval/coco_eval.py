@@ -33,8 +33,9 @@ from pycocotools.coco import COCO
 from pycocotools.cocoeval import COCOeval
 
 from slimseg.data.coco_rle import segm_to_rle
+from slimseg.detections import FrameDetections
 from slimseg.errors import SlimsegError
-from slimseg.eval.postprocess import COCO_MAX_DETS, FrameDetections
+from slimseg.eval.postprocess import COCO_MAX_DETS
 from slimseg.utils.table import format_table
 
 if TYPE_CHECKING:

@@ -7,9 +7,9 @@ Entry points (definitions, band sizes and rules: docs/mask_quality.md):
   image_ids=None, cat_ids=None, person="person", thin_width=6.0) -> dict`` scores COCO
   result dicts (``image_id``, ``category_id``, RLE ``segmentation``, ``score``) against a
   ground truth (json path, dict or :class:`pycocotools.coco.COCO`); layout below;
-* ``slimseg.engine.evaluate.evaluate_mask_quality(model, dataset, batch=8, workers=0,
+* ``slimseg.eval.validation.validate_mask_quality(model, dataset, batch=8, workers=0,
   conf=EVAL_CONF, iou=NMS_IOU, progress=False, **mask_quality_options) -> dict`` runs an
-  eval-mode model over a validation :class:`~slimseg.data.dataset.YoloDataset` (e.g. a
+  eval-mode model over a validation :class:`~slimseg.data.dataset.ZooDataset` (e.g. a
   trained sweep variant's val split) and returns ``mask_quality``'s dict for its detections;
 * ``slimseg.eval.ceiling.ceiling_detections(coco_gt, ratio=4)``: the ground truth pushed
   through a ``ratio`` times coarser mask grid, the best such a grid allows;

@@ -1,6 +1,6 @@
 """NMS output (network-input pixels) → detections on the source frame (val and predict).
 
-Boxes go through :func:`~slimseg.data.letterbox.boxes_to_frame` (undo padding and scale, clip
+Boxes go through :func:`~slimseg.ops.letterbox.boxes_to_frame` (undo padding and scale, clip
 to the frame). Masks: :func:`~slimseg.ops.masks.assemble_masks` gives probabilities at input
 resolution, :func:`~slimseg.ops.masks.masks_to_frame` removes the padding, resizes them to the
 frame and thresholds at 0.5. Masks can be kept dense (``bool [N, h, w]``) or as COCO RLEs
@@ -9,100 +9,20 @@ frame and thresholds at 0.5. Masks can be kept dense (``bool [N, h, w]``) or as 
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pycocotools import mask as mask_utils
 
-from slimseg.data.letterbox import LetterboxParams, boxes_to_frame
+from slimseg.detections import Detections, FrameDetections
+from slimseg.ops.letterbox import LetterboxParams, boxes_to_frame
 from slimseg.ops.masks import assemble_masks, mask_windows, masks_to_frame, window_to_frame
-from slimseg.ops.nms import Detections
 from slimseg.ops.rle import window_rles
 
 #: COCO scores at most this many detections per image and class (``COCOeval.params.maxDets``
 #: last value): validation assembles masks only for detections within it, in score order.
 COCO_MAX_DETS = 100
-
-
-@dataclass(eq=False)
-class FrameDetections:
-    """Detections of one image in source-frame pixels, sorted by decreasing score.
-
-    ``boxes``: ``float32 [N, 4]`` xyxy, clipped to the frame; ``scores``: ``float32 [N]``;
-    ``classes``: ``int64 [N]`` contiguous class ids; ``masks``: ``bool [N, h, w]`` or
-    ``None``; ``rles``: ``N`` COCO RLE dicts (``size [h, w]``, ``counts`` str) or ``None``;
-    ``image_hw``: ``(h, w)``. Detection-only results have neither masks nor RLEs. An RLE
-    entry is ``None`` for a detection whose mask was not assembled (validation skips those
-    beyond :data:`COCO_MAX_DETS` of their class: COCO never looks at them).
-    """
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    classes: np.ndarray
-    image_hw: tuple[int, int]
-    masks: np.ndarray | None = None
-    rles: list[dict | None] | None = None
-
-    def __len__(self) -> int:
-        return len(self.scores)
-
-    @property
-    def has_masks(self) -> bool:
-        return self.masks is not None or self.rles is not None
-
-    def mask_rles(self) -> list[dict | None]:
-        """The masks as COCO RLEs (encoded from ``masks`` if only those are stored)."""
-        if self.rles is not None:
-            return self.rles
-        if self.masks is None:
-            raise ValueError("these detections have no masks (detection-only model)")
-        return encode_rle(self.masks)
-
-    def dense_masks(self) -> np.ndarray:
-        """The masks as ``bool [N, h, w]`` (decoded from ``rles`` if only those are stored)."""
-        if self.masks is not None:
-            return self.masks
-        if self.rles is None:
-            raise ValueError("these detections have no masks (detection-only model)")
-        return decode_rle(self.rles, self.image_hw)
-
-    @classmethod
-    def empty(cls, image_hw: tuple[int, int], with_masks: bool = False) -> FrameDetections:
-        """No detection (masks ``bool [0, h, w]`` if ``with_masks``)."""
-        h, w = image_hw
-        return cls(
-            boxes=np.zeros((0, 4), np.float32),
-            scores=np.zeros(0, np.float32),
-            classes=np.zeros(0, np.int64),
-            image_hw=(h, w),
-            masks=np.zeros((0, h, w), bool) if with_masks else None,
-        )
-
-
-def encode_rle(masks: np.ndarray) -> list[dict]:
-    """``bool/uint8 [N, h, w]`` → ``N`` COCO RLE dicts (``counts`` as str, json-ready)."""
-    if len(masks) == 0:
-        return []
-    # [N, w, h] C order is [h, w, N] Fortran order: one transpose copy per mask.
-    fortran = np.ascontiguousarray(np.transpose(masks, (0, 2, 1)), dtype=np.uint8).T
-    rles = mask_utils.encode(fortran)
-    for r in rles:
-        r["counts"] = r["counts"].decode("ascii")
-    return rles
-
-
-def decode_rle(rles: Sequence[dict], image_hw: tuple[int, int]) -> np.ndarray:
-    """``N`` COCO RLE dicts → ``bool [N, h, w]``."""
-    if len(rles) == 0:
-        return np.zeros((0, *image_hw), bool)
-    with warnings.catch_warnings():
-        # pycocotools' Cython array lacks numpy 2's ``copy`` keyword: harmless, silenced here.
-        warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)
-        return np.transpose(mask_utils.decode(list(rles)), (2, 0, 1)).astype(bool)
 
 
 def within_class_limit(classes: torch.Tensor, limit: int | None) -> torch.Tensor:

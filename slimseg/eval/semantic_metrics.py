@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from slimseg.data.semantic import IGNORE_INDEX
+from slimseg.ops.semantic import IGNORE_INDEX
 from slimseg.utils.table import format_table
 
 

@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from slimseg.data.semantic import IGNORE_INDEX
+from slimseg.ops.semantic import IGNORE_INDEX
 
 
 class SemanticLoss(nn.Module):

@@ -9,6 +9,9 @@ construction and sets ``strides``:
 * ``strides``: the output strides in pixels, finest first (YOLO heads: 8, 16, 32);
 * ``fuse()``: a fused copy in eval mode (``slimseg.layers.fuse``), ``self`` untouched;
 * ``is_fused``: asked of the blocks' own state (``slimseg.layers.fuse.is_fused``);
+* ``detection_rows(pred)`` (static): the eval output of a detector or segmenter → the one
+  row layout NMS reads, ``[B, 4 + nc + nm, A]`` (``cx, cy, w, h`` in input pixels, class
+  scores, mask coefficients); the identity unless a family's output differs;
 * ``dead_conv_params()``: parameters the published code defines but never uses (0 unless a
   family says otherwise; counted only in the paper-comparable parameter column).
 
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 from typing import Self
 
+import torch
 from torch import nn
 
 from slimseg.layers.fuse import fuse_model
@@ -46,6 +50,11 @@ class ZooModel(nn.Module):
     def fuse(self) -> Self:
         """A fused copy (Conv+BN folded, RepConv merged) in eval mode; ``self`` is untouched."""
         return fuse_model(self)
+
+    @staticmethod
+    def detection_rows(pred: torch.Tensor) -> torch.Tensor:
+        """``pred [B, 4 + nc + nm, A]`` as NMS reads it (already that layout here)."""
+        return pred
 
     def dead_conv_params(self) -> int:
         """Parameters the published code defines but never calls (none by default)."""

@@ -25,6 +25,7 @@ from slimseg.layers.conv import ConvBNAct
 from slimseg.models.base import ZooModel
 from slimseg.models.heads.decode import YOLO_STRIDES as STRIDES
 from slimseg.models.specs import ModelSpec
+from slimseg.ops.nms import yolov3_to_rows
 
 # (w, h) in input pixels, one tuple per level, ordered stride 8, 16, 32 (yolov3.cfg masks
 # 0,1,2 | 3,4,5 | 6,7,8).
@@ -145,6 +146,12 @@ class Darknet19YOLOv3(ZooModel):
     ``fused=True`` builds the BN-fused structure that ``fuse_model(model).state_dict()`` loads
     into.
     """
+
+    @staticmethod
+    def detection_rows(pred: torch.Tensor) -> torch.Tensor:
+        """``[B, 5 + nc, A]`` (objectness, class probabilities) → ``[B, 4 + nc, A]`` rows
+        with class score = objectness · class probability."""
+        return yolov3_to_rows(pred)
 
     def __init__(
         self, spec: ModelSpec, fused: bool = False, bn_eps: float = DARKNET_BN_EPS

@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+import torch
+
 from slimseg.models.base import ZooModel
 from slimseg.models.darknet_yolov3 import Darknet19YOLOv3
 from slimseg.models.msnet import MSNet
@@ -52,6 +54,15 @@ BUILDERS: dict[str, type[ZooModel]] = {
     "msnet": MSNet,
     "darknet-yolov3": Darknet19YOLOv3,
 }
+
+
+def detection_rows(family: str, pred: torch.Tensor) -> torch.Tensor:
+    """The eval output of a model of ``family`` → NMS rows ``[B, 4 + nc + nm, A]`` (the
+    family's declared :meth:`~slimseg.models.base.ZooModel.detection_rows`). Takes the family
+    name, not the model, so ONNX files (whose metadata names it) use the same rule."""
+    if family not in BUILDERS:
+        raise SpecError(f"family {family!r} is unknown; valid: {', '.join(BUILDERS)}")
+    return BUILDERS[family].detection_rows(pred)
 
 
 def build_from_spec(spec: ModelSpec, fused: bool = False) -> ZooModel:

@@ -6,13 +6,12 @@ import dataclasses
 import hashlib
 import json
 import math
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from slimseg.errors import SlimsegError
+from slimseg.errors import ConfigError, SlimsegError
+from slimseg.utils.strict_dataclass import dataclass_from_mapping
 from slimseg.utils.yaml_io import read_yaml
 
 FAMILIES = ("yolov8", "darknet-yolov3", "msnet")
@@ -21,7 +20,7 @@ HEAD_KINDS = ("decoupled", "shared-rep", "yolov3")
 NECKS = ("c2f", "slim")
 
 
-class SpecError(SlimsegError, ValueError):
+class SpecError(ConfigError):
     """A model spec is malformed; the message names the file and field."""
 
 
@@ -240,46 +239,9 @@ def _compact(obj: Any) -> Any:
     return json.loads(json.dumps(obj)) if isinstance(obj, (tuple, list)) else obj
 
 
-def _convert(value: Any, hint: Any, where: str) -> Any:
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _convert(value, inner[0], where)
-    if dataclasses.is_dataclass(hint):
-        return spec_from_mapping(hint, value, where)
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise SpecError(f"{where}: expected a list, got {value!r}")
-        item = args[0]
-        return tuple(_convert(v, item, f"{where}[{i}]") for i, v in enumerate(value))
-    if hint is float:
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise SpecError(f"{where}: expected a number, got {value!r}")
-        return float(value)
-    if hint in (int, str, bool) and type(value) is not hint:
-        raise SpecError(f"{where}: expected {hint.__name__}, got {value!r}")
-    return value
-
-
 def spec_from_mapping(cls: type, data: Any, where: str) -> Any:
-    """Build dataclass ``cls`` from a mapping; unknown or missing fields raise SpecError."""
-    if not isinstance(data, dict):
-        raise SpecError(f"{where}: expected a mapping for {cls.__name__}, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(data) - set(names))
-    if unknown:
-        raise SpecError(f"{where}: unknown field(s) {unknown}; valid fields: {names}")
-    kwargs = {k: _convert(v, hints[k], f"{where}.{k}") for k, v in data.items()}
-    try:
-        return cls(**kwargs)
-    except TypeError as exc:
-        raise SpecError(f"{where}: {exc}") from None
-    except SpecError as exc:
-        raise SpecError(f"{where}: {exc}") from None
+    """Build the spec dataclass ``cls`` from a mapping; malformed fields raise SpecError."""
+    return dataclass_from_mapping(cls, data, where, SpecError)
 
 
 def load_spec(path: str | Path) -> ModelSpec:

@@ -23,7 +23,7 @@ for parity with runtimes that do it: the box scaled by ``(Wp / W, Hp / H)``; pro
 ``j + 1 > x1p and j < x2p`` (same for rows), else set to 0.
 
 :func:`masks_to_frame` (input-resolution masks or probabilities → ``h × w`` source frame,
-:class:`~slimseg.data.letterbox.LetterboxParams` ``p``):
+:class:`~slimseg.ops.letterbox.LetterboxParams` ``p``):
 
 1. take rows ``top : top + new_h`` and columns ``left : left + new_w`` (drop the padding);
 2. as float32 (``True`` → 1.0), bilinear resize ``new_h × new_w → h × w`` with half-pixel
@@ -43,7 +43,7 @@ from collections.abc import Iterator
 import torch
 import torch.nn.functional as F
 
-from slimseg.data.letterbox import LetterboxParams
+from slimseg.ops.letterbox import LetterboxParams
 
 
 def _proto_window(boxes: torch.Tensor, h: int, w: int) -> torch.Tensor:

@@ -17,11 +17,10 @@ Rule (what a C++ runtime should do to reproduce it), per image:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torchvision.ops import batched_nms
 
+from slimseg.detections import Detections
 from slimseg.ops.boxes import xywh_to_xyxy
 
 # Detection-style thresholds, one home (``docs/conventions.md`` §6). SLAM-facing thresholds
@@ -30,24 +29,6 @@ EVAL_CONF = 0.001  # mAP evaluation: keep nearly everything, COCOeval ranks it
 PREDICT_CONF = 0.25  # predictions shown or saved
 NMS_IOU = 0.7  # suppress overlaps strictly above this IoU
 MAX_DET = 300  # detections kept per image
-
-
-@dataclass(eq=False)
-class Detections:
-    """Detections of one image after NMS, sorted by decreasing score.
-
-    ``boxes``: ``float [N, 4]`` xyxy in network-input pixels; ``scores``: ``float [N]``;
-    ``classes``: ``int64 [N]`` contiguous class ids; ``coeffs``: ``float [N, nm]`` raw mask
-    coefficients (``[N, 0]`` for detection-only models).
-    """
-
-    boxes: torch.Tensor
-    scores: torch.Tensor
-    classes: torch.Tensor
-    coeffs: torch.Tensor
-
-    def __len__(self) -> int:
-        return int(self.scores.shape[0])
 
 
 def yolov3_to_rows(pred: torch.Tensor) -> torch.Tensor:

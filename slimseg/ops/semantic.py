@@ -1,11 +1,18 @@
-"""Semantic logits → class maps on the network input or on the source frame."""
+"""Semantic logits → class maps on the network input or on the source frame.
+
+A class map is ``[H, W]`` with ``0`` = background and ``k + 1`` = dataset class ``k``;
+:data:`IGNORE_INDEX` marks pixels no metric or loss looks at (the letterbox padding of
+validation images): its one home, used by the data targets, the loss and the metrics.
+"""
 
 from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
 
-from slimseg.data.letterbox import LetterboxParams
+from slimseg.ops.letterbox import LetterboxParams
+
+IGNORE_INDEX = 255
 
 
 def logits_to_frame(

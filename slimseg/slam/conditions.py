@@ -26,8 +26,8 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.data.images import decode_file
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.seg_box import dilate
-from slimseg.dynamic.tum import TumSequence, mask_name
 from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EngineFrame
 

@@ -26,9 +26,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.dynamic.tum import Camera
+from slimseg.data.tum import Camera, read_trajectory
 from slimseg.errors import SlimsegError
-from slimseg.slam.trajectory import matrix_to_tum, read_tum
+from slimseg.slam.trajectory import matrix_to_tum
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,7 @@ def run_orbslam3(
         if any(s in OK_STATES for s in states):
             slam.save_trajectory_tum(str(traj_path))
     try:
-        traj = read_tum(traj_path) if traj_path.is_file() else np.zeros((0, 8))
+        traj = read_trajectory(traj_path) if traj_path.is_file() else np.zeros((0, 8))
     finally:
         traj_path.unlink(missing_ok=True)
     return EngineRun(traj, states, 1000 * t_track / max(len(frames), 1), late)

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from slimseg.dynamic.tum import MAX_DT
+from slimseg.data.tum import MAX_DT
 from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EXTRA_HINT
 

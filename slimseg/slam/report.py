@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from slimseg.data.tum import read_trajectory
 from slimseg.eval.paper import TABLE3_ATE, YOLO_SLAM_WALKING_XYZ_ATE
-from slimseg.slam.evaluate import ConditionResult
-from slimseg.slam.trajectory import read_tum
+from slimseg.slam.condition_runs import ConditionResult
 from slimseg.utils.atomic import atomic_path, write_text
 from slimseg.utils.table import format_table
 
@@ -138,7 +138,7 @@ def plot_trajectories(path: Path, info: RunInfo, results: list[ConditionResult])
 
     from slimseg.slam.metrics import aligned_positions
 
-    gt = read_tum(info.sequence / "groundtruth.txt")
+    gt = read_trajectory(info.sequence / "groundtruth.txt")
     fig = Figure(figsize=(7, 6), dpi=110)
     ax = fig.add_subplot(1, 1, 1)
     ax.plot(gt[:, 1], gt[:, 3], "k--", lw=1.5, label="ground truth", zorder=10)
@@ -146,7 +146,7 @@ def plot_trajectories(path: Path, info: RunInfo, results: list[ConditionResult])
         run = res.median_run()
         if run is None or run.trajectory is None:
             continue
-        xyz = aligned_positions(gt, read_tum(run.trajectory))
+        xyz = aligned_positions(gt, read_trajectory(run.trajectory))
         label = f"{res.condition.name} ({run.score.ate_rmse:.3f} m)"
         ax.plot(xyz[:, 0], xyz[:, 2], lw=1.2, label=label)
     ax.set_xlabel("x (m)")

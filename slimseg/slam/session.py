@@ -21,20 +21,19 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from slimseg.dynamic.settings import DEFAULT, MaskingSettings, preset_name
-from slimseg.dynamic.tum import MAX_DT, TumSequence, mask_name
+from slimseg.data.tum import MAX_DT, TumSequence, mask_name, read_trajectory
+from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
 from slimseg.errors import SlimsegError
+from slimseg.slam.condition_runs import ConditionResult, EngineRunConfig, evaluate_condition
 from slimseg.slam.conditions import (
     Condition,
     check_masks,
     oracle_paths,
     restored_paths,
 )
-from slimseg.slam.evaluate import ConditionResult, EvalSettings, evaluate_condition
 from slimseg.slam.metrics import still_floor
+from slimseg.slam.orbslam3_config import OrbSlam3Config, write_settings
 from slimseg.slam.report import RunInfo, write_report
-from slimseg.slam.settings import OrbSettings, write_settings
-from slimseg.slam.trajectory import read_tum
 
 log = logging.getLogger(__name__)
 
@@ -214,15 +213,15 @@ class EngineOptions(Protocol):
     progress: bool
 
 
-def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> EvalSettings:
+def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> EngineRunConfig:
     """The tracking settings of ``plan`` for ``seq``; for ORB-SLAM3 its settings file is
     written into ``folder``."""
     settings = None
     if plan.engine == "orbslam3":
         h, w = seq.load(0)[0].shape[:2]
-        orb = OrbSettings(features=plan.features, fps=fps_of(seq))
+        orb = OrbSlam3Config(features=plan.features, fps=fps_of(seq))
         settings = write_settings(folder / "orbslam3_settings.yaml", seq.camera, w, h, orb)
-    return EvalSettings(
+    return EngineRunConfig(
         engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
         realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
         progress=plan.progress,
@@ -231,7 +230,7 @@ def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> Eval
 
 def ground_truth(seq: TumSequence) -> list:
     """The sequence's ``groundtruth.txt`` poses (at least 3, else a one-line error)."""
-    gt = read_tum(seq.root / "groundtruth.txt")
+    gt = read_trajectory(seq.root / "groundtruth.txt")
     if len(gt) < 3:
         raise SlimsegError(f"{seq.root / 'groundtruth.txt'} has {len(gt)} poses: need 3 or more")
     return gt

@@ -1,6 +1,6 @@
 """``slam-eval --sweep KEY=v1,v2,...``: parse the sweep and list the settings it evaluates.
 
-Keys (:data:`SWEEP_KEYS`) name fields of :class:`slimseg.dynamic.settings.MaskingSettings`:
+Keys (:data:`SWEEP_KEYS`) name fields of :class:`slimseg.dynamic.masking_settings.MaskingSettings`:
 ``conf`` (detector score threshold), ``dilation`` (px), ``min_static`` (Eq. 1),
 ``m_th_start`` / ``m_th_step`` (Eq. 1), ``ratio`` (Eq. 3's fraction), ``t_o`` (Eq. 4).
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field, replace
 
-from slimseg.dynamic.settings import PRESETS, MaskingSettings, SettingsError, preset_name
+from slimseg.dynamic.masking_settings import PRESETS, MaskingSettings, SettingsError, preset_name
 
 SWEEP_KEYS: dict[str, str] = {
     "conf": "conf",
@@ -79,7 +79,7 @@ def _number(key: str, text: str, item: str) -> Value:
 
 
 def _check(key: str, value: Value, item: str) -> None:
-    from slimseg.dynamic.settings import check_value
+    from slimseg.dynamic.masking_settings import check_value
 
     try:
         check_value(SWEEP_KEYS[key], value)

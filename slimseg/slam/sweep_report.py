@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from slimseg.slam.evaluate import ConditionResult
+from slimseg.slam.condition_runs import ConditionResult
 from slimseg.slam.report import csv_text
 from slimseg.slam.sweep import SWEEP_KEYS, SweepPoint, slice_through
 from slimseg.slam.sweep_run import SequenceSweep, SweepPlan

@@ -19,12 +19,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from slimseg.data.tum import TumSequence
 from slimseg.dynamic.detection_cache import SettingMasks, build_cache, mask_with
-from slimseg.dynamic.settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.tum import TumSequence
+from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
 from slimseg.errors import SlimsegError
+from slimseg.slam.condition_runs import ConditionResult, evaluate_condition
 from slimseg.slam.conditions import Condition
-from slimseg.slam.evaluate import ConditionResult, evaluate_condition
 from slimseg.slam.metrics import still_floor
 from slimseg.slam.report import csv_text, run_rows
 from slimseg.slam.session import (

@@ -3,12 +3,7 @@ scalar last; camera-to-world) ↔ 4×4 matrices, and the text file format."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
-
-from slimseg.dynamic.tum import read_groundtruth
-from slimseg.utils.atomic import write_text
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -54,17 +49,3 @@ def tum_to_matrices(rows: np.ndarray) -> np.ndarray:
         out[i, :3, :3] = quat_to_matrix(r[4:8])
         out[i, :3, 3] = r[1:4]
     return out
-
-
-def read_tum(path: str | Path) -> np.ndarray:
-    """A TUM trajectory file → ``float64 [K, 8]`` (malformed lines raise ``SlimsegError``)."""
-    return read_groundtruth(path)
-
-
-def write_tum(path: str | Path, rows: np.ndarray) -> Path:
-    """Write TUM rows ``[K, 8]`` (stamps with 6 decimals, the rest with 9), atomically."""
-    lines = [
-        f"{r[0]:.6f} " + " ".join(f"{v:.9f}" for v in r[1:])
-        for r in np.asarray(rows).reshape(-1, 8)
-    ]
-    return write_text(path, "\n".join(lines) + ("\n" if lines else ""))

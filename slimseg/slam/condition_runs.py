@@ -16,12 +16,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.dynamic.tum import TumSequence
+from slimseg.data.tum import TumSequence, write_trajectory
 from slimseg.errors import SlimsegError
 from slimseg.slam.conditions import Condition, condition_frames
 from slimseg.slam.engines import EngineRun, run_dense, run_orbslam3
 from slimseg.slam.metrics import TrajectoryScore, score
-from slimseg.slam.trajectory import write_tum
 
 log = logging.getLogger(__name__)
 
@@ -29,7 +28,7 @@ LOST_MARK_FRACTION = 0.1  # a row is marked when the median run lost more than t
 
 
 @dataclass(frozen=True)
-class EvalSettings:
+class EngineRunConfig:
     """``engine``: orbslam3 | dense; ``runs`` per condition (ORB-SLAM3); ``vocab`` /
     ``settings``: ORB-SLAM3 files; ``realtime``: replay at the frame rate times ``speed``;
     ``limit``: first frames only; ``fps``: the sequence's rate."""
@@ -118,7 +117,7 @@ def _median(values: list[float]) -> float | None:
 
 
 def evaluate_condition(
-    seq: TumSequence, cond: Condition, gt: np.ndarray, cfg: EvalSettings, out: Path
+    seq: TumSequence, cond: Condition, gt: np.ndarray, cfg: EngineRunConfig, out: Path
 ) -> ConditionResult:
     """Track ``cond``'s frames ``cfg.runs`` times; write ``out/<cond>/run<k>.txt`` (TUM)."""
     frames = condition_frames(seq, cond, cfg.limit, cfg.progress)
@@ -145,7 +144,7 @@ def evaluate_condition(
 def _scored(run: EngineRun, k: int, n: int, gt: np.ndarray, fps: float, folder: Path) -> RunResult:
     path = None
     if len(run.trajectory):
-        path = write_tum(folder / f"run{k + 1}.txt", run.trajectory)
+        path = write_trajectory(folder / f"run{k + 1}.txt", run.trajectory)
     res = RunResult(k + 1, n, run.lost, run.reinitialised, run.ms_per_frame, path, late=run.late)
     if not len(run.trajectory):
         res.error = f"never initialised ({n - run.lost}/{n} frames tracked)"

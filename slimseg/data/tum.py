@@ -1,4 +1,5 @@
-"""TUM RGB-D sequence reader: lists, RGB↔depth association, frames in metres, ground truth.
+"""TUM RGB-D format: sequence reader (lists, RGB↔depth association, frames in metres), ground
+truth and trajectory files (read and written), and the benchmarks' published intrinsics.
 
 Layout (TUM RGB-D, Bonn, and ``slimseg data synth --sequences``)::
 
@@ -10,11 +11,23 @@ Layout (TUM RGB-D, Bonn, and ``slimseg data synth --sequences``)::
 
 Association follows TUM's ``associate.py``: greedy by smallest |t_rgb - t_depth|, each stamp used
 at most once, pairs further apart than ``max_dt`` (0.02 s) dropped.
+
+Intrinsics: Published pinhole calibrations of the public RGB-D benchmarks, picked by folder name.
+
+Real TUM RGB-D and Bonn folders carry no camera file; the calibration is a property of the
+sensor, which the folder name identifies (``rgbd_dataset_freiburg3_walking_xyz`` → freiburg3,
+``rgbd_bonn_balloon`` → Bonn). A ``camera.yaml`` in the folder always wins (the synthetic
+sequences write one). Depth on all of them: uint16 PNG, 5000 units per metre.
+
+Sources: TUM RGB-D "File Formats / Intrinsic Camera Calibration of the Kinect" page (fr1, fr2,
+fr3: the ROS-default-corrected values for the colour camera); the Bonn RGB-D Dynamic dataset
+page (fx 542.822841, fy 542.576870, cx 315.593520, cy 237.756098).
 """
 
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,12 +36,44 @@ import numpy as np
 import yaml
 
 from slimseg.data.images import decode_file
-from slimseg.dynamic.intrinsics import CALIBRATIONS, DEFAULT, TUM_DEPTH_SCALE, calibration_for
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import write_text
 
 log = logging.getLogger(__name__)
 
 Stamped = tuple[float, str]
+
+TUM_DEPTH_SCALE = 5000.0  # TUM and Bonn: uint16 depth / 5000 = metres; 0 = invalid
+
+CALIBRATIONS: dict[str, dict[str, float]] = {
+    "tum-fr1": {"fx": 517.3, "fy": 516.5, "cx": 318.6, "cy": 255.3},
+    "tum-fr2": {"fx": 520.9, "fy": 521.0, "cx": 325.1, "cy": 249.7},
+    "tum-fr3": {"fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6},
+    "bonn": {"fx": 542.822841, "fy": 542.576870, "cx": 315.593520, "cy": 237.756098},
+}
+DEFAULT = "tum-fr1"  # folders whose name says nothing (kept from before the table existed)
+
+_PATTERNS = (
+    (re.compile(r"freiburg([123])|(?:^|[_\-])fr([123])(?:[_\-/]|$)"), "tum-fr{}"),
+    (re.compile(r"bonn"), "bonn"),
+)
+
+
+def calibration_for(folder: str | Path) -> str | None:
+    """Key of :data:`CALIBRATIONS` the folder's name (or its parent's) points at, else None.
+
+    ``rgbd_dataset_freiburg3_walking_xyz`` → ``"tum-fr3"``, ``fr2_desk`` → ``"tum-fr2"``,
+    ``rgbd_bonn_crowd`` → ``"bonn"``."""
+    p = Path(folder).resolve()
+    for name in (p.name, p.parent.name):
+        low = name.lower()
+        for pattern, key in _PATTERNS:
+            m = pattern.search(low)
+            if m:
+                digits = [g for g in m.groups() if g]
+                return key.format(*digits) if digits else key
+    return None
+
 
 # TUM freiburg1: the fallback for a folder whose name and files say nothing (see intrinsics)
 TUM_FR1 = {**CALIBRATIONS["tum-fr1"], "depth_scale": TUM_DEPTH_SCALE}
@@ -126,9 +171,10 @@ def associate(rgb: list[Stamped], depth: list[Stamped], max_dt: float = MAX_DT) 
     return result
 
 
-def read_groundtruth(path: str | Path) -> np.ndarray:
-    """Parse ``groundtruth.txt``: ``float64 [K, 8]`` rows ``t tx ty tz qx qy qz qw`` (s, m,
-    quaternion last). Raises ``SlimsegError`` naming the file and line for a malformed line."""
+def read_trajectory(path: str | Path) -> np.ndarray:
+    """Parse a TUM trajectory (``groundtruth.txt`` or an estimate): ``float64 [K, 8]`` rows
+    ``t tx ty tz qx qy qz qw`` (s, m, quaternion last). Raises ``SlimsegError`` naming the file
+    and line for a malformed line."""
     path = Path(path)
     rows = []
     for no, line in _read_lines(path):
@@ -142,6 +188,15 @@ def read_groundtruth(path: str | Path) -> np.ndarray:
             ) from None
         rows.append(vals)
     return np.array(rows, np.float64).reshape(-1, 8)
+
+
+def write_trajectory(path: str | Path, rows: np.ndarray) -> Path:
+    """Write TUM rows ``[K, 8]`` (stamps with 6 decimals, the rest with 9), atomically."""
+    lines = [
+        f"{r[0]:.6f} " + " ".join(f"{v:.9f}" for v in r[1:])
+        for r in np.asarray(rows).reshape(-1, 8)
+    ]
+    return write_text(path, "\n".join(lines) + ("\n" if lines else ""))
 
 
 def mask_name(timestamp: float | str) -> str:
@@ -195,7 +250,7 @@ class TumSequence:
     ``frames``: associated ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs (paths relative
     to ``root``); ``camera``: :class:`Camera` from ``camera.yaml`` if present, else the
     published calibration the folder name points at (``freiburg3`` → TUM fr3, ``bonn`` →
-    Bonn; :mod:`slimseg.dynamic.intrinsics`), else TUM fr1; ``camera_source`` says which
+    Bonn; :mod:`slimseg.data.tum`), else TUM fr1; ``camera_source`` says which
     (``"camera.yaml"``, ``"tum-fr3 (folder name)"``, ``"tum-fr1 (default)"``). Raises
     ``SlimsegError`` when a list is missing or malformed or no frame pair associates.
     """

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from slimseg.dynamic.tum import Camera
+from slimseg.data.tum import Camera
 from slimseg.utils.atomic import write_text
 
 # Kinect-class sensor: virtual stereo baseline (m) and the close/far point limit in baselines
@@ -20,7 +20,7 @@ TH_DEPTH = 40.0
 
 
 @dataclass(frozen=True)
-class OrbSettings:
+class OrbSlam3Config:
     """ORB extractor and sensor parameters written next to the intrinsics."""
 
     features: int = 1000
@@ -31,7 +31,7 @@ class OrbSettings:
     fps: float = 30.0
 
 
-def settings_text(camera: Camera, width: int, height: int, orb: OrbSettings) -> str:
+def settings_text(camera: Camera, width: int, height: int, orb: OrbSlam3Config) -> str:
     """The settings file's text for a ``width``×``height`` pinhole ``camera`` (px)."""
     values: list[tuple[str, object]] = [
         ("File.version", '"1.0"'),
@@ -74,10 +74,10 @@ def settings_text(camera: Camera, width: int, height: int, orb: OrbSettings) -> 
 
 
 def write_settings(
-    path: Path, camera: Camera, width: int, height: int, orb: OrbSettings | None = None
+    path: Path, camera: Camera, width: int, height: int, orb: OrbSlam3Config | None = None
 ) -> Path:
     """Write the settings file (atomically) and return its path."""
-    return write_text(path, settings_text(camera, width, height, orb or OrbSettings()))
+    return write_text(path, settings_text(camera, width, height, orb or OrbSlam3Config()))
 
 
 def _fmt(v: object) -> str:

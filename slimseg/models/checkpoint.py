@@ -17,12 +17,12 @@ from typing import Any
 import torch
 from torch import nn
 
-from slimseg import __version__
 from slimseg.errors import SlimsegError
 from slimseg.models.base import ZooModel
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
 from slimseg.utils.atomic import atomic_path
+from slimseg.version import __version__
 
 FORMAT = "slimseg-weights/1"
 

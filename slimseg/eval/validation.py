@@ -19,15 +19,17 @@ from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from slimseg.data.collate import make_collate, network_input
-from slimseg.data.dataset import YoloDataset
+from slimseg.data.dataset import ZooDataset
 from slimseg.data.semantic import instances_to_semantic
+from slimseg.detections import FrameDetections
 from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import CocoEvaluator
 from slimseg.eval.mask_quality import evaluator_mask_quality
-from slimseg.eval.postprocess import COCO_MAX_DETS, FrameDetections, batch_to_frame_detections
+from slimseg.eval.postprocess import COCO_MAX_DETS, batch_to_frame_detections
 from slimseg.eval.semantic_metrics import ConfusionMatrix
+from slimseg.models.registry import detection_rows
 from slimseg.ops.masks import assemble_masks
-from slimseg.ops.nms import EVAL_CONF, MAX_DET, NMS_IOU, non_max_suppression, yolov3_to_rows
+from slimseg.ops.nms import EVAL_CONF, MAX_DET, NMS_IOU, non_max_suppression
 
 # Score threshold of a YOLO segmenter's detections painted into a class map (the predict
 # default): the 0.001 of mAP evaluation would paint every low-score guess.
@@ -77,7 +79,7 @@ def semantic_batch(
     return maps
 
 
-def evaluate_semantic(
+def validate_semantic(
     model: nn.Module,
     loader: Iterable[dict],
     names: list[str] | None = None,
@@ -124,8 +126,7 @@ def detect_batch(
     out = model(images)
     t1 = time.perf_counter()
     pred, proto = out if isinstance(out, tuple) else (out, None)
-    if model.spec.family == "darknet-yolov3":
-        pred = yolov3_to_rows(pred)
+    pred = detection_rows(model.spec.family, pred)
     dets = non_max_suppression(pred, model.num_classes, conf=conf, iou=iou, max_det=max_det)
     frames = batch_to_frame_detections(dets, proto, batch["meta"], rle=True, mask_limit=mask_limit)
     _add_timings(timings, t0, t1)
@@ -146,7 +147,7 @@ def _add_timings(timings: dict[str, float] | None, t0: float, t1: float) -> None
         timings["postprocess"] = timings.get("postprocess", 0.0) + time.perf_counter() - t1
 
 
-def evaluate(
+def validate_loader(
     model: nn.Module,
     loader: Iterable[dict],
     evaluator: CocoEvaluator,
@@ -176,9 +177,9 @@ def iou_types_for(model: nn.Module) -> tuple[str, ...]:
     return ("bbox", "segm") if model.spec.task == "segment" else ("bbox",)
 
 
-def evaluate_dataset(
+def validate_dataset(
     model: nn.Module,
-    dataset: YoloDataset,
+    dataset: ZooDataset,
     batch: int = 8,
     workers: int = 0,
     conf: float = EVAL_CONF,
@@ -186,10 +187,10 @@ def evaluate_dataset(
     progress: bool = True,
     semantic: bool = False,
 ) -> tuple[dict, CocoEvaluator | ConfusionMatrix]:
-    """COCO mAP of ``model`` on a validation ``YoloDataset`` (letterbox only) over its json.
+    """COCO mAP of ``model`` on a validation ``ZooDataset`` (letterbox only) over its json.
 
     Semantic models (MSNET), or any segmenter with ``semantic=True``, are scored with mIoU /
-    MPA instead (:func:`evaluate_semantic`; ``conf`` then thresholds the painted detections
+    MPA instead (:func:`validate_semantic`; ``conf`` then thresholds the painted detections
     of a YOLO segmenter); the second item is then the accumulated ``ConfusionMatrix``.
     """
     semantic = semantic or is_semantic(model)
@@ -197,14 +198,14 @@ def evaluate_dataset(
     loader = DataLoader(dataset, batch_size=batch, num_workers=workers, collate_fn=collate)
     if semantic:
         names = list(getattr(dataset.base, "names", []) or []) or None
-        return evaluate_semantic(model, loader, names, conf, iou, progress=progress)
+        return validate_semantic(model, loader, names, conf, iou, progress=progress)
     evaluator = CocoEvaluator.from_dataset(dataset.base, iou_types_for(model))
-    return evaluate(model, loader, evaluator, conf, iou, progress=progress), evaluator
+    return validate_loader(model, loader, evaluator, conf, iou, progress=progress), evaluator
 
 
-def evaluate_mask_quality(
+def validate_mask_quality(
     model: nn.Module,
-    dataset: YoloDataset,
+    dataset: ZooDataset,
     batch: int = 8,
     workers: int = 0,
     conf: float = EVAL_CONF,
@@ -213,10 +214,10 @@ def evaluate_mask_quality(
     **options: Any,
 ) -> dict:
     """Mask quality (:func:`~slimseg.eval.mask_quality.mask_quality`: per-class mask AP,
-    Boundary AP, person skeleton recall) of a segmenter on a validation ``YoloDataset``
+    Boundary AP, person skeleton recall) of a segmenter on a validation ``ZooDataset``
     (letterbox only), e.g. a trained sweep variant's val split; ``options`` go to
     ``mask_quality`` (``narrow_bands``, ``dilation_ratio``, ``thin_width``, ...)."""
     if model.spec.task != "segment":
         raise SlimsegError(f"{model.spec.name} has no instance masks: mask quality needs them")
-    _, evaluator = evaluate_dataset(model, dataset, batch, workers, conf, iou, progress)
+    _, evaluator = validate_dataset(model, dataset, batch, workers, conf, iou, progress)
     return evaluator_mask_quality(evaluator, **options)
