@@ -14,7 +14,7 @@ import pytest
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
-from slimseg.data.synth.sequence import build_world
+from slimseg.data.synth.world import build_world
 from slimseg.data.tum import CALIBRATIONS, TumSequence, calibration_for
 from slimseg.errors import SlimsegError
 from slimseg.slam.metrics import score, still_floor

@@ -24,8 +24,9 @@ from slimseg.data.synth import (
     render_sequence_frame,
     write_sequence,
 )
-from slimseg.data.synth.sequence import FPS, placements_at
+from slimseg.data.synth.sequence import placements_at
 from slimseg.data.synth.shapes import draw
+from slimseg.data.synth.world import FPS
 from slimseg.errors import SlimsegError
 
 IMGSZ = 128
