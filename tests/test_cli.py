@@ -62,9 +62,10 @@ def test_demo_end_to_end_small(tmp_path) -> None:
     """The README's main job, shrunk: 1 epoch is not a multiple of val_every (3), so the
     final weights must still be validated and written."""
     out = tmp_path / "demo"
-    argv = ["demo", "--out", str(out), "--epochs", "1", "--train-images", "8"]
+    argv = ["demo", "--out", str(out), "--epochs", "1", "--train-images", "8", "--no-slam"]
     assert main([*argv, "--val-images", "4", "--imgsz", "96", "--quiet"]) == 0
     for rel in ("results.png", "predictions.png", "metrics.json", "train/weights/best.pt"):
         assert (out / rel).is_file(), rel
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics) >= {"box", "mask", "per_class", "speed_ms"}
+    assert "slam" not in metrics and not (out / "export").exists()  # --no-slam

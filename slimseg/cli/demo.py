@@ -1,16 +1,18 @@
-"""``slimseg demo``: the embedded end-to-end job — synth data → train on the CPU → val → plots."""
+"""``slimseg demo``: the embedded end-to-end job — synth data → train on the CPU → val → plots
+→ ONNX → ORB-SLAM3 on a synthetic walking sequence with and without the model's masks."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import ZooDataset
 from slimseg.data.synth import generate
+from slimseg.data.synth.presets import PRESETS
 from slimseg.engine.config import load_train_config
 from slimseg.engine.preview import prediction_grid
 from slimseg.eval.coco_eval import format_metrics_table
@@ -18,18 +20,25 @@ from slimseg.eval.plots import plot_results
 from slimseg.eval.semantic_metrics import format_semantic_table
 from slimseg.eval.validation import validate_dataset
 from slimseg.models.checkpoint import load_weights
-from slimseg.utils.atomic import write_png
+from slimseg.utils.atomic import write_json, write_png
 
 DEMO_RECIPE = "cpu-demo"  # slimseg/configs/train/cpu-demo.yaml
+SLAM_SEED_OFFSET = 1  # the sequence's seed is --seed + 1: not the training images' seed
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="end to end on the embedded dataset: synth → train (CPU) → val → plots",
+        help="end to end on the embedded dataset: synth → train (CPU) → val → plots → ONNX → "
+        "ORB-SLAM3 with and without the masks",
         description="Generate the synthetic RGB-D dataset (no download), train a small variant "
         "on the CPU with configs/train/cpu-demo.yaml, validate its EMA weights with COCO mAP, "
-        "and write training curves and a prediction grid.",
+        "and write training curves and a prediction grid. Then export the fused model to "
+        "ONNX, render a synthetic walking sequence from another seed, and track it with "
+        "ORB-SLAM3 RGB-D several times on raw frames, on frames masked by the model (fusion "
+        "mode, slimseg masking defaults) and on frames masked by the ground truth, as "
+        "slimseg slam-eval does: slam.png (trajectories, ATE bars) and the ATE table in "
+        "metrics.json. The SLAM stage needs pip install 'slimseg[slam]' (GPL-3.0).",
     )
     p.add_argument("--out", default="runs/demo", help="demo folder (data/, train/, plots)")
     p.add_argument("--model", default="yolov8n-seg-gs-rep")
@@ -39,7 +48,42 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--val-images", type=int, default=128)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(run=run)
+    g = p.add_argument_group("SLAM stage (export/, slam/, slam.png)")
+    g.add_argument("--no-slam", action="store_true", help="stop after the plots")
+    g.add_argument(
+        "--slam-preset",
+        default="walking_xyz",
+        choices=sorted(PRESETS),
+        help="synthetic sequence preset (default walking_xyz: a moving camera)",
+    )
+    g.add_argument("--slam-frames", type=int, default=100, help="sequence frames at 30 Hz")
+    g.add_argument(
+        "--slam-size",
+        type=int,
+        nargs=2,
+        default=(640, 480),
+        metavar=("W", "H"),
+        help="sequence frame size (default 640 480, TUM's)",
+    )
+    g.add_argument(
+        "--slam-seed",
+        type=int,
+        default=None,
+        help=f"sequence seed (default --seed + {SLAM_SEED_OFFSET})",
+    )
+    g.add_argument(
+        "--slam-runs",
+        type=int,
+        default=3,
+        help="ORB-SLAM3 runs per condition (it is not deterministic)",
+    )
+    g.add_argument(
+        "--vocab",
+        type=Path,
+        default=None,
+        help="ORBvoc.txt (default: a small vocabulary built from the sequence)",
+    )
+    p.set_defaults(run=run)  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,11 +91,12 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = Path(args.out)
+    n = 4 if args.no_slam else 6
     data_yaml = out / "data" / "data.yaml"
     if data_yaml.is_file():
-        print(f"[1/4] reusing the synthetic dataset in {data_yaml.parent}")
+        print(f"[1/{n}] reusing the synthetic dataset in {data_yaml.parent}")
     else:
-        print(f"[1/4] generating {args.train_images}+{args.val_images} synthetic images")
+        print(f"[1/{n}] generating {args.train_images}+{args.val_images} synthetic images")
         report = generate(
             out / "data",
             args.train_images,
@@ -64,24 +109,29 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_train_config(DEMO_RECIPE).override(
         epochs=args.epochs, imgsz=args.imgsz, seed=args.seed
     )
-    print(f"[2/4] training {args.model} for {cfg.epochs} epochs at {cfg.imgsz} px on the CPU")
+    print(f"[2/{n}] training {args.model} for {cfg.epochs} epochs at {cfg.imgsz} px on the CPU")
+    t_train = time.perf_counter()
     _, run_dir = train(
         args.model, data_yaml, cfg, out / "train", progress=not args.quiet, accelerator="cpu"
     )
-    print("[3/4] validating the best EMA weights, fused (as deployed)")
-    model, info = load_weights(run_dir / "weights" / "best.pt", fused=True)
+    t_train = time.perf_counter() - t_train
+    print(f"[3/{n}] validating the best EMA weights, fused (as deployed)")
+    best = run_dir / "weights" / "best.pt"
+    model, info = load_weights(best, fused=True)
     val_set = ZooDataset(CocoDataset.from_config(load_data_config(data_yaml), "val"), cfg.imgsz)
     metrics, _ = validate_dataset(model, val_set, cfg.batch, progress=False)
     semantic = "miou" in metrics  # msnet-*: mIoU / MPA instead of COCO mAP
     print(format_semantic_table(metrics) if semantic else format_metrics_table(metrics, info.names))
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
-    print("[4/4] plots")
+    write_json(out / "metrics.json", metrics, indent=1)
+    print(f"[4/{n}] plots")
     curves = plot_results(run_dir / "results.csv", out / "results.png")
     grid = prediction_grid(model, val_set, info.names, count=8)
     preds = write_png(out / "predictions.png", grid)
+    slam = None if args.no_slam else _slam_stage(args, best, cfg.imgsz, out, metrics)
     minutes = (time.perf_counter() - start) / 60
     if semantic:
         score = f"mIoU {metrics['miou']:.3f}, MPA {metrics['mpa']:.3f}"
+        short = f"mIoU {metrics['miou']:.3f}"
     else:
         box, mask = metrics["box"], metrics.get("mask") or {}
         nan = float("nan")
@@ -89,12 +139,106 @@ def run(args: argparse.Namespace) -> int:
             f"box mAP50-95 {box['map50_95']:.3f} (mAP50 {box['map50']:.3f}), mask mAP50-95 "
             f"{mask.get('map50_95', nan):.3f} (mAP50 {mask.get('map50', nan):.3f})"
         )
-    print(
-        f"\ndone in {minutes:.1f} min: {score} at epoch {info.epoch + 1}\n"
-        f"  weights     {run_dir / 'weights'}/best.pt, last.pt\n"
-        f"  resume      {run_dir / 'checkpoints' / 'last.ckpt'}\n"
-        f"  logs        {run_dir / 'tb'} (tensorboard --logdir {run_dir / 'tb'})\n"
-        f"  plots       {curves}, {preds}\n"
-        f"  metrics     {out / 'metrics.json'}"
-    )
+        short = f"mask mAP50-95 {mask.get('map50_95', nan):.3f}"
+    split = f"training {t_train / 60:.1f} min"
+    if slam is not None:
+        split += f", SLAM part {slam.seconds / 60:.1f} min: {slam.timing}"
+    lines = [
+        f"\ndone in {minutes:.1f} min: {score} at epoch {info.epoch + 1}",
+        f"  time        {split} (wall clock; a loaded CPU stretches it)",
+        f"  weights     {run_dir / 'weights'}/best.pt, last.pt",
+        f"  resume      {run_dir / 'checkpoints' / 'last.ckpt'}",
+        f"  logs        {run_dir / 'tb'} (tensorboard --logdir {run_dir / 'tb'})",
+        f"  plots       {curves}, {preds}",
+    ]
+    if slam is not None:
+        lines += slam.paths
+    lines.append(f"  metrics     {out / 'metrics.json'}")
+    print("\n".join(lines))
+    print(f"{short}; {slam.result}" if slam is not None and slam.result else short)
     return 0
+
+
+@dataclass
+class _SlamSummary:
+    seconds: float
+    timing: str
+    paths: list[str]
+    result: str | None
+
+
+def _slam_stage(
+    args: argparse.Namespace, weights: Path, imgsz: int, out: Path, metrics: dict
+) -> _SlamSummary:
+    """Steps 5 and 6: export, then (with the [slam] extra) sequence, ORB-SLAM3, slam.png and
+    metrics.json's ``slam`` entry."""
+    from slimseg.slam import demo_run
+
+    t0 = time.perf_counter()
+    onnx = out / "export" / f"{args.model}.onnx"
+    print(f"[5/6] exporting the fused best weights to FP32 ONNX at {imgsz} px")
+    rep = demo_run.export_fp32(weights, onnx, imgsz)
+    parity = ", ".join(f"{k} {v:.3g}" for k, v in rep.parity.items())
+    print(f"wrote {rep.path} ({rep.nodes} nodes; parity vs fused torch: {parity})")
+    seconds = {"export": time.perf_counter() - t0}
+    paths = [f"  onnx        {rep.path} (+ {rep.sidecar.name})"]
+    missing = demo_run.slam_extra_missing()
+    if missing:
+        print(f"[6/6] ORB-SLAM3 skipped: {' and '.join(missing)} not installed; to run it, "
+              f"pip install 'slimseg[slam]' (GPL-3.0)")  # fmt: skip
+        return _SlamSummary(time.perf_counter() - t0, _timing(seconds), paths, None)
+    seed = args.seed + SLAM_SEED_OFFSET if args.slam_seed is None else args.slam_seed
+    s = demo_run.DemoSlamSettings(
+        preset=args.slam_preset, seed=seed, frames=args.slam_frames, size=tuple(args.slam_size),
+        runs=args.slam_runs, vocab=args.vocab, progress=not args.quiet,
+    )  # fmt: skip
+    folder = out / "slam"
+    w, h = s.size
+    print(f"[6/6] ORB-SLAM3 RGB-D on a synthetic {s.preset} sequence (seed {s.seed}, {s.frames} "
+          f"frames, {w}x{h}): raw frames, slimseg masks, ground-truth masks, {s.runs} runs "
+          "each")  # fmt: skip
+    t = time.perf_counter()
+    seq, reused = demo_run.prepare_sequence(folder, s)
+    seconds["sequence"] = time.perf_counter() - t
+    print(f"{'reusing' if reused else 'rendered'} the sequence in {seq}")
+    t = time.perf_counter()
+    vocab, built = demo_run.prepare_vocabulary(folder, seq, s)
+    seconds["vocabulary"] = time.perf_counter() - t
+    print(f"{'built' if built else 'using'} the vocabulary {vocab}")
+    outcome = demo_run.evaluate(onnx, seq, vocab, folder, s, print)
+    seconds.update(outcome.seconds)
+    fig = demo_run.write_figure(outcome, out / "slam.png", s, args.model)
+    total = time.perf_counter() - t0
+    table = demo_run.slam_table(outcome, s)
+    table["seconds"] = {k: round(v, 1) for k, v in {**seconds, "total": total}.items()}
+    metrics["slam"] = table
+    write_json(out / "metrics.json", metrics, indent=1)
+    from slimseg.slam.report import table_lines
+
+    print(table_lines(outcome.rows, markdown=False))
+    paths += [f"  slam        {fig}, {folder / 'results.md'} (runs.csv, trajectories/)"]
+    return _SlamSummary(total, _timing(seconds), paths, _result(table))
+
+
+def _timing(seconds: dict[str, float]) -> str:
+    return ", ".join(f"{k} {v:.0f} s" for k, v in seconds.items())
+
+
+def _result(table: dict) -> str:
+    """``ATE raw A m → slimseg B m → ground-truth masks C m (median of N runs ...)``."""
+    c = table["conditions"]
+
+    def ate(key: str) -> str:
+        v = c[key]["ate_median_m"]
+        return "not scored" if v is None else f"{v:.3f} m"
+
+    seq = table["sequence"]
+    text = (
+        f"ATE raw {ate('raw')} → slimseg {ate('slimseg')} → ground-truth masks "
+        f"{ate('gt_masks')} (median of {table['runs_per_condition']} ORB-SLAM3 runs each, "
+        f"{seq['preset']} seed {seq['seed']}, {seq['frames']} frames)"
+    )
+    raw, ours = c["raw"]["ate_median_m"], c["slimseg"]["ate_median_m"]
+    if raw is not None and ours is not None and ours >= raw:
+        text += "; the slimseg masks did not lower the ATE on this sequence"
+    return text
