@@ -231,6 +231,10 @@ def test_data_config_path_names_mobility(tmp_path: Path) -> None:
         ("mobility: {person: 2.0, dog: 1, chair: 0}\n", r"'mobility\.person'"),
         ("mobility: {person: 1.0}\n", r"missing: \['dog', 'chair'\]"),
         ("names: [a, a]\n", r"'names': duplicate"),
+        ("sequence: [seq]\n", r"unknown keys \['sequence'\]"),  # a typo stays an error
+        ("sequences: seq\n", r"'sequences': expected a non-empty list"),
+        ("sequences: [nope]\n", r"'sequences\[0\]': folder .*nope not found"),
+        ("sequences: [images]\n", r"'sequences\[0\]': .*images is not a TUM-layout .*rgb\.txt"),
     ],
 )
 def test_data_config_errors(tmp_path: Path, extra: str, match: str) -> None:
@@ -239,6 +243,26 @@ def test_data_config_errors(tmp_path: Path, extra: str, match: str) -> None:
         load_data_config(
             write_yaml(tmp_path, "val: {images: images, annotations: ann.json}\n" + extra)
         )
+
+
+def test_data_config_sequences(tmp_path: Path) -> None:
+    """``sequences`` (what 'slimseg data synth --sequences' writes): TUM folders by name; a
+    yaml with only sequences loads, needs names, and has no split to train on."""
+    for name in ("a", "b"):
+        (tmp_path / "seqs" / name).mkdir(parents=True)
+        for f in ("rgb.txt", "depth.txt"):
+            (tmp_path / "seqs" / name / f).write_text("# empty\n")
+    cfg = load_data_config(write_yaml(tmp_path, "sequences: [seqs/a, seqs/b]\nnames: [person]\n"))
+    assert cfg.sequences == {n: (tmp_path / "seqs" / n).resolve() for n in ("a", "b")}
+    assert cfg.train is None and cfg.val is None and cfg.mobility == ()
+    with pytest.raises(SlimsegError, match=r"data\.yaml: no 'train' split \(it lists only"):
+        cfg.split("train")
+    cfg = load_data_config(write_yaml(tmp_path, "sequences: {x: seqs/b}\nnames: [p]\n"))
+    assert cfg.sequences == {"x": (tmp_path / "seqs" / "b").resolve()}
+    with pytest.raises(SlimsegError, match=r"'names': required when there is no train/val"):
+        load_data_config(write_yaml(tmp_path, "sequences: [seqs/a]\n"))
+    with pytest.raises(SlimsegError, match=r"'sequences\[1\]': a second sequence named 'a'"):
+        load_data_config(write_yaml(tmp_path, "sequences: [seqs/a, ./seqs/a]\nnames: [p]\n"))
 
 
 def test_data_config_missing_files(tmp_path: Path) -> None:

@@ -227,7 +227,8 @@ def test_cli_defaults_run_and_user_errors(tmp_path: Path, capsys: pytest.Capture
     bad = [
         ["--out", str(out), "--train", "1", "--val", "1", "--imgsz", "64"],  # not empty
         ["--out", str(tmp_path / "a"), "--imgsz", "100"],
-        ["--out", str(tmp_path / "b"), "--train", "0"],
+        ["--out", str(tmp_path / "b"), "--train", "0"],  # one split without the other
+        ["--out", str(tmp_path / "c"), "--train", "0", "--val", "0"],  # nothing at all
     ]
     for argv in bad:
         args = parser.parse_args(["synth", *argv])

@@ -21,7 +21,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "The same arguments give byte-identical files.",
     )
     p.add_argument("--out", type=Path, required=True, help="output folder (created)")
-    p.add_argument("--train", type=int, default=512, help="training images (default 512)")
+    p.add_argument(
+        "--train",
+        type=int,
+        default=512,
+        help="training images (default 512); 0 with --val 0 and --sequences N: sequences only",
+    )
     p.add_argument("--val", type=int, default=128, help="validation images (default 128)")
     p.add_argument(
         "--imgsz", type=int, default=320, help="image size, square, multiple of 32 (default 320)"

@@ -17,17 +17,23 @@ Schema::
                           # or a mapping {name: prior} covering every class. Default: the
                           # json categories' 'mobility' fields (written by
                           # 'slimseg data coco-subset'), else none (empty tuple).
+    sequences: [DIR, ...] # optional. TUM RGB-D layout folders (rgb.txt, depth.txt, rgb/,
+                          # depth/; what 'slimseg dynamic --sequence' and 'slimseg slam-eval
+                          # --sequence' read), named by their folder name, or a mapping
+                          # {name: DIR}. Written by 'slimseg data synth --sequences N'.
 
-Default names and mobility come from the val json (usually the smaller one), else train.
-Every problem (unknown key, missing file or folder, bad names or mobility) raises
-:class:`~slimseg.errors.SlimsegError` naming the yaml and the field.
+A yaml needs a train or val split, or sequences; without a split, ``names`` is required (no
+json to take them from) and ``split()`` says the file has none. Default names and mobility come
+from the val json (usually the smaller one), else train. Every problem (unknown key, missing
+file or folder, bad names, mobility or sequences) raises :class:`~slimseg.errors.SlimsegError`
+naming the yaml and the field.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -35,9 +41,10 @@ from slimseg.errors import SlimsegError
 from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
-_TOP_KEYS = {"path", "train", "val", "names", "mobility"}
+_TOP_KEYS = {"path", "train", "val", "names", "mobility", "sequences"}
 _SPLIT_KEYS = {"images", "annotations", "depth"}
 SPLITS = ("train", "val")
+TUM_LISTS = ("rgb.txt", "depth.txt")  # what makes a folder a TUM-layout sequence
 
 
 @dataclass(frozen=True)
@@ -54,7 +61,8 @@ class DataConfig:
     """A loaded ``data.yaml``: resolved paths, class names and mobility priors.
 
     ``mobility`` is empty when neither the yaml nor the json gives priors; otherwise it has
-    one float in ``[0, 1]`` per name.
+    one float in ``[0, 1]`` per name. ``sequences``: TUM-layout sequence folders by name
+    (absolute paths, yaml order; empty when the yaml lists none).
     """
 
     root: Path
@@ -63,6 +71,7 @@ class DataConfig:
     names: tuple[str, ...]
     mobility: tuple[float, ...]
     source: Path
+    sequences: dict[str, Path] = field(default_factory=dict)
 
     @property
     def num_classes(self) -> int:
@@ -74,6 +83,12 @@ class DataConfig:
             raise SlimsegError(f"unknown split '{name}' (use one of {', '.join(SPLITS)})")
         s = getattr(self, name)
         if s is None:
+            if self.train is None and self.val is None:
+                raise SlimsegError(
+                    f"{self.source}: no '{name}' split (it lists only the TUM sequences "
+                    f"{', '.join(self.sequences)}); add '{name}: {{images: DIR, annotations: "
+                    "FILE}' to it, or regenerate a synthetic set with --train N --val N"
+                )
             raise SlimsegError(f"{self.source}: no '{name}' split; add '{name}:' to the yaml")
         return s
 
@@ -110,6 +125,38 @@ def _split(raw: Any, root: Path, src: Path, name: str) -> SplitConfig:
         if not depth.is_dir():
             raise _err(src, f"{name}.depth", f"folder {depth} not found")
     return SplitConfig(images, ann, depth)
+
+
+def _sequences(raw: Any, root: Path, src: Path) -> dict[str, Path]:
+    """``sequences``: a list of folders (named by folder name) or ``{name: folder}``; every
+    folder must exist and hold the TUM lists."""
+    items: list[tuple[str, Path, str]] = []  # (name, folder, field)
+    if isinstance(raw, list) and raw:
+        for i, v in enumerate(raw):
+            folder = _resolve(root, v, src, f"sequences[{i}]")
+            items.append((folder.name, folder, f"sequences[{i}]"))
+    elif isinstance(raw, Mapping) and raw:
+        for k, v in raw.items():
+            if not isinstance(k, str) or not k.strip():
+                raise _err(src, "sequences", f"sequence names must be non-empty strings, got {k!r}")
+            items.append((k, _resolve(root, v, src, f"sequences.{k}"), f"sequences.{k}"))
+    else:
+        raise _err(
+            src, "sequences", "expected a non-empty list of sequence folders or {name: folder}"
+        )
+    out: dict[str, Path] = {}
+    for name, folder, fld in items:
+        if name in out:
+            raise _err(
+                src, fld, f"a second sequence named '{name}'; use a mapping {{name: folder}}"
+            )
+        if not folder.is_dir():
+            raise _err(src, fld, f"folder {folder} not found")
+        missing = [f for f in TUM_LISTS if not (folder / f).is_file()]
+        if missing:
+            raise _err(src, fld, f"{folder} is not a TUM-layout sequence (no {', '.join(missing)})")
+        out[name] = folder
+    return out
 
 
 def _json_categories(path: Path, src: Path, field: str) -> list[dict]:
@@ -151,14 +198,17 @@ def load_data_config(path: str | Path) -> DataConfig:
         if not root.is_dir():
             raise _err(src, "path", f"folder {root} not found")
     splits = {s: _split(raw[s], root, src, s) for s in SPLITS if raw.get(s) is not None}
-    if not splits:
-        raise SlimsegError(f"{src}: needs a 'train' and/or 'val' split")
+    sequences = _sequences(raw["sequences"], root, src) if raw.get("sequences") is not None else {}
+    if not splits and not sequences:
+        raise SlimsegError(f"{src}: needs a 'train' and/or 'val' split (or 'sequences')")
     ref_split = "val" if "val" in splits else "train"
-    ref_json = splits[ref_split].annotations
+    ref_json = splits[ref_split].annotations if splits else None
 
     cats: list[dict] | None = None
     names_raw = raw.get("names")
     if names_raw is None:
+        if ref_json is None:
+            raise _err(src, "names", "required when there is no train/val json to read them from")
         cats = _json_categories(ref_json, src, f"{ref_split}.annotations")
         names = tuple(str(c["name"]) for c in sorted(cats, key=lambda c: c["id"]))
         if not names:
@@ -174,12 +224,14 @@ def load_data_config(path: str | Path) -> DataConfig:
         names = tuple(names_raw)
 
     mob_raw = raw.get("mobility")
-    if mob_raw is None:
+    if mob_raw is None and ref_json is None:
+        mobility: tuple[float, ...] = ()
+    elif mob_raw is None:
         if cats is None:
             cats = _json_categories(ref_json, src, f"{ref_split}.annotations")
         by_name = {str(c["name"]): c.get("mobility") for c in cats}
         priors = [by_name.get(n) for n in names]
-        mobility: tuple[float, ...] = ()
+        mobility = ()
         if all(isinstance(p, (int, float)) and not isinstance(p, bool) for p in priors):
             mobility = tuple(_prior(p, src, f"{ref_split}.annotations mobility") for p in priors)
     elif isinstance(mob_raw, list):
@@ -204,4 +256,5 @@ def load_data_config(path: str | Path) -> DataConfig:
         names=names,
         mobility=mobility,
         source=src,
+        sequences=sequences,
     )

@@ -35,18 +35,17 @@ class SynthReport:
 
     def summary(self) -> str:
         """One line for the terminal."""
-        imgs = " + ".join(f"{n} {s}" for s, n in self.images.items())
-        per_class = ", ".join(f"{name} {self.instances.get(name, 0)}" for name in NAMES)
-        seq = (
-            f", {self.sequences} sequences x {self.frames} frames "
-            f"({self.sequence_instances} instances)"
-            if self.sequences
-            else ""
-        )
-        return (
-            f"synth: {imgs} images{seq}; instances: {per_class}; "
-            f"{self.seconds:.1f} s; data: {self.data_yaml}"
-        )
+        parts = []
+        if self.images:
+            imgs = " + ".join(f"{n} {s}" for s, n in self.images.items())
+            per_class = ", ".join(f"{name} {self.instances.get(name, 0)}" for name in NAMES)
+            parts.append(f"{imgs} images (instances: {per_class})")
+        if self.sequences:
+            parts.append(
+                f"{self.sequences} sequences x {self.frames} frames "
+                f"({self.sequence_instances} instances)"
+            )
+        return f"synth: {'; '.join(parts)}; {self.seconds:.1f} s; data: {self.data_yaml}"
 
 
 def _check(
@@ -60,8 +59,16 @@ def _check(
     seq_size: tuple[int, int],
     overwrite: bool,
 ) -> None:
-    if train < 1 or val < 1:
-        raise SlimsegError(f"--train {train} / --val {val}: both splits need at least 1 image")
+    if train < 0 or val < 0 or (train == 0) != (val == 0):
+        raise SlimsegError(
+            f"--train {train} / --val {val}: give both splits at least 1 image, or both 0 "
+            "with --sequences N (a sequences-only dataset)"
+        )
+    if train == val == sequences == 0:
+        raise SlimsegError(
+            "--train 0 --val 0 --sequences 0: nothing to generate; give --train N --val N "
+            "and/or --sequences N"
+        )
     if seed < 0:
         raise SlimsegError(f"--seed {seed} must be 0 or more")
     if imgsz < 64 or imgsz % 32:
@@ -99,7 +106,9 @@ def generate(
     see :mod:`slimseg.data.synth.sequence`) and ``out/data.yaml``, written last. Every file is
     written atomically. ``overwrite`` first deletes only what this function writes
     (``train/``, ``val/``, ``sequences/``, ``data.yaml``). ``preset``: the sequences' camera
-    path and walkers (:mod:`slimseg.data.synth.presets`). Raises ``SlimsegError`` on bad input.
+    path and walkers (:mod:`slimseg.data.synth.presets`). ``train = val = 0`` with sequences
+    writes a sequences-only dataset (no image splits in data.yaml). Raises ``SlimsegError`` on
+    bad input.
     """
     out = Path(out)
     if preset is not None and preset not in PRESETS:
@@ -118,14 +127,16 @@ def generate(
     total = train + val + sequences * frames
     with tqdm(total=total, desc="synth", unit="img", disable=not progress) as bar:
         for split, n, stream in (("train", train, STREAM_TRAIN), ("val", val, STREAM_VAL)):
-            _write_split(out / split, n, imgsz, seed, stream, report, bar)
-            report.images[split] = n
+            if n:
+                _write_split(out / split, n, imgsz, seed, stream, report, bar)
+                report.images[split] = n
         for s in range(sequences):
             counts = write_sequence(
                 out / "sequences" / f"seq_{s:03d}", seed, s, frames, seq_size, bar.update, preset
             )
             report.sequence_instances += counts["instances"]
-    _write_data_yaml(out, seed, imgsz, sequences)
+    command = synth_command(train, val, imgsz, seed, sequences, frames, seq_size, preset)
+    _write_data_yaml(out, command, train > 0, sequences)
     report.seconds = time.perf_counter() - start
     return report
 
@@ -155,13 +166,39 @@ def _yaml_list(values: list) -> str:
     return "[" + ", ".join(str(v) for v in values) + "]"
 
 
-def _write_data_yaml(out: Path, seed: int, imgsz: int, sequences: int) -> None:
+def synth_command(
+    train: int,
+    val: int,
+    imgsz: int,
+    seed: int,
+    sequences: int = 0,
+    frames: int = 60,
+    seq_size: tuple[int, int] = (640, 480),
+    preset: str | None = None,
+    out: str = "<dir>",
+) -> str:
+    """The ``slimseg data synth`` command that writes exactly this dataset into ``out``: every
+    option that changes a file (sequence options only with sequences), none that does not
+    (``--overwrite``, ``--quiet``)."""
+    parts = [f"slimseg data synth --out {out} --train {train} --val {val}"]
+    parts.append(f"--imgsz {imgsz} --seed {seed}")
+    if sequences:
+        parts.append(f"--sequences {sequences} --frames {frames}")
+        parts.append(f"--seq-size {seq_size[0]} {seq_size[1]}")
+        if preset is not None:
+            parts.append(f"--preset {preset}")
+    return " ".join(parts)
+
+
+def _write_data_yaml(out: Path, command: str, images: bool, sequences: int) -> None:
+    """``data.yaml``: the image splits when there are images (a sequences-only set has none:
+    ``slimseg train`` then says so), names and mobility always, the sequence folders."""
     lines = [
-        f"# slimseg synthetic dataset (seed {seed}, {imgsz} px); regenerate with",
-        f"# slimseg data synth --out <dir> --imgsz {imgsz} --seed {seed}",
+        "# slimseg synthetic dataset; to regenerate it (<dir>: this folder):",
+        f"# {command}",
         "path: .",
     ]
-    for split in ("train", "val"):
+    for split in ("train", "val") if images else ():
         lines.append(
             f"{split}: {{images: {split}/images, annotations: {split}/annotations.json, "
             f"depth: {split}/depth}}"
