@@ -130,8 +130,11 @@ def test_intrinsics_are_picked_by_folder_name(tmp_path: Path) -> None:
     assert (fr3.fx, fr3.fy, fr3.cx, fr3.cy) == (535.4, 539.2, 320.1, 247.6)
     plain = TumSequence(_tum_folder(tmp_path, "my_recording"))
     assert plain.camera_source == "tum-fr1 (default)" and plain.camera.fx == 517.3
+    line = "intrinsics: fx 517.3, fy 516.5, cx 318.6, cy 255.3 from tum-fr1 (the default: no "
+    assert plain.describe_camera().startswith(line)  # what slimseg dynamic prints
     own = TumSequence(_tum_folder(tmp_path, "x/rgbd_dataset_freiburg3_sitting", "fx: 600\n"))
     assert own.camera_source == "camera.yaml" and own.camera.fx == 600.0
+    assert own.describe_camera().endswith(f"from {own.root / 'camera.yaml'}")
     assert calibration_for("fr2_pioneer") == "tum-fr2" and calibration_for("frames") is None
 
 

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
-from slimseg.data.tum import mask_name
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
@@ -74,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
     masking = masking_from_args(args)
     sequence = Path(args.sequence)
+    seq = TumSequence(sequence)  # a bad folder fails before the model loads
+    print(seq.describe_camera())
     if args.gt_instances:
         from slimseg.dynamic.annotations import AnnotationInstances
 
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     report = run_sequence(
         predictor,
-        sequence,
+        seq,
         out,
         args.mode,
         masking,

@@ -282,6 +282,15 @@ class TumSequence:
             self.camera_source = source
             log.info("sequence %s: intrinsics %s", self.root, source)
 
+    def describe_camera(self) -> str:
+        """One line for a command: the intrinsics in use and where they came from."""
+        c, source = self.camera, self.camera_source
+        if source == "camera.yaml":
+            source = str(self.root / "camera.yaml")
+        elif source.endswith("(default)"):
+            source = f"{DEFAULT} (the default: no camera.yaml, no known camera in the folder name)"
+        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
+
     def __len__(self) -> int:
         return len(self.frames)
 

@@ -82,7 +82,7 @@ class SequenceReport:
 
 def run_sequence(
     predictor: object,
-    sequence: Path,
+    sequence: Path | TumSequence,
     out: Path,
     mode: str = "fusion",
     masking: MaskingSettings = DEFAULT,
@@ -94,9 +94,9 @@ def run_sequence(
     ``Predictor`` or ``AnnotationInstances``) under the ``masking`` settings (score threshold,
     dilation, Eq. 1/3/4); write masks, ``frames.csv`` and ``overlay.png`` under ``out``.
     ``epipolar_depth``: give the epipolar check the previous depth and the intrinsics
-    (depth-aided residual, see ``epipolar``)."""
-    seq = TumSequence(sequence)
-    gt_dir = Path(sequence) / "dynamic"
+    (depth-aided residual, see ``epipolar``). ``sequence``: the folder, or it opened."""
+    seq = sequence if isinstance(sequence, TumSequence) else TumSequence(sequence)
+    gt_dir = seq.root / "dynamic"
     mobility = np.asarray(predictor.mobility, np.float32)
     (out / "masks").mkdir(parents=True, exist_ok=True)
     report = SequenceReport(scores={m: ModeScore() for m in MODES} if gt_dir.is_dir() else {})

@@ -240,8 +240,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     """Everything after option parsing; returns the summary rows and the table's header."""
     seq = plan.sequence
     vocab_label = check_engine(plan.engine, plan.vocab)
-    say(f"intrinsics: {seq.camera_source} (fx {seq.camera.fx}, fy {seq.camera.fy}, "
-        f"cx {seq.camera.cx}, cy {seq.camera.cy})")  # fmt: skip
+    say(seq.describe_camera())  # the same line as slimseg dynamic's
     clean(out, plan.masks)
     gt = ground_truth(seq)
     masked = mask_conditions(plan, out, say)
