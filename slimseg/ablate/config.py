@@ -173,6 +173,24 @@ def load_ablation_config(path: str | Path, data: str | None = None) -> AblationC
     return cfg
 
 
+def config_from_dict(d: dict, config_hash: str, where: str) -> AblationConfig:
+    """The sweep stored in a sweep folder's ``sweep.json`` (``d``: its ``config``, written
+    by :meth:`AblationConfig.to_dict`), checked to hash to ``config_hash``; ``where`` names
+    the file in errors. What a run on another node trains from: no path of the driver's
+    machine (the config file, the recipe) is read again."""
+    raw = dict(d)
+    train = dataclass_from_mapping(TrainConfig, raw.pop("train", None), f"{where}: train")
+    arms = parse_arms(raw.pop("variants", None), Path(where))
+    cfg = dataclass_from_mapping(AblationConfig, raw | {"train": {}, "variants": []}, where)
+    cfg = dataclasses.replace(cfg, variants=arms, train=train, source=where)
+    if cfg.hash != config_hash:
+        raise ConfigError(
+            f"{where}: the stored config hashes to {cfg.hash}, not {config_hash}: written by "
+            "another slimseg version? Run the sweep with the version that started it"
+        )
+    return cfg
+
+
 def _check(cfg: AblationConfig, path: Path) -> None:
     """Constraints across fields (the types are checked by ``dataclass_from_mapping``)."""
     if cfg.seeds is not None and (

@@ -10,11 +10,15 @@ Sweep folder::
         spec.yaml                       the arm's merged spec (arms with a spec override)
         throughput.json                 images and seconds per training epoch
         model.onnx, model-S.onnx        the fused FP32 exports the latency was measured on
+        scores.json                     trained and scored, timing not measured yet (ray)
         row.json                        the finished row (present = run done)
-    OUT/results.csv, summary.csv, results.md, results.png   rewritten after every run
+    OUT/state/NAME[/seed-S]/            lease and attempts of the run (ray backend)
+    OUT/results.csv, summary.csv, results.md, results.png   rebuilt from the rows on disk
+                                        after every run, in plan order
 
 Resume rule: a run with ``row.json`` (of this config) is kept; one with a Lightning
-``last.ckpt`` continues from it; one with neither starts over.
+``last.ckpt`` continues from it; one with neither starts over. This module is the local
+backend (runs one after another in this process) and the steps every backend shares.
 """
 
 from __future__ import annotations
@@ -25,17 +29,26 @@ import logging
 import os
 import shutil
 import subprocess
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from slimseg.ablate.arms import Arm
-from slimseg.ablate.config import AblationConfig
+from slimseg.ablate.config import AblationConfig, TrainerOptions
 from slimseg.ablate.latency import bench_latency
 from slimseg.ablate.metrics import resolve_metrics, run_weights, score_run
-from slimseg.ablate.report import write_reports
+from slimseg.ablate.report import ReportPaths, write_reports
+from slimseg.ablate.rows import (
+    FROM_EPOCHS,
+    FROM_STEPS,
+    ROW_VERSION,
+    join_row,
+    read_row,
+    rows_on_disk,
+)
 from slimseg.ablate.throughput import ThroughputMeter, images_per_second
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig, load_data_config
@@ -46,11 +59,10 @@ from slimseg.eval.complexity import measure
 from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec
-from slimseg.utils.atomic import write_json, write_yaml
+from slimseg.utils.atomic import write_json, write_text, write_yaml
 
-# 2: arms (``model``), seeds, row metrics, per-size latency; a version-1 row is measured
-# again from its run's weights (nothing retrains).
-ROW_VERSION = 2
+if TYPE_CHECKING:
+    from lightning import Callback
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +84,8 @@ def git_sha() -> str:
 
 
 def prepare_sweep_dir(cfg: AblationConfig, out: Path) -> None:
-    """Create ``out`` or check that it holds a sweep of this very config."""
+    """Create ``out`` or check that it holds a sweep of this very config, and that this
+    process can write in it (a clear error before any run starts)."""
     marker = out / "sweep.json"
     if marker.is_file():
         stored = json.loads(marker.read_text())
@@ -81,9 +94,23 @@ def prepare_sweep_dir(cfg: AblationConfig, out: Path) -> None:
                 f"{out}: holds a sweep of another config (hash {stored.get('hash')} vs "
                 f"{cfg.hash}); pass a different --out, or remove that folder to start over"
             )
+        check_writable(out)
         return
-    out.mkdir(parents=True, exist_ok=True)
+    check_writable(out)
     write_json(marker, {"hash": cfg.hash, "config": cfg.to_dict(), "source": cfg.source})
+
+
+def check_writable(out: Path) -> None:
+    """Create ``out`` and write (then remove) a file in it; SlimsegError when it cannot."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = write_text(out / f".write-probe-{os.getpid()}", "ok")
+        probe.unlink()
+    except OSError as exc:
+        raise SlimsegError(
+            f"{out}: the sweep folder cannot be written ({exc.strerror or exc}); pass --out a "
+            "folder this user can write (with --backend ray, one every node mounts)"
+        ) from None
 
 
 def sweep_data(cfg: AblationConfig, out: Path, progress: bool) -> Path:
@@ -122,68 +149,118 @@ def sweep_runs(cfg: AblationConfig, out: Path) -> list[Run]:
     ]
 
 
-def run_sweep(
-    cfg: AblationConfig,
-    out: Path,
-    progress: bool = True,
-    log: Callable[[str], None] | None = None,
-) -> list[dict]:
-    """Every run of ``cfg`` trained, evaluated and measured; returns the rows in order.
+@dataclass(frozen=True)
+class SweepPlan:
+    """A sweep ready to run: its folder prepared, its data generated, every arm's spec
+    (class count set to the data's) and every run in plan order."""
 
-    Progress lines go to ``log`` (default: this module's logger at INFO)."""
-    log = log or logger.info
-    from slimseg.engine.train import train  # Lightning import is slow: only when training
+    cfg: AblationConfig
+    out: Path
+    data_yaml: Path
+    data_cfg: DataConfig
+    specs: dict[str, ModelSpec]
+    runs: list[Run]
 
+    def run(self, label: str) -> Run:
+        """The run called ``label`` (``NAME`` or ``NAME/seed-S``)."""
+        for run in self.runs:
+            if run.label == label:
+                return run
+        raise SlimsegError(f"{self.out}: no run {label!r} in this sweep")
+
+    def rows(self) -> list[dict]:
+        """The rows on disk in plan order (:func:`~slimseg.ablate.rows.rows_on_disk`)."""
+        dirs = [r.dir for r in self.runs]
+        return rows_on_disk(dirs, self.cfg.hash, self.cfg.bench_sizes, self.cfg.bench.masks)
+
+    def write_reports(self) -> ReportPaths | None:
+        """Rebuild the reports from the rows on disk (None while no run has a row)."""
+        rows = self.rows()
+        return write_reports(rows, self.out, self.cfg) if rows else None
+
+
+def plan_sweep(cfg: AblationConfig, out: Path, progress: bool = True) -> SweepPlan:
+    """Check the data config, prepare ``out`` (or check it holds this sweep), generate the
+    embedded set once; nothing is trained."""
     if cfg.data_path is not None:
         load_data_config(cfg.data_path)  # a bad data config fails before anything is written
     prepare_sweep_dir(cfg, out)
     data_yaml = sweep_data(cfg, out, progress)
     data_cfg = load_data_config(data_yaml)
     specs = {a.name: a.model_spec().with_classes(len(data_cfg.names)) for a in cfg.variants}
-    frame = bench_frame(data_cfg)
+    return SweepPlan(cfg, out, data_yaml, data_cfg, specs, sweep_runs(cfg, out))
+
+
+def run_sweep(
+    cfg: AblationConfig,
+    out: Path,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> list[dict]:
+    """Every run of ``cfg`` trained, evaluated and measured here, one after the other (the
+    local backend); returns the rows in plan order.
+
+    Progress lines go to ``log`` (default: this module's logger at INFO)."""
+    log = log or logger.info
+    plan = plan_sweep(cfg, out, progress)
+    frame = bench_frame(plan.data_cfg)
     sha = git_sha()
-    runs = sweep_runs(cfg, out)
-    rows: list[dict] = []
+    runs = plan.runs
     for k, run in enumerate(runs, 1):
         tag = f"[{k}/{len(runs)}] {run.label}"
-        rdir, spec = run.dir, specs[run.arm.name]
-        row = read_row(rdir, cfg.hash)
-        if row is not None:
+        if read_row(run.dir, cfg.hash) is not None:
             log(f"{tag}: done earlier, row kept")
-            rows.append(row)
             continue
-        train_cfg = dataclasses.replace(cfg.train, seed=run.seed)
-        if trained_epochs(rdir) >= train_cfg.epochs:
-            log(f"{tag}: trained earlier, measuring")
-        else:
-            ckpt = rdir / "checkpoints" / "last.ckpt"
-            resume = ckpt.is_file()
-            if not resume and rdir.exists():
-                shutil.rmtree(rdir)  # killed before its first checkpoint: nothing to keep
-            start = f"resuming after epoch {checkpoint_epochs(ckpt)}" if resume else "training"
-            log(f"{tag}: {start} ({train_cfg.epochs} epochs, seed {run.seed})")
-            train(
-                run.arm.name if run.arm.plain else spec,
-                data_yaml,
-                train_cfg,
-                rdir,
-                resume=resume,
-                devices=_devices(cfg.trainer.devices),
-                num_nodes=cfg.trainer.num_nodes,
-                accelerator=cfg.trainer.accelerator,
-                progress=progress,
-                callbacks=[ThroughputMeter(rdir / "throughput.json")],
-            )
-            if int(os.environ.get("LOCAL_RANK", "0")) or int(os.environ.get("NODE_RANK", "0")):
-                continue  # DDP worker ranks train; the launching rank measures and writes
-        if not run.arm.plain:  # the spec it trained with, loadable by slimseg train --model
-            write_yaml(rdir / "spec.yaml", spec.to_dict())
-        row = measure_run(cfg, run, spec, data_cfg, frame, sha)
-        write_json(rdir / "row.json", row, indent=1)
-        rows.append(row)
-        paths = write_reports(rows, out, cfg)
-        log(f"{tag}: {_summary(row)} -> {paths.md}")
-    return rows
+        if not train_run(plan, run, cfg.trainer, progress, log, tag):
+            continue  # DDP worker ranks train; the launching rank measures and writes
+        scores = score_columns(plan, run, sha)
+        row = join_row(scores, timing_columns(plan, run, frame))
+        write_json(run.dir / "row.json", row, indent=1)
+        paths = plan.write_reports()
+        log(f"{tag}: {_summary(row)} -> {paths.md if paths else out}")
+    return plan.rows()
+
+
+def train_run(
+    plan: SweepPlan,
+    run: Run,
+    trainer: TrainerOptions,
+    progress: bool,
+    log: Callable[[str], None],
+    tag: str,
+    callbacks: Sequence[Callback] = (),
+) -> bool:
+    """Train ``run`` to the recipe's last epoch: nothing when ``weights/last.pt`` has them
+    all, from ``checkpoints/last.ckpt`` when there is one, else from scratch (a folder
+    without a checkpoint is emptied first). ``callbacks`` go before the run's own. Returns
+    False in a DDP worker rank (the launching rank scores and measures)."""
+    from slimseg.engine.train import train  # Lightning import is slow: only when training
+
+    rdir, cfg = run.dir, plan.cfg
+    train_cfg = dataclasses.replace(cfg.train, seed=run.seed)
+    if trained_epochs(rdir) >= train_cfg.epochs:
+        log(f"{tag}: trained earlier, measuring")
+        return True
+    ckpt = rdir / "checkpoints" / "last.ckpt"
+    resume = ckpt.is_file()
+    if not resume and rdir.exists():
+        shutil.rmtree(rdir)  # killed before its first checkpoint: nothing to keep
+    start = f"resuming after epoch {checkpoint_epochs(ckpt)}" if resume else "training"
+    log(f"{tag}: {start} ({train_cfg.epochs} epochs, seed {run.seed})")
+    spec = plan.specs[run.arm.name]
+    train(
+        run.arm.name if run.arm.plain else spec,
+        plan.data_yaml,
+        train_cfg,
+        rdir,
+        resume=resume,
+        devices=_devices(trainer.devices),
+        num_nodes=trainer.num_nodes,
+        accelerator=trainer.accelerator,
+        progress=progress,
+        callbacks=[*callbacks, ThroughputMeter(rdir / "throughput.json")],
+    )
+    return not (int(os.environ.get("LOCAL_RANK", "0")) or int(os.environ.get("NODE_RANK", "0")))
 
 
 def bench_frame(data_cfg: DataConfig) -> np.ndarray:
@@ -193,17 +270,6 @@ def bench_frame(data_cfg: DataConfig) -> np.ndarray:
         raise SlimsegError(f"{data_cfg.source}: the val split has no images to score or time")
     image, _ = read_image_rgb8(val.image_path(0))
     return image
-
-
-def read_row(vdir: Path, config_hash: str) -> dict | None:
-    """The finished row of a variant folder, if it belongs to this config."""
-    path = vdir / "row.json"
-    if not path.is_file():
-        return None
-    row = json.loads(path.read_text())
-    if row.get("config_hash") != config_hash or row.get("row_version") != ROW_VERSION:
-        return None
-    return row
 
 
 def trained_epochs(vdir: Path) -> int:
@@ -222,22 +288,17 @@ def checkpoint_epochs(ckpt: Path) -> int:
     return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) + 1
 
 
-def measure_run(
-    cfg: AblationConfig,
-    run: Run,
-    spec: ModelSpec,
-    data_cfg: DataConfig,
-    frame: np.ndarray,
-    sha: str,
-) -> dict:
-    """One row: the metrics of ``cfg.metrics`` (COCO mAP of the best EMA weights on the val
-    split first), size and cost of ``spec`` at ``cfg.gflops_imgsz``, onnxruntime latency
-    (and post-processing) at the bench sizes on ``frame``, training throughput."""
-    model, info = run_weights(run.dir)
+def score_columns(plan: SweepPlan, run: Run, sha: str) -> dict:
+    """The machine-independent part of ``run``'s row: the metrics of ``cfg.metrics`` (COCO
+    mAP of the best EMA weights on the val split first), size and cost of the arm's spec at
+    ``cfg.gflops_imgsz``, and the run's identity. Writes the spec of an override arm to
+    ``spec.yaml`` (loadable by ``slimseg train --model``)."""
+    cfg, spec, data_cfg = plan.cfg, plan.specs[run.arm.name], plan.data_cfg
+    if not run.arm.plain:
+        write_yaml(run.dir / "spec.yaml", spec.to_dict())
+    _, info = run_weights(run.dir)
     scores = score_run(resolve_metrics(cfg.metrics, cfg.source), run.dir, spec, data_cfg)
     size = measure(build_from_spec(spec), cfg.gflops_imgsz)
-    latency = bench_latency(model, info, run.dir, cfg.train.imgsz, cfg.bench, frame)
-    first = cfg.bench_sizes[0]
     return {
         "variant": run.arm.name,
         "model": run.arm.model,
@@ -251,10 +312,6 @@ def measure_run(
         "params": size.params,
         "params_paper": size.params_paper,
         "fused_params": size.fused_params,
-        "latency_ms": latency[f"ms_net@{first}"],
-        "latency_imgsz": first,
-        **latency,
-        "train_img_s": images_per_second(run.dir / "throughput.json"),
         "val_images": len(CocoDataset.from_config(data_cfg, "val")),
         "num_classes": len(data_cfg.names),
         "spec_hash": info.spec.hash,
@@ -262,6 +319,26 @@ def measure_run(
         "seed": run.seed,
         "config_hash": cfg.hash,
         "row_version": ROW_VERSION,
+    }
+
+
+def timing_columns(
+    plan: SweepPlan, run: Run, frame: np.ndarray, train_img_s: float | None = None
+) -> dict:
+    """The machine-dependent part of ``run``'s row: onnxruntime latency (and
+    post-processing) of the best weights at the bench sizes on ``frame``, and training
+    images/s: ``train_img_s`` when given (timed apart), else the run's training epochs."""
+    cfg = plan.cfg
+    model, info = run_weights(run.dir)
+    latency = bench_latency(model, info, run.dir, cfg.train.imgsz, cfg.bench, frame)
+    first = cfg.bench_sizes[0]
+    timed = train_img_s is not None
+    return {
+        "latency_ms": latency[f"ms_net@{first}"],
+        "latency_imgsz": first,
+        **latency,
+        "train_img_s": train_img_s if timed else images_per_second(run.dir / "throughput.json"),
+        "train_img_s_from": FROM_STEPS if timed else FROM_EPOCHS,
     }
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
+import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -21,10 +23,14 @@ import yaml
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix, so format sniffing works); on a
-    clean exit it replaces ``path``, on an exception it is removed. Creates the folder."""
+    clean exit it replaces ``path``, on an exception it is removed. Creates the folder.
+
+    The temporary name holds the host, the process id and a random token, so writers on
+    several machines sharing one folder (NFS, a sweep across a cluster) never share it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    tag = f"{socket.gethostname()}.{os.getpid()}.{secrets.token_hex(4)}"
+    tmp = path.with_name(f".{path.stem}.{tag}.tmp{path.suffix}")
     try:
         yield tmp
         os.replace(tmp, path)
