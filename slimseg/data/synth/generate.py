@@ -41,8 +41,9 @@ class SynthReport:
             per_class = ", ".join(f"{name} {self.instances.get(name, 0)}" for name in NAMES)
             parts.append(f"{imgs} images (instances: {per_class})")
         if self.sequences:
+            plural = "s" if self.sequences != 1 else ""
             parts.append(
-                f"{self.sequences} sequences x {self.frames} frames "
+                f"{self.sequences} sequence{plural} x {self.frames} frames "
                 f"({self.sequence_instances} instances)"
             )
         return f"synth: {'; '.join(parts)}; {self.seconds:.1f} s; data: {self.data_yaml}"
