@@ -101,11 +101,12 @@ def plot_demo_slam(
     if floor is not None and np.isfinite(floor):
         bars.axhline(floor, color="0.4", ls=":", lw=1.2,
                      label=f"a camera that never moves: {floor:.3f} m")  # fmt: skip
-        bars.legend(fontsize=8, loc="upper right")
+        bars.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.08), frameon=False)
     bars.set_xticks(x, [c.label for c in conditions])
     bars.set_xlim(-0.6, len(conditions) - 0.4)
-    bars.set_ylim(0, None)
-    bars.margins(y=0.15)
+    tops = [max(c.ates) for c in conditions if c.ates] + [floor or 0.0]
+    top_m = max([t for t in tops if np.isfinite(t)], default=0.0)
+    bars.set_ylim(0, 1.15 * top_m if top_m > 0 else 1.0)
     bars.set_ylabel("ATE RMSE (m), lower is better")
     bars.set_title("ATE: bar = median, whisker = min–max, dots = individual runs", fontsize=9)
     bars.grid(axis="y", alpha=0.3)

@@ -60,7 +60,7 @@ class DemoSlamSettings:
     runs: int = 3
     speed: float = 0.33
     vocab: Path | None = None
-    threads: int | None = 1
+    threads: int | None = None
     progress: bool = True
 
     def sequence_key(self) -> dict[str, object]:
