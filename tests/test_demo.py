@@ -126,3 +126,19 @@ def test_result_line_says_when_the_masks_did_not_help() -> None:
     assert "did not lower" in demo._result(table((0.1, 0.1, 0.1), (0.2, 0.1, 0.3)))
     assert "overlap" in demo._result(table((0.2, 0.1, 0.3), (0.15, 0.1, 0.2)))
     assert "slimseg not scored" in demo._result(table((0.2, 0.1, 0.3), (None, None, None)))
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--slam-frames", "5"], "--slam-frames 5: need at least 10"),
+        (["--slam-runs", "0"], "--slam-runs 0: need at least 1"),
+        (["--vocab", "nope.txt"], "--vocab nope.txt does not exist"),
+    ],
+)
+def test_bad_slam_options_fail_before_training(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], needle: str
+) -> None:
+    assert main(["demo", "--out", str(tmp_path / "demo"), *extra]) == 2
+    assert needle in capsys.readouterr().err
+    assert not (tmp_path / "demo").exists()  # nothing generated, nothing trained

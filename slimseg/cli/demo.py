@@ -15,6 +15,7 @@ from slimseg.data.synth import generate
 from slimseg.data.synth.presets import PRESETS
 from slimseg.engine.config import load_train_config
 from slimseg.engine.preview import prediction_grid
+from slimseg.errors import SlimsegError
 from slimseg.eval.coco_eval import format_metrics_table
 from slimseg.eval.plots import plot_results
 from slimseg.eval.semantic_metrics import format_semantic_table
@@ -92,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = Path(args.out)
     n = 4 if args.no_slam else 6
+    if not args.no_slam:
+        _check_slam_args(args)  # before training, not 11 minutes later
     data_yaml = out / "data" / "data.yaml"
     if data_yaml.is_file():
         print(f"[1/{n}] reusing the synthetic dataset in {data_yaml.parent}")
@@ -157,6 +160,19 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(lines))
     print(f"{short}; {slam.result}" if slam is not None and slam.result else short)
     return 0
+
+
+def _check_slam_args(args: argparse.Namespace) -> None:
+    if args.slam_frames < 10:
+        raise SlimsegError(f"--slam-frames {args.slam_frames}: need at least 10")
+    if args.slam_runs < 1:
+        raise SlimsegError(f"--slam-runs {args.slam_runs}: need at least 1")
+    if min(args.slam_size) < 64:
+        raise SlimsegError(f"--slam-size {args.slam_size[0]} {args.slam_size[1]}: both ≥ 64")
+    if args.slam_seed is not None and args.slam_seed < 0:
+        raise SlimsegError(f"--slam-seed {args.slam_seed} must be 0 or more")
+    if args.vocab is not None and not Path(args.vocab).is_file():
+        raise SlimsegError(f"--vocab {args.vocab} does not exist")
 
 
 @dataclass
