@@ -88,6 +88,7 @@ def ray_session(ray: Any, opts: RayOptions) -> Iterator[None]:
     kwargs = {"include_dashboard": False, "log_to_driver": False} | opts.init_kwargs
     if opts.address != "local":
         kwargs["address"] = opts.address
+        _check_reachable(opts.address)
     try:
         ray.init(**kwargs)
     except (ConnectionError, RuntimeError, ValueError) as exc:
@@ -101,6 +102,22 @@ def ray_session(ray: Any, opts: RayOptions) -> Iterator[None]:
         yield
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str) -> None:
+    """A HOST:PORT that nothing answers on fails here in seconds (``ray.init`` would retry
+    for minutes)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "://" in address:
+        return  # auto, or a form Ray resolves itself
+    try:
+        socket.create_connection((host, int(port)), timeout=10).close()
+    except OSError as exc:
+        raise SlimsegError(
+            f"--address {address}: nothing answers there ({exc.strerror or exc}); start the "
+            "head with 'ray start --head' and pass the address it prints, or --address auto "
+            "on a node of the cluster"
+        ) from None
 
 
 def node_label(ray: Any) -> str:
