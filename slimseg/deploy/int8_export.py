@@ -1,20 +1,18 @@
 """INT8 export with an accuracy gate: nothing reaches its final path that lost too much mAP.
 
 Pipeline: the parity-checked FP32 export (:func:`~slimseg.deploy.onnx_export.export_onnx`,
-into a temporary folder) → calibration on real frames → symmetric Q/DQ graph
+into the staging folder) → calibration on real frames → symmetric Q/DQ graph
 (:func:`~slimseg.deploy.int8_quantize.quantize_onnx`) → COCO box and mask mAP50-95 of the FP32
 and the INT8 graph on the same val split with the same evaluator
 (:func:`~slimseg.eval.validation.validate_dataset` over
 :class:`~slimseg.deploy.onnx_model.OnnxModel`) → refuse when either drops more than
 ``max_drop`` points → agreement with FP32 on the calibration frames → metadata → rename into
-place, plus the ``NAME.json`` sidecar.
+place, plus the ``NAME.json`` sidecar (:mod:`slimseg.deploy.onnx_io`, shared with the FP32
+exporter).
 """
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,9 +26,11 @@ from slimseg.data.dataset import ZooDataset
 from slimseg.deploy.calibration import CalibrationSet, load_calibration_set
 from slimseg.deploy.int8_placement import check_family
 from slimseg.deploy.int8_quantize import check_onnxruntime, quantize_onnx
-from slimseg.deploy.metadata import build_metadata, to_metadata_props
-from slimseg.deploy.onnx_export import detection_agreement, export_onnx
+from slimseg.deploy.metadata import build_metadata
+from slimseg.deploy.onnx_export import export_onnx
+from slimseg.deploy.onnx_io import publish, stage, staging_dir
 from slimseg.deploy.onnx_model import OnnxModel
+from slimseg.deploy.parity import detection_agreement
 from slimseg.errors import SlimsegError
 from slimseg.eval.validation import validate_dataset
 
@@ -77,7 +77,7 @@ def score_onnx(
 def agreement_on_frames(
     fp32: OnnxModel, int8: OnnxModel, calib: CalibrationSet, imgsz: tuple[int, int], progress: bool
 ) -> dict[str, float]:
-    """:func:`~slimseg.deploy.onnx_export.detection_agreement` of INT8 vs FP32 summed over the
+    """:func:`~slimseg.deploy.parity.detection_agreement` of INT8 vs FP32 summed over the
     calibration frames: ``frames``, ``checked``, ``matched``, ``matched_fraction``, the lowest
     ``min_iou``, the largest ``max_score_diff`` and the mean ``nms_matched``."""
     totals = {"frames": 0, "checked": 0, "matched": 0, "min_iou": 1.0, "max_score_diff": 0.0}
@@ -154,8 +154,7 @@ def export_int8(
             f"{model.num_classes}; gate on the dataset it was trained for"
         )
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.stem}.") as tmp_dir:
+    with staging_dir(out) as tmp_dir:
         tmp = Path(tmp_dir)
         fp32_path = export_onnx(model, tmp / "fp32.onnx", imgsz, names, mobility, opset=opset).path
         q_path = tmp / "int8.onnx"
@@ -187,18 +186,7 @@ def export_int8(
             "agreement": agreement,
         }
         proto = onnx.load(str(q_path))
-        del proto.metadata_props[:]
-        for key, value in to_metadata_props(meta).items():
-            entry = proto.metadata_props.add()
-            entry.key, entry.value = key, value
-        onnx.checker.check_model(proto)
-        candidate = tmp / out.name
-        onnx.save(proto, str(candidate))
-        sidecar_tmp = tmp / "sidecar.json"
-        sidecar_tmp.write_text(json.dumps(meta, indent=1))
-        os.replace(candidate, out)
-        sidecar = out.with_suffix(".json")
-        os.replace(sidecar_tmp, sidecar)
+        sidecar = publish(stage(proto, meta, tmp, out.name), meta, out)
     return Int8Report(
         out,
         sidecar,

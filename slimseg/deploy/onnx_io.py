@@ -1,0 +1,66 @@
+"""Writing an export: nothing reaches its final path half-written or unchecked.
+
+Every exporter (FP32/FP16 :mod:`slimseg.deploy.onnx_export`, INT8
+:mod:`slimseg.deploy.int8_export`) works in a :func:`staging_dir` beside the output, writes the
+finished graph there with :func:`stage` (metadata stamped, ONNX checker passed), runs its own
+gate on that file, and only then calls :func:`publish`: the ``NAME.json`` sidecar is written
+in the staging folder and both files are renamed into place (same filesystem, so each rename
+is atomic). A gate that raises leaves nothing at the output path.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import onnx
+
+from slimseg.deploy.metadata import to_metadata_props
+
+log = logging.getLogger(__name__)
+
+
+def sidecar_path(out: Path) -> Path:
+    """The metadata sidecar of an export: ``NAME.onnx`` → ``NAME.json``."""
+    return out.with_suffix(".json")
+
+
+def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
+    """A temporary folder beside ``out`` (created with its parents), removed on exit with
+    whatever is left in it. Use as ``with staging_dir(out) as tmp:``."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.stem}.")
+
+
+def stamp_metadata(proto: onnx.ModelProto, meta: dict[str, Any]) -> None:
+    """Replace ``proto``'s ``metadata_props`` with ``meta`` (every value a JSON string)."""
+    del proto.metadata_props[:]
+    for key, value in to_metadata_props(meta).items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+
+
+def stage(proto: onnx.ModelProto, meta: dict[str, Any], tmp_dir: str | Path, name: str) -> Path:
+    """Stamp ``meta`` into ``proto``, run the ONNX checker and save it as ``tmp_dir/name``;
+    returns that path (the candidate a gate then runs)."""
+    stamp_metadata(proto, meta)
+    onnx.checker.check_model(proto)
+    candidate = Path(tmp_dir) / name
+    onnx.save(proto, str(candidate))
+    return candidate
+
+
+def publish(candidate: Path, meta: dict[str, Any], out: Path) -> Path:
+    """Write the sidecar beside the staged ``candidate``, then rename the graph to ``out`` and
+    the sidecar to :func:`sidecar_path` of ``out``; returns the sidecar's path."""
+    sidecar_tmp = candidate.parent / "sidecar.json"
+    sidecar_tmp.write_text(json.dumps(meta, indent=1))
+    os.replace(candidate, out)
+    sidecar = sidecar_path(out)
+    os.replace(sidecar_tmp, sidecar)
+    log.debug("wrote %s and %s", out, sidecar)
+    return sidecar
