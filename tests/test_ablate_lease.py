@@ -68,7 +68,7 @@ def test_stored_config_round_trips(tmp_path: Path) -> None:
     assert again.hash == cfg.hash and again.variants == cfg.variants
     assert again.train == cfg.train and again.bench == cfg.bench and again.seeds == (0, 3)
     stored["train"]["epochs"] = 99
-    with pytest.raises(ConfigError, match="sweep.json: the stored config hashes to"):
+    with pytest.raises(ConfigError, match=r"sweep\.json: the stored config hashes to"):
         config_from_dict(stored, cfg.hash, "sweep.json")
 
 

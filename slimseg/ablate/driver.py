@@ -106,7 +106,7 @@ class RayDriver:
                         f"seg {scores.get('seg_map50_95', math.nan):.3f}"
                     )
                 plan.write_reports()
-                self.status(len(refs))
+                self.status(list(refs.values()))
 
     def attempts(self, run: Run) -> list[dict]:
         """The run's train attempts recorded on disk, oldest first."""
@@ -127,14 +127,18 @@ class RayDriver:
                 what = "retried" if k > 1 else "running"
                 self.log(f"{self.tag(run)}: {what} on {rec['node']} (attempt {k}), {start}")
 
-    def status(self, pending: int) -> None:
+    def status(self, pending: list[Run]) -> None:
+        """Counts over the sweep: done (scored), running (pending, an attempt started: a
+        run whose node died counts here until its retry starts), queued (pending, no attempt
+        yet), retried (more than one attempt), failed."""
         assert self.plan is not None
         h = self.plan.cfg.hash
         done = sum(bool(read_scores(r.dir, h) or read_row(r.dir, h)) for r in self.plan.runs)
+        running = sum(bool(self.attempts(r)) for r in pending)
         retried = sum(len(self.attempts(r)) > 1 for r in self.plan.runs)
         self.log(
-            f"progress: {done} done, {pending} running, {retried} retried, "
-            f"{len(self.failed)} failed of {len(self.plan.runs)}"
+            f"progress: {done} done, {running} running, {len(pending) - running} queued, "
+            f"{retried} retried, {len(self.failed)} failed of {len(self.plan.runs)}"
         )
 
     def fail(self, run: Run, exc: Exception) -> None:

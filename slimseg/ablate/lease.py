@@ -35,6 +35,9 @@ from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_json
 
 LEASE = "lease.json"
+# Set by the ray backend's task: when it started the run's process (``time.time()``), so an
+# attempt record shows how long the process took to start before it took the lease.
+TASK_STARTED_ENV = "SLIMSEG_TASK_STARTED"
 
 
 class LeaseLost(SlimsegError):
@@ -114,6 +117,8 @@ def acquire_lease(state: Path, stage: str, **record: object) -> Lease:
         "started": time.time(),
         **record,
     }
+    if os.environ.get(TASK_STARTED_ENV):
+        lease.record["task_started"] = float(os.environ[TASK_STARTED_ENV])
     write_json(lease.state / LEASE, {k: lease.record[k] for k in ("token", "node", "pid")})
     lease.update()
     return lease

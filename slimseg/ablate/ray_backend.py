@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from slimseg.ablate.lease import state_dir
+from slimseg.ablate.lease import TASK_STARTED_ENV, state_dir
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
 
@@ -127,10 +127,18 @@ def node_label(ray: Any) -> str:
     return f"{socket.gethostname()}/{node[:6]}"
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the child before exec
-    """The run's process gets SIGKILL when the Ray worker that started it dies."""
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+def _die_with_parent() -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes the run's process get SIGKILL when the Ray worker that
+    started it dies (Linux; None elsewhere). libc is loaded here, in the parent: the
+    function the child runs between fork and exec only makes the one system call."""
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL("libc.so.6", use_errno=True).prctl
+
+    def preexec() -> None:  # pragma: no cover - runs in the child before exec
+        prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+    return preexec
 
 
 def train_task(out: str, label: str, expect: list[str], accelerator: str, devices: str) -> str:
@@ -145,9 +153,10 @@ def train_task(out: str, label: str, expect: list[str], accelerator: str, device
     cmd = [sys.executable, "-m", "slimseg.ablate.run_one", out, label, "--stage", "train"]
     cmd += ["--expect", *expect, "--accelerator", accelerator, "--devices", devices, "--quiet"]
     env = os.environ | {"SLIMSEG_NODE": node, "PYTHONUNBUFFERED": "1"}
+    env[TASK_STARTED_ENV] = repr(time.time())  # the attempt record keeps the start-up cost
     with log.open("w") as f:
         proc = subprocess.run(  # the exit code is read below
-            cmd, stdout=f, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent
+            cmd, stdout=f, stderr=subprocess.STDOUT, env=env, preexec_fn=_die_with_parent()
         )
     if proc.returncode != 0:
         lines = [x for x in log.read_text(errors="replace").splitlines() if x.strip()]
@@ -165,11 +174,18 @@ def measure_task(
     from slimseg.ablate.run_one import check_version, load_plan, measure_stage
 
     node = node_label(ray)
-    os.environ["SLIMSEG_NODE"] = node  # this worker process only: names the lease holder
-    check_version(expect[1], expect[2])
-    plan = load_plan(Path(out), expect[0])
-    for label in labels:
-        measure_stage(plan, plan.run(label), accelerator, steps)
+    before = os.environ.get("SLIMSEG_NODE")
+    os.environ["SLIMSEG_NODE"] = node  # names the lease holder; put back below
+    try:
+        check_version(expect[1], expect[2])
+        plan = load_plan(Path(out), expect[0])
+        for label in labels:
+            measure_stage(plan, plan.run(label), accelerator, steps)
+    finally:
+        if before is None:
+            os.environ.pop("SLIMSEG_NODE", None)
+        else:
+            os.environ["SLIMSEG_NODE"] = before
     return node
 
 

@@ -243,8 +243,11 @@ def train_run(
         return True
     ckpt = rdir / "checkpoints" / "last.ckpt"
     resume = ckpt.is_file()
-    if not resume and rdir.exists():
-        shutil.rmtree(rdir)  # killed before its first checkpoint: nothing to keep
+    launcher = not (int(os.environ.get("LOCAL_RANK", "0")) or int(os.environ.get("NODE_RANK", "0")))
+    if not resume and rdir.exists() and launcher:
+        # killed before its first checkpoint: nothing to keep (DDP worker ranks start after
+        # the launching rank has begun this run's folder, and must leave it alone)
+        shutil.rmtree(rdir)
     start = f"resuming after epoch {checkpoint_epochs(ckpt)}" if resume else "training"
     log(f"{tag}: {start} ({train_cfg.epochs} epochs, seed {run.seed})")
     spec = plan.specs[run.arm.name]
@@ -260,7 +263,7 @@ def train_run(
         progress=progress,
         callbacks=[*callbacks, ThroughputMeter(rdir / "throughput.json")],
     )
-    return not (int(os.environ.get("LOCAL_RANK", "0")) or int(os.environ.get("NODE_RANK", "0")))
+    return launcher
 
 
 def bench_frame(data_cfg: DataConfig) -> np.ndarray:
