@@ -66,7 +66,8 @@ def setup(tmp_path_factory) -> dict[str, Path]:
         model(torch.from_numpy(batch).float() / 255)
         for branch in model.detect.cls:  # prior bias ~ -7: no score above conf otherwise
             branch[-1].bias.fill_(0.0)
-        # smaller box logits and mask terms keep FP32 export parity within its 1e-3 limits
+        # smaller box logits and mask terms (from when the FP32 gate had absolute limits; it
+        # now scales with magnitude: tests/test_export_parity.py covers values of ~100)
         for conv in [b[-1] for b in model.detect.box] + [model.proto.cv3.conv]:
             conv.weight.mul_(0.01)
     model = model.eval()

@@ -23,7 +23,8 @@ from torch import nn
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.errors import SlimsegError
 from slimseg.models.base import ZooModel
-from slimseg.ops.nms import non_max_suppression, yolov3_to_rows
+from slimseg.models.registry import detection_rows
+from slimseg.ops.nms import non_max_suppression
 
 
 class ExportParityError(SlimsegError):
@@ -109,8 +110,7 @@ def _max_abs(ref: np.ndarray, got: np.ndarray) -> float:
 
 
 def _rows(model: ZooModel, pred: np.ndarray) -> torch.Tensor:
-    t = torch.from_numpy(pred).float()
-    return yolov3_to_rows(t) if model.spec.family == "darknet-yolov3" else t
+    return detection_rows(model.spec.family, torch.from_numpy(pred).float())
 
 
 def _fp32_groups(model: ZooModel, outs: list[np.ndarray]) -> list[tuple[str, str, np.ndarray]]:
@@ -119,7 +119,7 @@ def _fp32_groups(model: ZooModel, outs: list[np.ndarray]) -> list[tuple[str, str
     ``[B, nm, H/s, W/s]`` (both under ``mask_terms``)."""
     nc = model.num_classes
     rows = _rows(model, outs[0]).numpy()
-    darknet = model.spec.family == "darknet-yolov3"
+    darknet = rows.shape[1] != outs[0].shape[1]  # objectness folded into the class scores
     groups = [
         ("box_px", "output0 boxes", rows[:, :4]),
         (
