@@ -170,3 +170,10 @@ def test_unreachable_address_fails_fast(tmp_path: Path, capsys) -> None:
     assert main([*argv, "--backend", "ray", "--address", "127.0.0.1:9"]) == 2
     err = capsys.readouterr().err
     assert "--address 127.0.0.1:9: nothing answers there" in err and err.count("\n") == 1
+
+
+def test_dirty_checkouts_of_one_commit_match(monkeypatch) -> None:
+    monkeypatch.setattr(run_one, "git_sha", lambda: "0123456789-dirty")
+    run_one.check_version(run_one.__version__, "0123456789")  # an edit since: same commit
+    with pytest.raises(SlimsegError, match="git 0123456789-dirty"):
+        run_one.check_version(run_one.__version__, "abcdefabcd")

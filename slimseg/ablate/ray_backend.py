@@ -161,7 +161,7 @@ def train_task(out: str, label: str, expect: list[str], accelerator: str, device
     if proc.returncode != 0:
         lines = [x for x in log.read_text(errors="replace").splitlines() if x.strip()]
         last = lines[-1] if lines else "no output"
-        raise RunFailed(f"{label} on {node}: exit {proc.returncode}: {last} (log: {log})")
+        raise RunFailed(f"on {node}: exit {proc.returncode}: {last} (log: {log})")
     return node
 
 

@@ -74,10 +74,13 @@ class LeaseGuard(L.Callback):
 
 
 def check_version(version: str, sha: str) -> None:
-    """SlimsegError unless this node runs slimseg ``version`` at commit ``sha`` (a commit
-    ``unknown`` on either side, an installed wheel, compares the version only)."""
+    """SlimsegError unless this node runs slimseg ``version`` at commit ``sha``. A commit
+    ``unknown`` on either side (an installed wheel) compares the version only, and local
+    changes (``-dirty``) are not compared: whether a checkout is dirty changes with any
+    edit to it and says nothing about what differs."""
     mine = git_sha()
-    if version != __version__ or (sha != mine and "unknown" not in (sha, mine)):
+    same_commit = sha.removesuffix("-dirty") == mine.removesuffix("-dirty")
+    if version != __version__ or not (same_commit or "unknown" in (sha, mine)):
         raise SlimsegError(
             f"this node runs slimseg {__version__} (git {mine}), the driver {version} (git "
             f"{sha}); install the same slimseg on every node of the cluster"
