@@ -74,16 +74,20 @@ class LeaseGuard(L.Callback):
 
 
 def check_version(version: str, sha: str) -> None:
-    """SlimsegError unless this node runs slimseg ``version`` at commit ``sha``. A commit
-    ``unknown`` on either side (an installed wheel) compares the version only, and local
-    changes (``-dirty``) are not compared: whether a checkout is dirty changes with any
-    edit to it and says nothing about what differs."""
+    """SlimsegError unless this node runs slimseg ``version`` (the driver's). A different
+    git commit is only logged (the row records the node's commit): a checkout shared by the
+    nodes moves under a running sweep with every commit made to it, as it would under the
+    local backend, and local changes (``-dirty``) say nothing about what differs."""
     mine = git_sha()
-    same_commit = sha.removesuffix("-dirty") == mine.removesuffix("-dirty")
-    if version != __version__ or not (same_commit or "unknown" in (sha, mine)):
+    if version != __version__:
         raise SlimsegError(
             f"this node runs slimseg {__version__} (git {mine}), the driver {version} (git "
             f"{sha}); install the same slimseg on every node of the cluster"
+        )
+    if "unknown" not in (sha, mine) and sha.removesuffix("-dirty") != mine.removesuffix("-dirty"):
+        logger.warning(
+            f"this node's slimseg checkout is at git {mine}, the driver's was at {sha} when "
+            "the sweep started; the row records this node's commit"
         )
 
 
