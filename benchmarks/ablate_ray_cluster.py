@@ -79,7 +79,7 @@ def start_cluster(workers: int, head_cpus: int) -> tuple[Cluster, list]:
 
 
 def deterministic(out: Path) -> list[dict]:
-    skip = {*timing_keys((64,), False), "train_img_s_from"}
+    skip = {*timing_keys((64,), False), "train_img_s_from", "git_sha"}  # commits may land
     rows = [json.loads((out / "variants" / lab / "row.json").read_text()) for lab in LABELS]
     return [{k: v for k, v in row.items() if k not in skip} for row in rows]
 

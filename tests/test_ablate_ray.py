@@ -137,9 +137,14 @@ def wait_for(predicate, proc: subprocess.Popen | None, log: Path, what: str) -> 
         time.sleep(0.05)
 
 
+# Not compared: the timing columns (machine-dependent) and the git commit, which moves when
+# the checkout gets a commit between the reference sweep and the one compared with it.
+SKIP = {*timing_keys((64,), False), "train_img_s_from", "git_sha"}
+
+
 def deterministic(out: Path) -> list[dict]:
     """Each run's row without the machine-dependent columns."""
-    skip = {*timing_keys((64,), False), "train_img_s_from"}
+    skip = SKIP
     rows = []
     for arm in ARMS:
         row = json.loads((out / "variants" / arm / "row.json").read_text())
@@ -155,7 +160,7 @@ def assert_same_sweep(out: Path, reference: Path) -> None:
         b = torch.load(reference / "variants" / arm / "weights" / "best.pt", weights_only=False)
         sa, sb = a["state_dict"], b["state_dict"]
         assert sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa), arm
-    skip = {*timing_keys((64,), False)}
+    skip = SKIP
     for path in (out / "results.csv", reference / "results.csv"):
         assert path.is_file()
     with (out / "results.csv").open() as f, (reference / "results.csv").open() as g:
