@@ -29,6 +29,7 @@ format: $(STAMP)
 
 bench: $(STAMP)  ## every benchmark, one after the other (ratios are measured within each run)
 	$(BIN)/slimseg bench --model yolov8s-seg yolov8s-seg-gs-rep --imgsz 640
+	$(BIN)/python benchmarks/int8_latency.py --model yolov8n-seg yolov8s-seg yolov8s-seg-gs-rep --imgsz 320 640
 	$(BIN)/python benchmarks/train_throughput.py
 	$(BIN)/python benchmarks/masking_logic.py
 	$(BIN)/python benchmarks/restoration.py

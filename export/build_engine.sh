@@ -5,7 +5,8 @@
 # min 1x3x320x320, opt 1x3xHxW (the export's imgsz from the sidecar JSON), max BxHxW.
 # The sidecar NAME.json (the ONNX metadata) travels with the engine: engines carry no metadata.
 #
-# Precision follows the sidecar's "precision":
+# Precision follows the sidecar's "precision" (an INT8 file made for onnxruntime, int8.target
+# "onnxruntime", is refused: TensorRT takes only symmetric int8 Q/DQ):
 #   fp32/fp16 exports  -> --fp16 (FP16 kernels allowed).
 #   int8 (Q/DQ) exports, explicit quantization: the scales come from the file's Q/DQ nodes, never
 #   from a TensorRT calibrator.
@@ -21,7 +22,11 @@ max_batch=${3:-4}
 sidecar=${onnx%.onnx}.json
 command -v trtexec >/dev/null || { echo "trtexec not found: install TensorRT and add its bin/ to PATH" >&2; exit 2; }
 [ -f "$sidecar" ] || { echo "$sidecar missing: export with 'slimseg export' (it writes the sidecar)" >&2; exit 2; }
-read -r h w dynamic precision < <(python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print(m['imgsz'][0], m['imgsz'][1], int(m['dynamic_shapes']), m.get('precision', 'fp32'))" "$sidecar")
+read -r h w dynamic precision target < <(python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print(m['imgsz'][0], m['imgsz'][1], int(m['dynamic_shapes']), m.get('precision', 'fp32'), (m.get('int8') or {}).get('target', 'tensorrt'))" "$sidecar")
+if [ "$precision" = int8 ] && [ "$target" != tensorrt ]; then
+  echo "$onnx: an INT8 file for $target (uint8 activations), not for TensorRT: re-export with 'slimseg export --int8 --int8-target tensorrt'" >&2
+  exit 2
+fi
 # trtexec prints e.g. "TensorRT v8601" (8.6.1) or "TensorRT v100300" (10.3.0).
 ver=$(trtexec --help 2>&1 | grep -o 'TensorRT v[0-9]*' | head -n1 | grep -o '[0-9]*$' || true)
 if [ -z "$ver" ]; then major=10; elif [ ${#ver} -ge 6 ]; then major=$((ver / 10000)); else major=$((ver / 1000)); fi

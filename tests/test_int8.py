@@ -1,6 +1,8 @@
-"""INT8 export (placement, symmetric Q/DQ, the accuracy gate, bad input) and ``slimseg val`` on
-exported files. The dataset's labels are the FP32 model's own confident detections, so the
-FP32 graph scores high and an INT8 graph that changes detections visibly loses mAP."""
+"""INT8 export for both targets (TensorRT: placement, symmetric Q/DQ; onnxruntime: uint8
+activations over the whole body), the accuracy gate, bad input, and ``slimseg val`` / the
+predictor on exported files. The dataset's labels are the FP32 model's own confident
+detections, so the FP32 graph scores high and an INT8 graph that changes detections visibly
+loses mAP."""
 
 from __future__ import annotations
 
@@ -215,6 +217,8 @@ def test_bad_calibration_input(setup, tmp_path: Path, capsys) -> None:
     assert _export_int8(setup, out, "--calib", str(setup["images"])) == 2  # folder, no --int8-val
     assert "--int8-val" in capsys.readouterr().err
     assert _export_int8(setup, out, "--calib", str(empty), "--int8-val", str(setup["data"])) == 2
+    assert main(["export", "--weights", str(setup["pt"]), "--int8-target", "onnxruntime"]) == 2
+    assert "only apply with --int8" in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -224,8 +228,78 @@ def test_bench_adds_int8_with_ratio(setup, capsys) -> None:
     calib = ["--int8", "--calib", str(setup["images"]), "--calib-images", "2"]
     assert main([*argv, *calib, "--nc", "3"]) == 0
     out = capsys.readouterr().out
-    assert "ort_int8/ort_fp32" in out and "2 calibration frames" in out
+    assert "int8_trt/ort_fp32" in out and "int8_ort/ort_fp32" in out, out
+    assert "2 calibration frames" in out and "CPU: " in out and "load average" in out
     assert main([*argv, "--int8"]) == 2  # --int8 without --calib
+
+
+@pytest.mark.slow
+def test_int8_onnxruntime_target_file_val_and_predictor(setup, tmp_path: Path, capsys) -> None:
+    """--int8-target onnxruntime: uint8 activations, int8 weights, int32 biases, Q/DQ on the
+    whole body but not on the head's output end; the target in metadata and sidecar; the
+    predictor and slimseg val read it; TensorRT's build script refuses it."""
+    out = tmp_path / "m-int8-ort.onnx"
+    extra = ("--calib", str(setup["data"]), "--int8-max-drop", "100")
+    code = _export_int8(setup, out, *extra, "--int8-target", "onnxruntime")
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert "int8 Q/DQ for onnxruntime" in printed.out
+    proto = onnx.load(str(out))
+    g = proto.graph
+    inits = {t.name: numpy_helper.to_array(t) for t in g.initializer}
+    producers = {o: n for n in g.node for o in n.output}
+    qs = [n for n in g.node if n.op_type == "QuantizeLinear"]
+    assert qs and all(inits[q.input[2]].dtype == np.uint8 for q in qs)  # activations
+    assert any(inits[q.input[2]].any() for q in qs)  # asymmetric: zero points not all 0
+    # every conv of the body takes dequantized int8 weights and an int32 bias; the plain
+    # predictor convs (no /conv/ block) and the DFL keep float weights
+    for conv in (n for n in g.node if n.op_type == "Conv"):
+        if re.search(r"/conv(_\d+)?/Conv$", conv.name):
+            dq_w, dq_b = producers[conv.input[1]], producers[conv.input[2]]
+            assert inits[dq_w.input[0]].dtype == np.int8, conv.name
+            assert inits[dq_b.input[0]].dtype == np.int32, conv.name
+        else:
+            assert inits[conv.input[1]].dtype == np.float32, conv.name
+    ops = {producers[o].op_type for o in ("output0", "output1")}
+    assert ops == {"Concat", "DequantizeLinear"}  # output0 in float; prototypes quantized
+    meta = from_metadata_props({p.key: p.value for p in proto.metadata_props})
+    assert meta == json.loads(out.with_suffix(".json").read_text())
+    assert meta["precision"] == "int8" and meta["int8"]["target"] == "onnxruntime"
+    assert meta["int8"]["quantization"]["activations"].startswith("uint8")
+    assert meta["int8"]["quantized_ops"]["Conv"] >= 60
+    predictor = Predictor.from_path(out)
+    assert predictor.int8_target == "onnxruntime" and "int8 for onnxruntime" in repr(predictor)
+    frame = cv2.imread(str(next(setup["images"].iterdir())))[:, :, ::-1].copy()
+    assert predictor.predict(frame, conf=0.3).boxes.shape[1] == 4
+    assert main(["val", "--weights", str(out), "--data", str(setup["data"])]) == 0
+    assert "(int8, onnxruntime target) on" in capsys.readouterr().out
+    script = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "trtexec").write_text("#!/usr/bin/env bash\necho TensorRT v100300\n")
+    (bin_dir / "trtexec").chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    done = subprocess.run(["bash", str(script), str(out)], env=env, capture_output=True, text=True)
+    assert done.returncode == 2 and "--int8-target tensorrt" in done.stderr
+
+
+def test_int8_onnxruntime_gate_refuses(setup, tmp_path: Path, capsys, monkeypatch) -> None:
+    """The same gate holds for the onnxruntime target: an INT8 graph scored 1.5 points under
+    FP32 (a stand-in evaluator: on this fixture's near-constant random network, real INT8
+    noise moves mAP either way) is refused with both numbers, and nothing is written."""
+
+    def fake_score(path: Path, *args, **kwargs) -> dict:
+        m = 0.30 if path.name == "fp32.onnx" else 0.285
+        return {"box": {"map50_95": m}, "mask": {"map50_95": m}, "per_class": []}
+
+    monkeypatch.setattr("slimseg.deploy.int8_export.score_onnx", fake_score)
+    out = tmp_path / "out" / "m.onnx"
+    argv = ("--calib", str(setup["images"]), "--calib-images", "2", "--int8-val")
+    code = _export_int8(setup, out, *argv, str(setup["data"]), "--int8-target", "onnxruntime")
+    err = capsys.readouterr().err
+    assert code == 2 and "INT8 refused (onnxruntime target)" in err, err
+    assert "box 30.00 -> 28.50, mask 30.00 -> 28.50" in err
+    assert not out.exists() and list(out.parent.iterdir()) == []
 
 
 @pytest.mark.parametrize(

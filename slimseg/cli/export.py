@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
+from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.errors import SlimsegError
@@ -20,7 +21,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="fused ONNX (FP32/FP16/INT8) with metadata and a verified parity or accuracy check",
         description="EMA weights -> fuse -> ONNX -> checker -> onnxslim -> (FP16) -> metadata "
         "-> onnxruntime vs torch parity on two inputs (with --dynamic also batch 2 and a second "
-        "size). --int8: that FP32 graph -> calibration on real frames -> symmetric Q/DQ -> box "
+        "size). --int8: that FP32 graph -> calibration on real frames -> Q/DQ for the "
+        "--int8-target (tensorrt: symmetric int8, convs only, for TensorRT engines; "
+        "onnxruntime: uint8 activations, the whole body, for onnxruntime on a CPU) -> box "
         "and mask mAP50-95 of FP32 and INT8 on the val split; refused when either drops more "
         "than --int8-max-drop points. The file (and NAME.json sidecar) appears at --out only if "
         "the checks hold; otherwise the command fails and leaves nothing.",
@@ -32,7 +35,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dynamic", action="store_true", help="dynamic batch, height and width")
     p.add_argument("--opset", type=int, default=18)
     p.add_argument("--no-simplify", action="store_true", help="skip onnxslim")
-    p.add_argument("--int8", action="store_true", help="INT8 Q/DQ (onnxruntime CPU, TensorRT)")
+    p.add_argument("--int8", action="store_true", help="INT8 Q/DQ, calibrated and gated")
+    p.add_argument(
+        "--int8-target",
+        default=None,
+        choices=INT8_TARGETS,
+        help=f"--int8: the runtime the file is for (default {DEFAULT_INT8_TARGET}); "
+        "docs/int8.md says which file for which runtime",
+    )
     p.add_argument("--calib", default=None, help="--int8: DATA.yaml (val split) or image folder")
     p.add_argument(
         "--calib-images", type=int, default=None, help="--int8: frames (default: up to 300)"
@@ -59,8 +69,10 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError("--int8 goes without --half and --dynamic (a static FP32-IO graph)")
     if args.int8 and not args.calib:
         raise SlimsegError("--int8 needs --calib DATA.yaml or --calib FOLDER of frames")
-    if not args.int8 and (args.calib or args.calib_images or args.int8_val):
-        raise SlimsegError("--calib, --calib-images and --int8-val only apply with --int8")
+    if not args.int8 and (args.calib or args.calib_images or args.int8_val or args.int8_target):
+        raise SlimsegError(
+            "--calib, --calib-images, --int8-val and --int8-target only apply with --int8"
+        )
     source = Path(args.weights)
     if source.suffix in (".pt", ".ckpt"):
         model, info = load_weights(source)
@@ -69,7 +81,9 @@ def run(args: argparse.Namespace) -> int:
         model = build_model(args.weights, num_classes=args.nc).eval()
         names, mobility = [], []
     imgsz = (args.imgsz[0], args.imgsz[-1])
-    suffix = "-fp16" if args.half else "-int8" if args.int8 else ""
+    target = args.int8_target or DEFAULT_INT8_TARGET
+    int8_suffix = "-int8" if target == DEFAULT_INT8_TARGET else "-int8-ort"
+    suffix = "-fp16" if args.half else int8_suffix if args.int8 else ""
     out = Path(args.out) if args.out else Path("export") / f"{model.spec.name}{suffix}.onnx"
     if args.int8:
         return _run_int8(args, model, out, imgsz, names, mobility)
@@ -105,8 +119,9 @@ def _run_int8(args, model, out: Path, imgsz, names, mobility) -> int:
         val_data=args.int8_val,
         opset=args.opset,
         progress=not args.quiet,
+        target=args.int8_target or DEFAULT_INT8_TARGET,
     )
-    print(f"wrote {report.path} (int8 Q/DQ, {report.nodes} nodes)")
+    print(f"wrote {report.path} (int8 Q/DQ for {report.target}, {report.nodes} nodes)")
     print(f"  metadata sidecar {report.sidecar}")
     skipped = f", {report.calib_skipped} unreadable skipped" if report.calib_skipped else ""
     print(f"  calibration: {report.calib_images} images, {args.calib_method}{skipped}")

@@ -16,6 +16,7 @@ from torch import nn
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import ZooDataset
+from slimseg.deploy.metadata import precision_label
 from slimseg.deploy.onnx_model import OnnxModel
 from slimseg.errors import SlimsegError
 from slimseg.eval.boundary import DILATION_RATIO, NARROW_BANDS
@@ -173,7 +174,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{model.spec.name} on {args.data} ({args.split}, {len(base)} images, {imgsz} px)")
+        what = f" ({precision_label(model.metadata)})" if isinstance(model, OnnxModel) else ""
+        print(
+            f"{model.spec.name}{what} on {args.data} ({args.split}, {len(base)} images, {imgsz} px)"
+        )
         print(format_metrics_table(result, data_cfg.names))
         speed = ", ".join(f"{k} {v:.1f} ms" for k, v in result["speed_ms"].items())
         print(f"speed per image: {speed}")

@@ -1,9 +1,10 @@
 """Latency of one model in every form, measured side by side in one process.
 
 torch unfused, torch fused, onnxruntime FP32 and FP16 (exported with the parity-checked
-exporter into a temporary folder) and, given calibration frames, INT8 Q/DQ, plus NMS + mask
-post-processing (semantic models: the class map on a 640 × 480 frame, i.e. crop, bilinear
-resize of the logits and argmax).
+exporter into a temporary folder) and, given calibration frames, the INT8 Q/DQ file of each
+target (``int8_trt``: the TensorRT file run by onnxruntime; ``int8_ort``: the onnxruntime
+file), plus NMS + mask post-processing (semantic models: the class map on a 640 × 480 frame,
+i.e. crop, bilinear resize of the logits and argmax).
 Median of ``runs`` timed calls after ``warmup`` untimed ones, batch 1, ``threads`` intra-op
 threads everywhere; onnxruntime sessions never spin idle threads (they would steal the cores
 from the others).
@@ -11,6 +12,7 @@ from the others).
 
 from __future__ import annotations
 
+import os
 import statistics
 import tempfile
 import time
@@ -22,6 +24,7 @@ import torch
 from torch import nn
 
 from slimseg.deploy.calibration import CalibrationSet
+from slimseg.deploy.int8_placement import INT8_TARGETS, check_target
 from slimseg.deploy.int8_quantize import quantize_onnx
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ort_session import cpu_session
@@ -31,6 +34,7 @@ from slimseg.models.registry import detection_rows
 from slimseg.ops.letterbox import letterbox_params
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
 from slimseg.ops.semantic import logits_to_frame
+from slimseg.utils.cpu_features import detect_cpu_features
 from slimseg.utils.threads import torch_threads
 
 
@@ -46,6 +50,8 @@ def median_ms(fn: Callable[[], object], runs: int, warmup: int) -> float:
 
 
 FORMS = ("torch", "torch_fused", "ort_fp32", "ort_fp16")
+# The form name of each INT8 target's file in a bench result.
+INT8_FORMS = {"tensorrt": "int8_trt", "onnxruntime": "int8_ort"}
 
 
 def alternating_median_ms(
@@ -79,17 +85,21 @@ def bench_model(
     forms: tuple[str, ...] = FORMS,
     calib: CalibrationSet | None = None,
     calib_method: str = "minmax",
+    int8_targets: tuple[str, ...] = INT8_TARGETS,
 ) -> dict[str, float]:
     """Milliseconds per form (plus ``postprocess``) for one model; torch runs with
     ``threads`` threads and the process-wide count is restored afterwards.
 
-    ``calib`` (calibration frames) adds ``ort_int8``: the FP32 export quantized as
-    ``slimseg export --int8`` quantizes it (same placement and calibration; no accuracy gate:
-    this measures speed). The onnxruntime forms are timed in alternation, one call each per
+    ``calib`` (calibration frames) adds one form per ``int8_targets`` entry
+    (:data:`INT8_FORMS`): the FP32 export quantized as ``slimseg export --int8
+    --int8-target T`` quantizes it (same placement and calibration; no accuracy gate: this
+    measures speed). The onnxruntime forms are timed in alternation, one call each per
     round, so a load change on the machine hits all of them alike.
     """
+    for target in int8_targets:
+        check_target(target)
     with torch_threads(threads):
-        return _bench(model, imgsz, threads, runs, warmup, forms, calib, calib_method)
+        return _bench(model, imgsz, threads, runs, warmup, forms, calib, calib_method, int8_targets)
 
 
 def _bench(
@@ -101,6 +111,7 @@ def _bench(
     forms: tuple[str, ...],
     calib: CalibrationSet | None,
     calib_method: str,
+    int8_targets: tuple[str, ...],
 ) -> dict[str, float]:
     model = model.eval()
     fused = model.fuse()
@@ -122,11 +133,13 @@ def _bench(
             fp32_path = path if not half else fp32_path
             if form in forms:
                 runs_by_form[form] = _session_call(path, threads, x, half)
-        if calib is not None:
-            q = Path(tmp) / "ort_int8.onnx"
+        for target in int8_targets if calib is not None else ():
+            form = INT8_FORMS[target]
+            q = Path(tmp) / f"{form}.onnx"
+            family = model.spec.family
             hw = (imgsz, imgsz)
-            quantize_onnx(fp32_path, q, calib, hw, model.spec.family, calib_method, False)
-            runs_by_form["ort_int8"] = _session_call(q, threads, x, False)
+            quantize_onnx(fp32_path, q, calib, hw, family, calib_method, False, target=target)
+            runs_by_form[form] = _session_call(q, threads, x, False)
         result.update(alternating_median_ms(runs_by_form, runs, warmup))
     result["postprocess"] = median_ms(lambda: _postprocess(model, out, imgsz), runs, warmup)
     return result
@@ -140,3 +153,20 @@ def _postprocess(model: nn.Module, out: object, imgsz: int) -> list[object]:
     pred = detection_rows(model.spec.family, pred)
     dets: list[Detections] = non_max_suppression(pred, model.num_classes, conf=PREDICT_CONF)
     return [to_frame_detections(d, None if proto is None else proto[0], meta) for d in dets]
+
+
+def machine_info() -> dict[str, object]:
+    """What decides the INT8 figures besides the model: the CPU's INT8 instruction sets
+    (:func:`~slimseg.utils.cpu_features.detect_cpu_features`), onnxruntime's version, the
+    core count and the load average (1, 5, 15 min) at the time of the call."""
+    import onnxruntime
+
+    cpu = detect_cpu_features()
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    return {
+        **cpu.as_dict(),
+        "describe": cpu.describe(),
+        "onnxruntime": onnxruntime.__version__,
+        "cores": os.cpu_count(),
+        "load_average": [round(v, 2) for v in load],
+    }

@@ -1,8 +1,9 @@
 """INT8 export with an accuracy gate: nothing reaches its final path that lost too much mAP.
 
 Pipeline: the parity-checked FP32 export (:func:`~slimseg.deploy.onnx_export.export_onnx`,
-into the staging folder) → calibration on real frames → symmetric Q/DQ graph
-(:func:`~slimseg.deploy.int8_quantize.quantize_onnx`) → COCO box and mask mAP50-95 of the FP32
+into the staging folder) → calibration on real frames → the target's Q/DQ graph
+(:func:`~slimseg.deploy.int8_quantize.quantize_onnx`; ``tensorrt``: symmetric INT8, convs only;
+``onnxruntime``: U8S8, the whole network body) → COCO box and mask mAP50-95 of the FP32
 and the INT8 graph on the same val split with the same evaluator
 (:func:`~slimseg.eval.validation.validate_dataset` over
 :class:`~slimseg.deploy.onnx_model.OnnxModel`) → refuse when either drops more than
@@ -24,8 +25,8 @@ from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig, load_data_config
 from slimseg.data.dataset import ZooDataset
 from slimseg.deploy.calibration import CalibrationSet, load_calibration_set
-from slimseg.deploy.int8_placement import check_family
-from slimseg.deploy.int8_quantize import check_onnxruntime, quantize_onnx
+from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, check_family, check_target
+from slimseg.deploy.int8_quantize import QUANTIZATION, check_onnxruntime, quantize_onnx
 from slimseg.deploy.metadata import build_metadata
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.onnx_io import publish, stage, staging_dir
@@ -43,7 +44,8 @@ class Int8AccuracyError(SlimsegError):
 
 @dataclass
 class Int8Report:
-    """What :func:`export_int8` wrote and measured (mAP50-95 in points, 0–100)."""
+    """What :func:`export_int8` wrote and measured (mAP50-95 in points, 0–100; ``results``:
+    the evaluator's full output per graph, ``fp32`` and ``int8``, per-class rows included)."""
 
     path: Path
     sidecar: Path
@@ -55,6 +57,8 @@ class Int8Report:
     map_fp32: dict[str, float]
     map_int8: dict[str, float]
     agreement: dict[str, float] = field(default_factory=dict)
+    target: str = DEFAULT_INT8_TARGET
+    results: dict[str, dict] = field(default_factory=dict)
 
 
 def _points(result: dict) -> dict[str, float]:
@@ -100,12 +104,14 @@ def agreement_on_frames(
     return totals
 
 
-def _gate(fp32: dict[str, float], int8: dict[str, float], max_drop: float) -> None:
+def _gate(
+    fp32: dict[str, float], int8: dict[str, float], max_drop: float, target: str = "tensorrt"
+) -> None:
     drops = {k: fp32[k] - int8.get(k, 0.0) for k in fp32}
     if any(d > max_drop for d in drops.values()):
         numbers = ", ".join(f"{k} {fp32[k]:.2f} -> {int8[k]:.2f}" for k in fp32)
         raise Int8AccuracyError(
-            f"INT8 refused: mAP50-95 FP32 -> INT8 {numbers} (drop "
+            f"INT8 refused ({target} target): mAP50-95 FP32 -> INT8 {numbers} (drop "
             + ", ".join(f"{k} {d:.2f}" for k, d in drops.items())
             + f" points > --int8-max-drop {max_drop}); nothing written. Try --calib-method "
             "percentile or entropy, more --calib-images, or deploy FP16/FP32"
@@ -125,14 +131,18 @@ def export_int8(
     val_data: str | Path | None = None,
     opset: int = 18,
     progress: bool = True,
+    target: str = DEFAULT_INT8_TARGET,
 ) -> Int8Report:
     """Export ``model`` as a calibrated INT8 Q/DQ ONNX file at ``out``, gated on mAP.
 
     ``calib_source``: a data YAML (its val split calibrates and gates) or a folder of frames
     (then ``val_data``, a data YAML, gates). ``max_drop``: the most mAP50-95 points box or
-    mask may lose. Raises :class:`Int8AccuracyError` (no file) when the gate fails.
+    mask may lose. ``target``: ``tensorrt`` (TensorRT's explicit quantization) or
+    ``onnxruntime`` (onnxruntime's CPU kernels). Raises :class:`Int8AccuracyError` (no file)
+    when the gate fails.
     """
     check_onnxruntime()
+    check_target(target)
     check_family(model.spec.family, model.spec.name)
     if imgsz[0] != imgsz[1]:
         raise SlimsegError(
@@ -158,44 +168,50 @@ def export_int8(
         tmp = Path(tmp_dir)
         fp32_path = export_onnx(model, tmp / "fp32.onnx", imgsz, names, mobility, opset=opset).path
         q_path = tmp / "int8.onnx"
-        plan = quantize_onnx(fp32_path, q_path, calib, imgsz, model.spec.family, method, progress)
-        map_fp32 = _points(score_onnx(fp32_path, data, imgsz[0], progress=progress))
-        map_int8 = _points(score_onnx(q_path, data, imgsz[0], progress=progress))
-        _gate(map_fp32, map_int8, max_drop)
+        family = model.spec.family
+        plan = quantize_onnx(
+            fp32_path, q_path, calib, imgsz, family, method, progress, target=target
+        )
+        results = {
+            "fp32": score_onnx(fp32_path, data, imgsz[0], progress=progress),
+            "int8": score_onnx(q_path, data, imgsz[0], progress=progress),
+        }
+        map_fp32, map_int8 = _points(results["fp32"]), _points(results["int8"])
+        _gate(map_fp32, map_int8, max_drop, target)
         agreement = agreement_on_frames(
             OnnxModel(fp32_path), OnnxModel(q_path), calib, imgsz, progress
         )
         meta = build_metadata(model, names or [], mobility or [], imgsz, "int8")
         meta["int8"] = {
+            "target": target,
             "calibration": {
                 "method": method,
                 "images": len(calib.paths),
                 "source": calib.source.name,
                 "data_hash": calib.digest,
             },
-            "quantization": {
-                "format": "QDQ",
-                "weights": "int8, symmetric, per output channel",
-                "activations": "int8, symmetric, per tensor",
-                "bias": "float (not quantized)",
-            },
+            "quantization": dict(QUANTIZATION[target]),
             "placement": plan.summary(),
             "map50_95": {"fp32": map_fp32, "int8": map_int8},
             "gated_on": data.source.name,
             "max_drop": max_drop,
             "agreement": agreement,
         }
+        if plan.ops:
+            meta["int8"]["quantized_ops"] = dict(plan.ops)
         proto = onnx.load(str(q_path))
         sidecar = publish(stage(proto, meta, tmp, out.name), meta, out)
     return Int8Report(
         out,
         sidecar,
         len(proto.graph.node),
-        len(plan.quantize),
+        plan.ops.get("Conv", len(plan.quantize)),
         plan.summary(),
         len(calib.paths),
         calib.skipped,
         map_fp32,
         map_int8,
         agreement,
+        target,
+        results,
     )

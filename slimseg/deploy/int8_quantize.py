@@ -1,16 +1,24 @@
-"""FP32 ONNX → symmetric INT8 Q/DQ ONNX with ``onnxruntime.quantization``.
+"""FP32 ONNX → INT8 Q/DQ ONNX with ``onnxruntime.quantization``, for one of two targets.
 
-``quant_pre_process`` (shape inference, graph clean-up), then ``quantize_static`` in QDQ format:
-per-channel symmetric INT8 weights, per-tensor symmetric INT8 activations (every zero point 0:
-TensorRT's parser accepts nothing else), biases left in float (TensorRT rejects onnxruntime's
-int32 bias ``DequantizeLinear``), Q/DQ only on the Conv nodes the placement
-(:mod:`slimseg.deploy.int8_placement`) selects. The one file runs in onnxruntime on the CPU
-and builds a TensorRT engine with explicit quantization (``export/build_engine.sh``).
+``quant_pre_process`` (shape inference, graph clean-up), then ``quantize_static`` in QDQ format
+with per-channel symmetric INT8 weights and per-tensor activations, on the nodes the target's
+placement (:mod:`slimseg.deploy.int8_placement`) selects:
+
+* ``tensorrt``: symmetric INT8 activations (every zero point 0: TensorRT's parser accepts
+  nothing else), biases left in float (TensorRT rejects onnxruntime's int32 bias
+  ``DequantizeLinear``), Q/DQ on the chosen Conv nodes only. Builds a TensorRT engine with
+  explicit quantization (``export/build_engine.sh``); onnxruntime runs it too, slowly on x86.
+* ``onnxruntime``: asymmetric UINT8 activations (U8S8, the form onnxruntime's fast x86 and
+  ARM INT8 kernels take), int32 biases, every operator of the network body quantized. Not
+  for TensorRT.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +26,15 @@ import onnx
 from tqdm import tqdm
 
 from slimseg.deploy.calibration import CalibrationSet
-from slimseg.deploy.int8_placement import QUANTIZE_DEPTHWISE, Placement, plan_placement
+from slimseg.deploy.int8_placement import (
+    DEFAULT_INT8_TARGET,
+    ORT_QUANTIZE_DEPTHWISE,
+    QUANTIZE_DEPTHWISE,
+    Placement,
+    check_target,
+    plan_placement,
+    plan_placement_ort,
+)
 from slimseg.errors import SlimsegError
 
 log = logging.getLogger(__name__)
@@ -27,6 +43,21 @@ log = logging.getLogger(__name__)
 MIN_ONNXRUNTIME = (1, 17)
 CALIB_METHODS = ("minmax", "percentile", "entropy")
 MIN_INT8_OPSET = 13  # per-channel QuantizeLinear/DequantizeLinear (axis attribute)
+# What each target's file holds (the ``int8.quantization`` metadata entry).
+QUANTIZATION = {
+    "tensorrt": {
+        "format": "QDQ",
+        "weights": "int8, symmetric, per output channel",
+        "activations": "int8, symmetric, per tensor",
+        "bias": "float (not quantized)",
+    },
+    "onnxruntime": {
+        "format": "QDQ",
+        "weights": "int8, symmetric, per output channel",
+        "activations": "uint8, asymmetric, per tensor",
+        "bias": "int32 (scale: input scale x weight scale)",
+    },
+}
 
 
 def _version_tuple(text: str) -> tuple[int, ...]:
@@ -65,6 +96,19 @@ def _calibrate_method(name: str):
     return methods[name]
 
 
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """onnxruntime's histogram calibrators ``print`` progress; route it to the debug log so a
+    command's standard output holds only its own report."""
+    buffer = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buffer):
+            yield
+    finally:
+        for line in buffer.getvalue().splitlines():
+            log.debug("onnxruntime.quantization: %s", line)
+
+
 def _reader(calib: CalibrationSet, imgsz: tuple[int, int], progress: bool):
     from onnxruntime.quantization import CalibrationDataReader
 
@@ -94,14 +138,16 @@ def quantize_onnx(
     family: str,
     method: str = "minmax",
     progress: bool = True,
-    quantize_depthwise: bool = QUANTIZE_DEPTHWISE,
+    quantize_depthwise: bool | None = None,
+    target: str = DEFAULT_INT8_TARGET,
 ) -> Placement:
-    """Write the INT8 Q/DQ graph of ``fp32_path`` to ``out_path``; returns the placement.
+    """Write ``target``'s INT8 Q/DQ graph of ``fp32_path`` to ``out_path``; returns the
+    placement. ``quantize_depthwise``: override the target's depthwise rule (measurements).
 
     ``out_path``'s folder also receives the pre-processed intermediate (``*.pre.onnx``).
     """
     check_onnxruntime()
-    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+    check_target(target)
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     calibrate_method = _calibrate_method(method)
@@ -112,12 +158,30 @@ def quantize_onnx(
         raise SlimsegError(f"--int8 needs opset >= {MIN_INT8_OPSET} (got {opset}): pass --opset 18")
     pre = out_path.with_suffix(".pre.onnx")
     quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=False)
-    plan = plan_placement(onnx.load(str(pre)), family, quantize_depthwise)
+    graph = onnx.load(str(pre))
+    if target == "onnxruntime":
+        dw = ORT_QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
+        plan = plan_placement_ort(graph, family, dw)
+        log.info("INT8 placement (onnxruntime): %s; ops %s", plan.summary(), plan.ops)
+        with _quiet_stdout():
+            _quantize_ort(pre, out_path, _reader(calib, imgsz, progress), plan, calibrate_method)
+        return plan
+    dw = QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
+    plan = plan_placement(graph, family, dw)
     log.info("INT8 placement: %s", plan.summary())
+    with _quiet_stdout():
+        _quantize_trt(pre, out_path, _reader(calib, imgsz, progress), plan, calibrate_method)
+    return plan
+
+
+def _quantize_trt(pre: Path, out_path: Path, reader, plan: Placement, calibrate_method) -> None:
+    """TensorRT's form: symmetric int8 activations and weights, float biases, Conv only."""
+    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+
     quantize_static(
         str(pre),
         str(out_path),
-        _reader(calib, imgsz, progress),
+        reader,
         quant_format=QuantFormat.QDQ,
         op_types_to_quantize=["Conv"],
         nodes_to_quantize=plan.quantize,
@@ -131,4 +195,26 @@ def quantize_onnx(
             "QuantizeBias": False,
         },
     )
-    return plan
+
+
+def _quantize_ort(pre: Path, out_path: Path, reader, plan: Placement, calibrate_method) -> None:
+    """U8S8 QDQ: uint8 asymmetric activations (both-sided percentile ranges too), int8
+    symmetric per-channel weights, int32 biases, on every node of ``plan.quantize``."""
+    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+
+    quantize_static(
+        str(pre),
+        str(out_path),
+        reader,
+        quant_format=QuantFormat.QDQ,
+        nodes_to_quantize=plan.quantize,
+        per_channel=True,
+        activation_type=QuantType.QUInt8,
+        weight_type=QuantType.QInt8,
+        calibrate_method=calibrate_method,
+        extra_options={
+            "ActivationSymmetric": False,
+            "WeightSymmetric": True,
+            "CalibTensorRangeSymmetric": False,
+        },
+    )

@@ -210,3 +210,20 @@ def read_onnx_metadata(path: str | Path, props: dict[str, str]) -> dict[str, Any
     if not isinstance(mobility, list) or len(mobility) != len(names):
         meta["mobility"] = [1.0] * len(names)
     return meta
+
+
+def int8_target(meta: dict[str, Any]) -> str | None:
+    """The runtime an INT8 export is for (``int8.target``: ``tensorrt`` or ``onnxruntime``;
+    INT8 files written before the key existed are TensorRT's); ``None`` unless INT8."""
+    if meta.get("precision") != "int8":
+        return None
+    entry = meta.get("int8")
+    target = entry.get("target") if isinstance(entry, dict) else None
+    return str(target) if target else "tensorrt"
+
+
+def precision_label(meta: dict[str, Any]) -> str:
+    """``fp32``, ``fp16``, or ``int8, onnxruntime target`` / ``int8, tensorrt target``."""
+    target = int8_target(meta)
+    precision = str(meta.get("precision", "fp32"))
+    return f"{precision}, {target} target" if target else precision

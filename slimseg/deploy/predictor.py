@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from slimseg.deploy.metadata import build_metadata, read_onnx_metadata
+from slimseg.deploy.metadata import build_metadata, int8_target, read_onnx_metadata
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.predict_postprocess import instance_predictions, semantic_predictions
 from slimseg.deploy.prediction import combined_mask
@@ -75,10 +75,16 @@ class Predictor:
             return declared
         return "fp16" if self.input_dtype == np.float16 else "fp32"
 
+    @property
+    def int8_target(self) -> str | None:
+        """``tensorrt`` or ``onnxruntime`` for an INT8 export (its metadata), else ``None``."""
+        return int8_target(self.metadata)
+
     def __repr__(self) -> str:
+        target = f" for {self.int8_target}" if self.int8_target else ""
         return (
             f"Predictor({self.metadata.get('model', '?')}, backend={self.backend}, "
-            f"imgsz={list(self.imgsz)}, {self.precision}, {self.num_classes} classes)"
+            f"imgsz={list(self.imgsz)}, {self.precision}{target}, {self.num_classes} classes)"
         )
 
     @classmethod
