@@ -82,10 +82,10 @@ def main() -> None:
         [
             r["model"],
             r["imgsz"],
-            *(round(r[f], 1) for f in FORMS),
-            round(r["int8_trt"] / r["ort_fp32"], 2),
-            round(r["int8_ort"] / r["ort_fp32"], 2),
-            r["load_1min"],
+            *(f"{r[f]:.1f}" for f in FORMS),
+            f"{r['int8_trt'] / r['ort_fp32']:.2f}",
+            f"{r['int8_ort'] / r['ort_fp32']:.2f}",
+            f"{r['load_1min']:.1f}",
         ]
         for r in rows
     ]

@@ -28,8 +28,9 @@ convolutions:
   the mask-coefficient towers, the prototype convs and the prototype ``ConvTranspose``).
 * **Floating point**: the head's output end, from the plain predictor convs (box, class and
   mask-coefficient outputs) on: DFL, box decode, class sigmoid, the output concats; their
-  values are the detections themselves, and a per-tensor 8-bit box coordinate would move
-  boxes by whole pixels. GSConv's depthwise convs follow :data:`ORT_QUANTIZE_DEPTHWISE`.
+  values are the detections themselves (an 8-bit box-distribution or class logit moves boxes
+  and scores), and quantizing them saves no measurable time. GSConv's depthwise blocks
+  follow :data:`ORT_QUANTIZE_DEPTHWISE`.
 
 Both choices were made by measuring speed side by side and mAP (``docs/int8.md``).
 """
