@@ -24,7 +24,7 @@ import slimseg
 from slimseg.cli.main import main
 from slimseg.deploy.calibration import load_calibration_set
 from slimseg.deploy.int8_placement import plan_placement
-from slimseg.deploy.int8_quantize import check_onnxruntime
+from slimseg.deploy.int8_quantize import check_onnxruntime, quantize_onnx
 from slimseg.deploy.metadata import from_metadata_props
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor
@@ -300,6 +300,26 @@ def test_int8_onnxruntime_gate_refuses(setup, tmp_path: Path, capsys, monkeypatc
     assert code == 2 and "INT8 refused (onnxruntime target)" in err, err
     assert "box 30.00 -> 28.50, mask 30.00 -> 28.50" in err
     assert not out.exists() and list(out.parent.iterdir()) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("target", ["tensorrt", "onnxruntime"])
+def test_entropy_calibration_is_not_minmax(setup, tmp_path: Path, target: str) -> None:
+    """Entropy searches a clipping window per tensor (quantize_static's own entropy
+    calibrator, 128 bins for 128 levels, can only return the full range: minmax's)."""
+    calib = load_calibration_set(setup["images"])
+    scales = {}
+    for method in ("minmax", "entropy"):
+        out = tmp_path / f"{method}.onnx"
+        quantize_onnx(
+            setup["fp32"], out, calib, (IMGSZ, IMGSZ), "yolov8", method, False, None, target
+        )
+        g = onnx.load(str(out)).graph
+        inits = {t.name: numpy_helper.to_array(t) for t in g.initializer}
+        q = [n for n in g.node if n.op_type == "QuantizeLinear"]
+        scales[method] = np.array([float(inits[n.input[1]]) for n in q])
+    assert scales["entropy"].shape == scales["minmax"].shape
+    assert (scales["entropy"] < scales["minmax"] * 0.999).sum() >= len(scales["minmax"]) // 4
 
 
 @pytest.mark.parametrize(

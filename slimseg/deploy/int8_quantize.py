@@ -42,6 +42,11 @@ log = logging.getLogger(__name__)
 # Symmetric per-channel Q/DQ with QuantizeBias=False needs this onnxruntime (or newer).
 MIN_ONNXRUNTIME = (1, 17)
 CALIB_METHODS = ("minmax", "percentile", "entropy")
+# Entropy (KL) calibration: histogram bins, and the levels of the 8-bit tensor it searches a
+# window for. quantize_static's own entropy calibrator uses 128 and 128, which leaves one
+# window, the full range: the ranges of minmax (docs/int8.md).
+ENTROPY_BINS = 2048
+ENTROPY_QUANTIZED_BINS = 255
 MIN_INT8_OPSET = 13  # per-channel QuantizeLinear/DequantizeLinear (axis attribute)
 # What each target's file holds (the ``int8.quantization`` metadata entry).
 QUANTIZATION = {
@@ -158,26 +163,61 @@ def quantize_onnx(
         raise SlimsegError(f"--int8 needs opset >= {MIN_INT8_OPSET} (got {opset}): pass --opset 18")
     pre = out_path.with_suffix(".pre.onnx")
     quant_pre_process(str(fp32_path), str(pre), skip_symbolic_shape=False)
+    reader = _reader(calib, imgsz, progress)
     graph = onnx.load(str(pre))
     if target == "onnxruntime":
         dw = ORT_QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
         plan = plan_placement_ort(graph, family, dw)
         log.info("INT8 placement (onnxruntime): %s; ops %s", plan.summary(), plan.ops)
         with _quiet_stdout():
-            _quantize_ort(pre, out_path, _reader(calib, imgsz, progress), plan, calibrate_method)
+            cache = _entropy_cache(pre, reader, None) if method == "entropy" else None
+            _quantize_ort(pre, out_path, None if cache else reader, plan, calibrate_method, cache)
         return plan
     dw = QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
     plan = plan_placement(graph, family, dw)
     log.info("INT8 placement: %s", plan.summary())
     with _quiet_stdout():
-        _quantize_trt(pre, out_path, _reader(calib, imgsz, progress), plan, calibrate_method)
+        cache = _entropy_cache(pre, reader, ["Conv"]) if method == "entropy" else None
+        _quantize_trt(pre, out_path, None if cache else reader, plan, calibrate_method, cache)
     return plan
 
 
-def _quantize_trt(pre: Path, out_path: Path, reader, plan: Placement, calibrate_method) -> None:
+def _entropy_cache(pre: Path, reader, op_types: list[str] | None) -> Path:
+    """Entropy calibration with :data:`ENTROPY_BINS` / :data:`ENTROPY_QUANTIZED_BINS`, saved as
+    onnxruntime's calibration cache beside ``pre`` (``quantize_static`` then reads it);
+    ``op_types``: the calibrated operators (``None``: every one onnxruntime quantizes)."""
+    import inspect
+
+    from onnxruntime.quantization import CalibrationMethod, quantize_static
+    from onnxruntime.quantization.calibrate import create_calibrator, save_tensors_data
+    from onnxruntime.quantization.registry import QDQRegistry, QLinearOpsRegistry
+
+    if "calibration_cache_path" not in inspect.signature(quantize_static).parameters:
+        raise SlimsegError(
+            "--calib-method entropy needs an onnxruntime whose quantize_static takes a "
+            "calibration cache: pip install -U onnxruntime (or use minmax / percentile)"
+        )
+    ops = op_types or sorted(set(QLinearOpsRegistry) | set(QDQRegistry))
+    calibrator = create_calibrator(
+        pre,
+        ops,
+        augmented_model_path=str(pre.with_suffix(".augmented.onnx")),
+        calibrate_method=CalibrationMethod.Entropy,
+        extra_options={"num_bins": ENTROPY_BINS, "num_quantized_bins": ENTROPY_QUANTIZED_BINS},
+    )
+    calibrator.collect_data(reader)
+    cache = pre.with_suffix(".entropy.json")
+    save_tensors_data(calibrator.compute_data(), cache)
+    return cache
+
+
+def _quantize_trt(
+    pre: Path, out_path: Path, reader, plan: Placement, calibrate_method, cache: Path | None
+) -> None:
     """TensorRT's form: symmetric int8 activations and weights, float biases, Conv only."""
     from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
 
+    cached = {"calibration_cache_path": str(cache)} if cache else {}
     quantize_static(
         str(pre),
         str(out_path),
@@ -194,14 +234,18 @@ def _quantize_trt(pre: Path, out_path: Path, reader, plan: Placement, calibrate_
             "WeightSymmetric": True,
             "QuantizeBias": False,
         },
+        **cached,
     )
 
 
-def _quantize_ort(pre: Path, out_path: Path, reader, plan: Placement, calibrate_method) -> None:
+def _quantize_ort(
+    pre: Path, out_path: Path, reader, plan: Placement, calibrate_method, cache: Path | None
+) -> None:
     """U8S8 QDQ: uint8 asymmetric activations (both-sided percentile ranges too), int8
     symmetric per-channel weights, int32 biases, on every node of ``plan.quantize``."""
     from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
 
+    cached = {"calibration_cache_path": str(cache)} if cache else {}
     quantize_static(
         str(pre),
         str(out_path),
@@ -217,4 +261,5 @@ def _quantize_ort(pre: Path, out_path: Path, reader, plan: Placement, calibrate_
             "WeightSymmetric": True,
             "CalibTensorRangeSymmetric": False,
         },
+        **cached,
     )
