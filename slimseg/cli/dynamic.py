@@ -12,6 +12,12 @@ import cv2
 import numpy as np
 
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.cli.track_args import (
+    add_dropout_arg,
+    add_track_args,
+    dropout_from_args,
+    track_plan_from_args,
+)
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
@@ -38,11 +44,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="use the sequence's annotations.json instances instead of a model (synthetic "
         "sequences): evaluates the masking logic and the epipolar check without detector errors",
     )
+    add_dropout_arg(p)
     p.add_argument("--sequence", required=True, help="folder with rgb.txt and depth.txt")
     p.add_argument("--out", default="runs/dynamic")
     p.add_argument("--mode", default="fusion", choices=MODES)
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
     add_masking_args(p)
+    add_track_args(p)
     p.add_argument(
         "--epipolar-depth",
         action="store_true",
@@ -73,13 +81,18 @@ def run(args: argparse.Namespace) -> int:
     if (args.model is None) == (not args.gt_instances):
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
     masking = masking_from_args(args)
+    track = track_plan_from_args(args)
+    dropout = dropout_from_args(args)
     sequence = Path(args.sequence)
     seq = TumSequence(sequence)  # a bad folder fails before the model loads
     print(seq.describe_camera())
     if args.gt_instances:
         from slimseg.dynamic.annotations import AnnotationInstances
 
-        predictor = AnnotationInstances(sequence)
+        predictor = AnnotationInstances(sequence, dropout)
+        if dropout is not None:
+            print(f"ground-truth dropout {dropout.rate:g} in bursts of {dropout.burst}: "
+                  f"{predictor.dropped} instance-frames removed")  # fmt: skip
     else:
         from slimseg.deploy.predictor import Predictor
 
@@ -100,11 +113,18 @@ def run(args: argparse.Namespace) -> int:
         args.keypoints,
         progress=not args.quiet,
         epipolar_depth=args.epipolar_depth,
+        track=track,
     )
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
     print(f"masking settings: {masking.describe()}")
+    if track.on:
+        total = report.ms_per_frame["model"] + report.ms_per_frame["masking_logic"]
+        print(f"track stage: {track.describe()}; model on {report.model_frames} of "
+              f"{report.frames} frames, {report.coasted} predicted masks emitted; {total:.1f} "
+              f"ms per frame in all (model + masking logic); {out / 'tracks.csv'}")  # fmt: skip
     _print_scores(report)
+    _print_recall_loss(report)
     if report.skipped:
         print(f"{len(report.skipped)} frame(s) without ground truth, e.g. {report.skipped[0]}")
     if args.restore:
@@ -125,6 +145,25 @@ def _print_scores(report: SequenceReport) -> None:
         print("epipolar check of ground-truth instances (truth as decision):")
         rows = [[k, v] for k, v in sorted(report.epipolar.items())]
         print(format_table(["instances", "count"], rows))
+
+
+def _print_recall_loss(report: SequenceReport) -> None:
+    if report.recall_loss is None:
+        return
+    s = report.recall_loss.summary()
+    hist = ", ".join(f"{k}: {v}" for k, v in s["dropout_histogram"].items()) or "none"
+    print(
+        f"where recall is lost: {s['missed_dynamic_keypoints']} missed "
+        f"dynamic keypoints, {_num(s['missed_on_dropouts_pct'])} % on walkers the mask misses "
+        f"entirely in that frame (< 20 % covered), {_num(s['missed_on_partial_pct'])} % on "
+        f"walkers covered in part; dropouts in {_num(s['dropout_frames_pct'])} % of moving "
+        f"instance-frames, run lengths {{{hist}}}; ghosts (false dynamic keypoints on coasted "
+        f"masks only) {_num(s['ghost_pct'])} % of dynamic keypoints"
+    )
+
+
+def _num(v: float) -> str:
+    return "-" if math.isnan(v) else f"{v:.1f}"
 
 
 def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) -> None:

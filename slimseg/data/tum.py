@@ -291,6 +291,12 @@ class TumSequence:
             source = f"{DEFAULT} (the default: no camera.yaml, no known camera in the folder name)"
         return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
 
+    @property
+    def fps(self) -> float:
+        """Frame rate from the median colour-frame interval (30 for a single frame)."""
+        stamps = np.array([t for (t, _), _ in self.frames])
+        return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
+
     def __len__(self) -> int:
         return len(self.frames)
 

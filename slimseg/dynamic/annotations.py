@@ -9,6 +9,7 @@ modes, the epipolar check and restoration can be evaluated without a detector's 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,59 @@ from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 
 
+@dataclass(frozen=True)
+class Dropout:
+    """Detector misses simulated on ground-truth instances: each instance track loses
+    ``rate`` of the frames it appears in, in bursts of ``burst`` consecutive appearances at
+    random places (``seed``); what a memory across frames should win back (docs/tracking.md)."""
+
+    rate: float
+    burst: int
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.rate < 1 and self.burst >= 1):
+            raise SlimsegError(
+                f"ground-truth dropout {self.rate}:{self.burst}: expected RATE in [0, 1) and "
+                "BURST >= 1 frames (e.g. 0.1:3)"
+            )
+
+    @classmethod
+    def parse(cls, text: str) -> Dropout:
+        """``RATE:BURST[:SEED]``, e.g. ``0.1:3`` (10 % of each track's frames, bursts of 3)."""
+        parts = text.split(":")
+        try:
+            if len(parts) not in (2, 3):
+                raise ValueError
+            return cls(float(parts[0]), int(parts[1]), int(parts[2]) if len(parts) == 3 else 0)
+        except ValueError:
+            raise SlimsegError(
+                f"--gt-dropout {text!r}: expected RATE:BURST[:SEED], e.g. 0.1:3"
+            ) from None
+
+    def dropped(self, track: int, n: int) -> np.ndarray:
+        """``bool [n]``: which of a track's ``n`` appearances are dropped."""
+        out = np.zeros(n, bool)
+        bursts = round(self.rate * n / self.burst)
+        if bursts == 0 or n == 0:
+            return out
+        rng = np.random.default_rng([self.seed, track])
+        # bursts separated by at least one kept appearance: place them in the slack
+        slack = n - bursts * self.burst - (bursts - 1)
+        if slack < 0:
+            bursts = max((n + 1) // (self.burst + 1), 0)
+            slack = n - bursts * self.burst - (bursts - 1)
+        gaps = np.sort(rng.integers(0, slack + 1, bursts)) if bursts else []
+        start = 0
+        prev = 0
+        for g in gaps:
+            start += int(g) - prev
+            prev = int(g)
+            out[start : start + self.burst] = True
+            start += self.burst + 1
+        return out
+
+
 class AnnotationInstances:
     """Instances of ``<sequence>/annotations.json`` keyed by colour timestamp.
 
@@ -27,7 +81,7 @@ class AnnotationInstances:
     and :meth:`moving` the ``moving`` flag of each of its instances.
     """
 
-    def __init__(self, sequence: str | Path) -> None:
+    def __init__(self, sequence: str | Path, dropout: Dropout | None = None) -> None:
         path = Path(sequence) / "annotations.json"
         if not path.is_file():
             raise SlimsegError(
@@ -53,6 +107,29 @@ class AnnotationInstances:
             im = images.get(a["image_id"])
             if im is not None:
                 self._by_stamp[f"{float(im['timestamp']):.6f}"][1].append(a)
+        self.dropout = dropout
+        self.dropped = 0
+        if dropout is not None and dropout.rate > 0:
+            self._drop(dropout)
+
+    def _drop(self, dropout: Dropout) -> None:
+        """Remove the scheduled appearances of every instance track (frames in time order)."""
+        keys = sorted(self._by_stamp, key=float)
+        seen: dict[int, list[tuple[str, int]]] = {}
+        for key in keys:
+            for j, a in enumerate(self._by_stamp[key][1]):
+                seen.setdefault(int(a.get("track_id", -1)), []).append((key, j))
+        drop: set[tuple[str, int]] = set()
+        for tid, where in seen.items():
+            if tid < 0:
+                continue
+            flags = dropout.dropped(tid, len(where))
+            drop |= {w for w, f in zip(where, flags, strict=True) if f}
+        for key in keys:
+            im, anns = self._by_stamp[key]
+            kept = [a for j, a in enumerate(anns) if (key, j) not in drop]
+            self.dropped += len(anns) - len(kept)
+            self._by_stamp[key] = (im, kept)
 
     def _frame(self, stamp: float) -> tuple[dict, list[dict]]:
         key = f"{float(stamp):.6f}"
@@ -80,6 +157,10 @@ class AnnotationInstances:
             masks=masks,
             image_hw=(h, w),
         )
+
+    def track_ids(self, stamp: float) -> np.ndarray:
+        """``int64 [N]``: the ``track_id`` of each instance of the frame (-1 when absent)."""
+        return np.array([int(a.get("track_id", -1)) for a in self._frame(stamp)[1]], np.int64)
 
     def moving(self, stamp: float) -> np.ndarray:
         """``bool [N]``: the ground-truth ``moving`` flag of each instance of the frame."""

@@ -194,10 +194,13 @@ def check_motion(
     floor: float = FLOOR_PX,
     depth_m: np.ndarray | None = None,
     camera: tuple[float, float, float, float] | None = None,
+    pairs: np.ndarray | None = None,
 ) -> EpipolarResult:
     """Which of the candidate ``regions bool [K, H, W]`` (current-frame instance masks) move
     between ``previous`` and ``current``? ``depth_m [H, W]`` (previous frame, metres) and
-    ``camera (fx, fy, cx, cy)`` switch on the depth-aided residual. See the module docstring."""
+    ``camera (fx, fy, cx, cy)`` switch on the depth-aided residual; ``pairs``: the
+    :func:`match_features` rows of the two frames when already computed. See the module
+    docstring."""
     regions = np.asarray(regions, bool)
     if regions.ndim != 3:
         raise ValueError(f"regions must be bool [K, H, W], got shape {regions.shape}")
@@ -212,7 +215,8 @@ def check_motion(
         0,
         0,
     )
-    pairs = match_features(previous, current)
+    if pairs is None:
+        pairs = match_features(previous, current)
     none.matches = len(pairs)
     if len(pairs) < 8:
         return none

@@ -13,6 +13,12 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
   check finds *static* gets mobility 0, so its points stay static (a standing person). Objects
   with too few matched points, and every object of the first frame (no ``previous``), keep
   their prior: undecided means dynamic. Eq. 3 then counts with the corrected priors.
+
+With the track stage (:mod:`slimseg.dynamic.track`), ``FrameInputs.mobility`` carries each
+object's mobility (its track's moving probability, decayed per missed frame) instead of the
+class prior, ``FrameInputs.predicted`` marks the coasted masks (Eq. 4 leaves them as they
+are: a prediction turned into its box would only grow the error), and the epipolar check has
+already run (``FrameInputs.evidence``): its outcome is in the mobilities, not applied again.
 """
 
 from __future__ import annotations
@@ -79,6 +85,21 @@ class FrameInputs:
     depth_m: np.ndarray | None = None
     descriptors: np.ndarray | None = None
     previous: PreviousFrame | None = None
+    mobility: np.ndarray | None = None
+    """``float32 [M]`` per-object mobility from the track stage (None: the class priors)"""
+    predicted: np.ndarray | None = None
+    """``bool [M]``: the object's mask is a track's prediction, not a detection"""
+    evidence: MotionEvidence | None = None
+    """the epipolar check the track stage ran (its outcome is already in ``mobility``)"""
+
+
+@dataclass(frozen=True)
+class MotionEvidence:
+    """An epipolar check's ``result`` on the objects ``checked`` (indices into the frame's
+    objects); ``result`` None: nothing was checked (first frame, no candidates)."""
+
+    result: EpipolarResult | None
+    checked: list[int]
 
 
 @dataclass(frozen=True)
@@ -141,7 +162,11 @@ def process_modes(
     if bad:
         raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
     mob = np.asarray(settings.class_mobility, np.float32)[np.asarray(inputs.classes, int)]
+    if inputs.mobility is not None:
+        mob = np.asarray(inputs.mobility, np.float32)
     check = None
+    if inputs.evidence is not None:
+        check = mob, inputs.evidence.result, inputs.evidence.checked
     out = {}
     for mode in modes:
         t0 = time.perf_counter()
@@ -190,8 +215,11 @@ def _one_mode(
     box_mob = keypoint_mobility(keypoints, box_masks(boxes, hw), mob)
     dynamic_frame = is_dynamic_frame(box_mob, settings.frame_ratio)
     if mode == "fusion" and dynamic_frame and len(boxes):
-        regions, used = fuse_seg_box(regions, boxes, settings.t_o)
-        used_seg = used.tolist()
+        fused, used = fuse_seg_box(regions, boxes, settings.t_o)
+        if inputs.predicted is not None:  # Eq. 4 acts on detection masks only
+            keep = np.asarray(inputs.predicted, bool)
+            fused, used = np.where(keep[:, None, None], regions, fused), used | keep
+        regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
     result = adaptive_threshold(
         point_mob, settings.min_static, settings.m_th_start, settings.m_th_step
@@ -207,6 +235,20 @@ def _epipolar_priors(
     inputs: FrameInputs, mob: np.ndarray, dynamic_mobility: float
 ) -> tuple[np.ndarray, EpipolarResult | None, list[int]]:
     """Mobility priors with the detections the epipolar check finds static set to 0."""
+    ev = epipolar_evidence(inputs, mob, dynamic_mobility)
+    if ev.result is None:
+        return mob, None, []
+    mob = mob.copy()
+    checked = np.asarray(ev.checked, int)
+    mob[checked[ev.result.decided & ~ev.result.moving]] = 0.0
+    return mob, ev.result, ev.checked
+
+
+def epipolar_evidence(
+    inputs: FrameInputs, mob: np.ndarray, dynamic_mobility: float, pairs: np.ndarray | None = None
+) -> MotionEvidence:
+    """Run the epipolar check on the objects whose mobility ``mob [M]`` exceeds
+    ``dynamic_mobility`` (``pairs``: the frames' ORB matches, when already computed)."""
     keypoints, descriptors, previous, masks = (
         inputs.keypoints,
         inputs.descriptors,
@@ -215,7 +257,7 @@ def _epipolar_priors(
     )
     candidates = np.flatnonzero(mob > dynamic_mobility)
     if previous is None or len(candidates) == 0:
-        return mob, None, []
+        return MotionEvidence(None, [])
     if descriptors is None:
         raise ValueError(
             "epipolar modes need the ORB descriptors of the keypoints: pass descriptors= "
@@ -228,10 +270,9 @@ def _epipolar_priors(
         np.asarray(masks, bool)[candidates],
         depth_m=previous.depth_m,
         camera=previous.camera,
+        pairs=pairs,
     )
-    mob = mob.copy()
-    mob[candidates[result.decided & ~result.moving]] = 0.0
-    return mob, result, candidates.tolist()
+    return MotionEvidence(result, candidates.tolist())
 
 
 def _mask(region: np.ndarray, dilation_px: int) -> np.ndarray:

@@ -38,7 +38,10 @@ from slimseg.dynamic.pipeline import (
     FrameRules,
     process_modes,
 )
+from slimseg.dynamic.recall_loss import RecallLoss
 from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.track import FrameDets, TrackedFrame
+from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan
 from slimseg.utils.atomic import write_png
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
@@ -78,6 +81,13 @@ class SequenceReport:
     epipolar: dict[str, int] = field(default_factory=dict)
     """GT instances only: ``"<truth> as <decision>"`` counts, truth moving/static, decision
     moving/static/undecided, over every instance the epipolar check looked at."""
+    recall_loss: RecallLoss | None = None
+    """the chosen mode's missed keypoints split by dropout vs partial cover, ghosts
+    (sequences with ``annotations.json`` and ``dynamic/``)"""
+    model_frames: int = 0
+    """frames the model ran on (``--segment-every``: about frames / N)"""
+    coasted: int = 0
+    """predicted masks the track stage emitted (coasted or carried)"""
 
 
 def run_sequence(
@@ -89,12 +99,15 @@ def run_sequence(
     keypoints: int = 1000,
     progress: bool = True,
     epipolar_depth: bool = False,
+    track: TrackPlan = TRACK_OFF,
 ) -> SequenceReport:
     """Process every associated frame of ``sequence`` with ``predictor`` (a slimseg
     ``Predictor`` or ``AnnotationInstances``) under the ``masking`` settings (score threshold,
     dilation, Eq. 1/3/4); write masks, ``frames.csv`` and ``overlay.png`` under ``out``.
     ``epipolar_depth``: give the epipolar check the previous depth and the intrinsics
-    (depth-aided residual, see ``epipolar``). ``sequence``: the folder, or it opened."""
+    (depth-aided residual, see ``epipolar``). ``sequence``: the folder, or it opened.
+    ``track``: the track stage (off by default: every frame judged alone); with it on,
+    ``tracks.csv`` lists every emitted object with its track id and source."""
     seq = sequence if isinstance(sequence, TumSequence) else TumSequence(sequence)
     gt_dir = seq.root / "dynamic"
     mobility = np.asarray(predictor.mobility, np.float32)
@@ -108,21 +121,40 @@ def run_sequence(
     previous: PreviousFrame | None = None
     settings = FrameRules.from_masking(mobility, mode, masking)
     conf = masking.conf
+    stage = None
+    if track.on:
+        stage = TrackedSequence(track.settings, mobility, mode, settings.mover_prior, seq.fps)
+    losses = RecallLoss() if gt_dir.is_dir() and (seq.root / "annotations.json").is_file() else None
+    instances = _instances(predictor, seq.root) if losses is not None else None
+    track_rows: list[dict] = []
     for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
         rgb, depth, stamp = seq.load(i)
         t0 = time.perf_counter()
-        pred = predictor.for_stamp(stamp) if gt_instances else predictor.predict(rgb, conf=conf)
+        pred = None
+        if track.runs_model(i):
+            pred = (predictor.for_stamp(stamp) if gt_instances
+                    else predictor.predict(rgb, conf=track.floor(conf)))  # fmt: skip
+            report.model_frames += 1
         t1 = time.perf_counter()
         feats = orb_features(rgb, keypoints)  # same keypoints as orb_keypoints, + descriptors
         kps = feats.keypoints
         hw = rgb.shape[:2]
-        boxes, classes, masks = instances_of(pred)  # semantic maps: one object per component
+        tracked = None
+        if stage is None:
+            boxes, classes, masks = instances_of(pred)  # semantic maps: one object per component
+            inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors,
+                                 previous)  # fmt: skip
+        else:
+            dets = None if pred is None else _frame_dets(pred, hw)
+            inputs, tracked = stage.inputs(feats, dets, conf, depth, previous)
+            boxes, classes, masks = inputs.boxes, inputs.classes, inputs.masks
+            report.coasted += int(tracked.coasted.sum())
+            track_rows += _track_rows(stamp, tracked)
         t_prep = time.perf_counter() - t1
-        inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors, previous)
         modes = [mode]
         if report.scores:  # every mode on the same detections and keypoints
             modes += [m for m in MODES if m != mode and (masks is not None or m in BOX_MODES)]
-        count_epi = gt_instances and previous is not None and pred.masks is not None
+        count_epi = gt_instances and previous is not None and masks is not None
         if count_epi and mode not in EPIPOLAR_MODES and "semantic+epipolar" not in modes:
             modes.append("semantic+epipolar")
         results = process_modes(inputs=inputs, settings=settings, modes=modes, rng=rng)
@@ -140,6 +172,7 @@ def run_sequence(
                 "used_seg": result.used_seg,
                 "detections": len(boxes),
                 "model_ms": round(1000 * (t1 - t0), 2),
+                **({} if tracked is None else {"coasted": int(tracked.coasted.sum())}),
             }
         )
         if report.scores:
@@ -150,35 +183,94 @@ def run_sequence(
                 truth = at_keypoints(gt > 0, kps)
                 for m, res in results.items():
                     report.scores[m].add(res.dynamic, truth)
+                if losses is not None:
+                    only = _coasted_only(tracked, masks, hw)
+                    losses.add(instances, stamp, kps, result.dynamic, truth, result.mask > 0, only)
         if count_epi:
             epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
-            _count_epipolar(report, predictor, stamp, results[epi_mode])
+            _count_epipolar(report, predictor, stamp, results[epi_mode], tracked)
         if epipolar_depth:
             cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
             previous = PreviousFrame(feats, depth, cam)
         else:
             previous = PreviousFrame(feats)
         if i % step == 0 and len(panels) < 6:
-            panels.append(_overlay(rgb, result.mask, kps, result.dynamic))
+            ghost = None if tracked is None else _coasted_only(tracked, masks, hw)
+            panels.append(_overlay(rgb, result.mask, kps, result.dynamic, ghost))
         report.frames += 1
     _write_csv(out / "frames.csv", rows)
+    if stage is not None:
+        _write_csv(out / "tracks.csv", track_rows)
+    if losses is not None:
+        report.recall_loss = losses.finish()
     if panels:
         write_png(out / "overlay.png", tile(panels, 3))
     n = max(report.frames, 1)
     report.ms_per_frame = {"model": 1000 * t_model / n, "masking_logic": 1000 * t_logic / n}
+    if stage is not None:  # its time is inside masking_logic (preparation); shown apart too
+        report.ms_per_frame["track_stage"] = stage.ms_per_frame
     return report
 
 
+def _instances(predictor: object, root: Path) -> AnnotationInstances:
+    """The sequence's complete ground-truth instances (never a dropout-injected copy)."""
+    if isinstance(predictor, AnnotationInstances) and predictor.dropout is None:
+        return predictor
+    return AnnotationInstances(root)
+
+
+def _frame_dets(pred: object, hw: tuple[int, int]) -> FrameDets:
+    """A prediction (instances or a class map) as the track stage's detections."""
+    boxes, classes, masks = instances_of(pred)
+    scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
+    return FrameDets(boxes, scores, classes, masks, hw)
+
+
+def _coasted_only(
+    tracked: TrackedFrame | None, masks: np.ndarray | None, hw: tuple[int, int]
+) -> np.ndarray | None:
+    """``bool [H, W]``: pixels of coasted masks that no detection mask covers."""
+    if tracked is None or masks is None or not tracked.coasted.any():
+        return None if tracked is None else np.zeros(hw, bool)
+    det = masks[~tracked.coasted].any(0) if (~tracked.coasted).any() else np.zeros(hw, bool)
+    return masks[tracked.coasted].any(0) & ~det
+
+
+def _track_rows(stamp: float, tracked: TrackedFrame) -> list[dict]:
+    return [
+        {
+            "timestamp": f"{stamp:.6f}",
+            "track_id": int(tracked.track_ids[k]),
+            "class": int(tracked.classes[k]),
+            "source": tracked.source[k],
+            "misses": int(tracked.misses[k]),
+            "mobility": round(float(tracked.mobility[k]), 4),
+            "score": round(float(tracked.scores[k]), 4),
+            "box": " ".join(f"{v:.1f}" for v in tracked.boxes[k]),
+        }
+        for k in range(len(tracked.boxes))
+    ]
+
+
 def _count_epipolar(
-    report: SequenceReport, instances: AnnotationInstances, stamp: float, result: FrameResult
+    report: SequenceReport,
+    instances: AnnotationInstances,
+    stamp: float,
+    result: FrameResult,
+    tracked: TrackedFrame | None = None,
 ) -> None:
     """Tally an epipolar mode's decisions on this frame's instances against their ``moving``
-    flag (``result``: that mode's outcome, with the check it ran)."""
+    flag (``result``: that mode's outcome, with the check it ran; ``tracked``: the track
+    stage's objects, whose predicted masks are not instances and are left out)."""
     epi = result.epipolar
     if epi is None:
         return
-    truth = instances.moving(stamp)[result.checked]
-    for t, dec, mov in zip(truth, epi.decided, epi.moving, strict=True):
+    checked = np.asarray(result.checked, int)
+    if tracked is not None:
+        checked = tracked.det_index[checked]
+    keep = checked >= 0
+    truth = instances.moving(stamp)[checked[keep]]
+    for t, dec, mov in zip(truth, epi.decided[keep], epi.moving[keep], strict=True):
         decision = "moving" if mov else ("static" if dec else "undecided")
         key = f"{'moving' if t else 'static'} as {decision}"
         report.epipolar[key] = report.epipolar.get(key, 0) + 1
@@ -192,10 +284,20 @@ def at_keypoints(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
     return mask[y, x]
 
 
-def _overlay(rgb: np.ndarray, mask: np.ndarray, kps: np.ndarray, dyn: np.ndarray) -> np.ndarray:
+def _overlay(
+    rgb: np.ndarray,
+    mask: np.ndarray,
+    kps: np.ndarray,
+    dyn: np.ndarray,
+    coasted: np.ndarray | None = None,
+) -> np.ndarray:
+    """Red: the dynamic mask; yellow: its part that only coasted masks cover."""
     out = rgb.copy()
     sel = mask > 0
     out[sel] = (0.5 * out[sel] + 0.5 * np.array([255, 0, 0])).astype(np.uint8)
+    if coasted is not None:
+        c = coasted & sel
+        out[c] = (0.4 * rgb[c] + 0.6 * np.array([255, 220, 0])).astype(np.uint8)
     for (x, y), d in zip(kps.astype(int), dyn, strict=True):
         cv2.circle(out, (int(x), int(y)), 2, (255, 0, 0) if d else (0, 255, 0), -1)
     return out

@@ -65,12 +65,6 @@ class Plan:
     progress: bool = True
 
 
-def fps_of(seq: TumSequence) -> float:
-    """The sequence's frame rate from its median colour-frame interval (30 if one frame)."""
-    stamps = np.array([t for (t, _), _ in seq.frames])
-    return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
-
-
 def gt_at_frames(gt: np.ndarray, seq: TumSequence, max_dt: float = MAX_DT) -> np.ndarray:
     """Ground-truth rows ``[K, 8]`` nearest to each frame's RGB stamp (within ``max_dt``)."""
     stamps = np.array([t for (t, _), _ in seq.frames])
@@ -219,11 +213,11 @@ def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> Engi
     settings = None
     if plan.engine == "orbslam3":
         h, w = seq.load(0)[0].shape[:2]
-        orb = OrbSlam3Config(features=plan.features, fps=fps_of(seq))
+        orb = OrbSlam3Config(features=plan.features, fps=seq.fps)
         settings = write_settings(folder / "orbslam3_settings.yaml", seq.camera, w, h, orb)
     return EngineRunConfig(
         engine=plan.engine, runs=plan.runs, vocab=plan.vocab, settings=settings,
-        realtime=plan.realtime, speed=plan.speed, fps=fps_of(seq),
+        realtime=plan.realtime, speed=plan.speed, fps=seq.fps,
         progress=plan.progress,
     )  # fmt: skip
 

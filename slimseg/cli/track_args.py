@@ -1,0 +1,87 @@
+"""The track-stage options shared by ``slimseg dynamic``, ``slimseg slam-eval`` and
+``slimseg predict``: ``--track [PRESET]``, one ``--track-*`` flag per knob of
+:class:`slimseg.dynamic.track_settings.TrackSettings` (a flag overrides the preset, and implies
+``--track``), ``--segment-every N`` and, for ground-truth instances, ``--gt-dropout``."""
+
+from __future__ import annotations
+
+import argparse
+
+from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.track_run import TrackPlan
+from slimseg.dynamic.track_settings import (
+    DEFAULT_TRACK_PRESET,
+    TRACK_PRESETS,
+    TRACK_RANGES,
+    TrackSettings,
+    track_preset,
+)
+from slimseg.errors import SlimsegError
+
+# flag -> field: every knob, spelled --track-<field with dashes>
+FLAGS: dict[str, str] = {f"--track-{name.replace('_', '-')}": name for name in TRACK_RANGES}
+
+
+def add_track_args(p: argparse.ArgumentParser, segment_every: bool = True) -> None:
+    """Add ``--track``, the knob flags and (``segment_every``) ``--segment-every``."""
+    g = p.add_argument_group("track stage (docs/tracking.md): masks that remember")
+    g.add_argument(
+        "--track",
+        nargs="?",
+        const=DEFAULT_TRACK_PRESET,
+        default=None,
+        choices=tuple(TRACK_PRESETS),
+        metavar="PRESET",
+        help="carry masks across frames: BYTE association, camera-motion-compensated "
+        "prediction, coasting over missed detections, a per-track moving probability "
+        f"(presets {', '.join(TRACK_PRESETS)}; bare --track: {DEFAULT_TRACK_PRESET}); off by "
+        "default: every frame judged alone",
+    )
+    base = TRACK_PRESETS[DEFAULT_TRACK_PRESET]
+    for flag, field in FLAGS.items():
+        _, _, integer, what = TRACK_RANGES[field]
+        g.add_argument(flag, dest=f"track_{field}", type=int if integer else float,
+                       default=None, metavar="N" if integer else "X",
+                       help=f"{what} (default {getattr(base, field):g})")  # fmt: skip
+    if segment_every:
+        g.add_argument(
+            "--segment-every",
+            type=int,
+            default=1,
+            metavar="N",
+            help="run the model on every N-th frame only; the tracks carry the masks between "
+            "(needs --track; the total ms per frame is reported)",
+        )
+
+
+def add_dropout_arg(p: argparse.ArgumentParser) -> None:
+    """``--gt-dropout RATE:BURST[:SEED]`` (with ``--gt-instances``)."""
+    p.add_argument(
+        "--gt-dropout",
+        type=Dropout.parse,
+        default=None,
+        metavar="RATE:BURST[:SEED]",
+        help="with --gt-instances: drop each instance from RATE of its frames in bursts of "
+        "BURST frames (simulated missed detections, e.g. 0.1:3)",
+    )
+
+
+def track_settings_from_args(args: argparse.Namespace) -> TrackSettings | None:
+    """The preset with every given knob applied; None when the stage is off."""
+    given = {f: getattr(args, f"track_{f}") for f in FLAGS.values()
+             if getattr(args, f"track_{f}") is not None}  # fmt: skip
+    if args.track is None and not given:
+        return None
+    return track_preset(args.track or DEFAULT_TRACK_PRESET).with_values(**given)
+
+
+def track_plan_from_args(args: argparse.Namespace) -> TrackPlan:
+    """The validated stage (``SlimsegError`` names a bad option)."""
+    return TrackPlan(track_settings_from_args(args), getattr(args, "segment_every", 1))
+
+
+def dropout_from_args(args: argparse.Namespace) -> Dropout | None:
+    """``--gt-dropout``, refused without ``--gt-instances``."""
+    if args.gt_dropout is not None and not args.gt_instances:
+        raise SlimsegError("--gt-dropout acts on ground-truth instances: add --gt-instances")
+    return args.gt_dropout

@@ -1,0 +1,99 @@
+"""Image motion of the static background between two frames: the track stage's camera-motion
+compensation (BoT-SORT's CMC, docs/tracking.md §3).
+
+A homography ``H`` (previous → current frame pixels) is fitted with RANSAC to the ORB matches
+that lie outside every object region (the same ratio-test matches the epipolar check uses).
+For a rotating camera ``H`` is exact; for a translating one it is the motion of a dominant
+plane, a good first-order prediction for masks a few frames old. With fewer than
+:data:`MIN_MATCHES` background matches, or a fit that RANSAC cannot support, the identity is
+returned and flagged, and the track stage widens its coasted masks instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from slimseg.dynamic.epipolar import OrbFeatures, match_features
+
+MIN_MATCHES = 20  # background matches wanted for a homography
+RANSAC_PX = 3.0  # reprojection threshold of the homography fit (px)
+MIN_INLIER_SHARE = 0.3  # below this share of inliers the fit is not trusted
+# Features matched when no matches are shared (a homography needs tens, not a thousand):
+# every k-th keypoint of each frame, so brute-force matching costs ~(1/k)^2 of the full set.
+MOTION_FEATURES = 400
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """``H float64 [3, 3]`` previous → current pixels; ``ok``: fitted (False: identity, too few
+    background matches); ``matches`` used for the fit and their ``inliers``."""
+
+    H: np.ndarray
+    ok: bool
+    matches: int = 0
+    inliers: int = 0
+
+    @classmethod
+    def identity(cls, matches: int = 0) -> CameraMotion:
+        return cls(np.eye(3), False, matches, 0)
+
+    def points(self, xy: np.ndarray) -> np.ndarray:
+        """Map ``xy float [N, 2]`` previous-frame pixels to the current frame → ``[N, 2]``."""
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        if len(xy) == 0:
+            return xy
+        return cv2.perspectiveTransform(xy.reshape(-1, 1, 2), self.H)[:, 0]
+
+
+def estimate_motion(
+    previous: OrbFeatures,
+    current: OrbFeatures,
+    objects: np.ndarray | None = None,
+    pairs: np.ndarray | None = None,
+) -> CameraMotion:
+    """Background homography from ``previous`` to ``current`` features; matches whose current
+    point lies inside any of the ``objects float [K, 4]`` xyxy boxes (detections, predicted
+    tracks) are left out. ``pairs``: precomputed
+    :func:`~slimseg.dynamic.epipolar.match_features` rows, else matched here."""
+    if pairs is None:
+        a, ia = _subsample(previous)
+        b, ib = _subsample(current)
+        pairs = match_features(a, b)
+        pairs = np.stack([ia[pairs[:, 0]], ib[pairs[:, 1]]], 1) if len(pairs) else pairs
+    if len(pairs) < MIN_MATCHES:
+        return CameraMotion.identity(len(pairs))
+    p0 = previous.keypoints[pairs[:, 0]].astype(np.float64)
+    p1 = current.keypoints[pairs[:, 1]].astype(np.float64)
+    if objects is not None and len(objects):
+        b = np.asarray(objects, np.float64).reshape(-1, 4)
+        x, y = p1[:, :1], p1[:, 1:]
+        inside = (x >= b[:, 0]) & (x < b[:, 2]) & (y >= b[:, 1]) & (y < b[:, 3])  # [M, K]
+        keep = ~inside.any(1)
+        p0, p1 = p0[keep], p1[keep]
+    if len(p0) < MIN_MATCHES:
+        return CameraMotion.identity(len(p0))
+    hom, inl = cv2.findHomography(p0, p1, cv2.RANSAC, RANSAC_PX)
+    if hom is None or inl is None or inl.sum() < max(MIN_MATCHES, MIN_INLIER_SHARE * len(p0)):
+        return CameraMotion.identity(len(p0))
+    return CameraMotion(hom, True, len(p0), int(inl.sum()))
+
+
+def _subsample(f: OrbFeatures) -> tuple[OrbFeatures, np.ndarray]:
+    """At most about :data:`MOTION_FEATURES` of ``f``'s features (a regular stride) and their
+    indices in ``f``."""
+    step = max(1, -(-len(f.keypoints) // MOTION_FEATURES))
+    idx = np.arange(0, len(f.keypoints), step)
+    return OrbFeatures(f.keypoints[idx], f.descriptors[idx]), idx
+
+
+def local_scale(h: np.ndarray, xy: tuple[float, float]) -> float:
+    """Isotropic scale of homography ``h [3, 3]`` near point ``xy`` (sqrt of the Jacobian's
+    determinant): how a small object's size changes under the camera motion."""
+    x, y = xy
+    p = h @ np.array([x, y, 1.0])
+    w = p[2] if abs(p[2]) > 1e-12 else 1e-12
+    jac = (h[:2, :2] * w - np.outer(p[:2], h[2, :2])) / (w * w)
+    return float(np.sqrt(abs(np.linalg.det(jac))))

@@ -1,0 +1,78 @@
+"""Constant-velocity Kalman filter of one object's box in image pixels (ByteTrack's motion
+model, docs/tracking.md §3), with the camera's motion applied before each prediction.
+
+State ``x = [cx, cy, w, h, vx, vy, vw, vh]`` (centre, size, their velocities in px/frame);
+measurement ``z = [cx, cy, w, h]``. Noise scales with the box height, as in SORT/ByteTrack:
+a tall near person moves more pixels per frame than a small far one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slimseg.dynamic.camera_motion import CameraMotion, local_scale
+
+STD_POSITION = 1.0 / 20  # measurement and process noise of position, × box height
+STD_VELOCITY = 1.0 / 160  # process noise of velocity, × box height
+
+_F = np.eye(8)
+_F[:4, 4:] = np.eye(4)  # x_{t+1} = x_t + v_t
+_H = np.eye(4, 8)
+
+
+def xyxy_to_cxcywh(box: np.ndarray) -> np.ndarray:
+    """``[4]`` xyxy → ``[4]`` centre x, centre y, width, height."""
+    x0, y0, x1, y1 = np.asarray(box, np.float64)
+    return np.array([(x0 + x1) / 2, (y0 + y1) / 2, x1 - x0, y1 - y0])
+
+
+def cxcywh_to_xyxy(c: np.ndarray) -> np.ndarray:
+    """``[4]`` centre x, centre y, width, height → ``[4]`` xyxy."""
+    cx, cy, w, h = c
+    return np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2])
+
+
+class BoxKalman:
+    """One box's filter: :meth:`predict` once per frame (camera motion first), then
+    :meth:`update` with the matched detection's box, if any."""
+
+    def __init__(self, box_xyxy: np.ndarray) -> None:
+        z = xyxy_to_cxcywh(box_xyxy)
+        self.x = np.r_[z, np.zeros(4)]
+        h = max(z[3], 1.0)
+        std = np.r_[[2 * STD_POSITION * h] * 4, [10 * STD_VELOCITY * h] * 4]
+        self.P = np.diag(std**2)
+
+    @property
+    def box(self) -> np.ndarray:
+        """The current estimate as ``[4]`` xyxy px."""
+        return cxcywh_to_xyxy(self.x[:4])
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """Centre velocity ``[2]`` px/frame (the object's own, after camera compensation)."""
+        return self.x[4:6].copy()
+
+    def predict(self, motion: CameraMotion) -> None:
+        """Move the state through the camera's homography, then one constant-velocity step."""
+        if motion.ok:
+            c = motion.points(self.x[None, :2])[0]
+            s = local_scale(motion.H, (self.x[0], self.x[1]))
+            self.x[:2] = c
+            self.x[2:4] *= s
+            self.x[6:8] *= s
+        h = max(self.x[3], 1.0)
+        q = np.r_[[STD_POSITION * h] * 4, [STD_VELOCITY * h] * 4] ** 2
+        self.x = _F @ self.x
+        self.P = _F @ self.P @ _F.T + np.diag(q)
+        self.x[2:4] = np.maximum(self.x[2:4], 1.0)
+
+    def update(self, box_xyxy: np.ndarray) -> None:
+        """Correct the state with a measured box ``[4]`` xyxy."""
+        z = xyxy_to_cxcywh(box_xyxy)
+        h = max(self.x[3], 1.0)
+        r = np.diag(np.full(4, (STD_POSITION * h) ** 2))
+        s = _H @ self.P @ _H.T + r
+        k = np.linalg.solve(s, _H @ self.P).T  # P H^T S^-1 (S symmetric)
+        self.x = self.x + k @ (z - _H @ self.x)
+        self.P = (np.eye(8) - k @ _H) @ self.P

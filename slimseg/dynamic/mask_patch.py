@@ -1,0 +1,144 @@
+"""An object mask stored as its tight crop: what the track stage warps, dilates and compares.
+
+A full ``bool [H, W]`` mask per object and frame costs a 640×480 pass per operation; a person
+covers a tenth of that. :class:`Patch` keeps the crop and its top-left corner, and every
+operation here (IoU, homography warp, dilation, depth gate, paste) costs the crop's area.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Patch:
+    """``mask bool [h, w]`` whose top-left pixel is frame pixel ``(y0, x0)``."""
+
+    y0: int
+    x0: int
+    mask: np.ndarray
+
+    @property
+    def area(self) -> int:
+        return int(self.mask.sum())
+
+    @property
+    def box(self) -> np.ndarray:
+        """Tight box of the set pixels, ``[4]`` xyxy px (pixel edges); zeros when empty."""
+        rows, cols = np.flatnonzero(self.mask.any(1)), np.flatnonzero(self.mask.any(0))
+        if not len(rows):
+            return np.zeros(4)
+        return np.array(
+            [self.x0 + cols[0], self.y0 + rows[0], self.x0 + cols[-1] + 1, self.y0 + rows[-1] + 1],
+            np.float64,
+        )
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """``bool [N]``: which points ``xy [N, 2]`` (x, y px, rounded) fall on the mask."""
+        h, w = self.mask.shape
+        x = np.round(np.asarray(xy)[:, 0]).astype(int) - self.x0
+        y = np.round(np.asarray(xy)[:, 1]).astype(int) - self.y0
+        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        out = np.zeros(len(x), bool)
+        out[ok] = self.mask[y[ok], x[ok]]
+        return out
+
+    def paste(self, hw: tuple[int, int]) -> np.ndarray:
+        """The full-frame ``bool [H, W]`` mask (parts outside the frame are cut)."""
+        out = np.zeros(hw, bool)
+        h, w = self.mask.shape
+        y0, x0 = max(self.y0, 0), max(self.x0, 0)
+        y1, x1 = min(self.y0 + h, hw[0]), min(self.x0 + w, hw[1])
+        if y1 > y0 and x1 > x0:
+            out[y0:y1, x0:x1] = self.mask[y0 - self.y0 : y1 - self.y0, x0 - self.x0 : x1 - self.x0]
+        return out
+
+
+def patch_from_mask(mask: np.ndarray, box: np.ndarray | None = None) -> Patch:
+    """Crop a full ``bool [H, W]`` mask: inside ``box [4]`` xyxy (a detection's mask is zero
+    outside its box, so only that area is read), else the tight crop of its pixels."""
+    mask = np.asarray(mask, bool)
+    h, w = mask.shape
+    if box is not None:
+        x0, y0 = max(int(np.floor(box[0])) - 1, 0), max(int(np.floor(box[1])) - 1, 0)
+        x1, y1 = min(int(np.ceil(box[2])) + 1, w), min(int(np.ceil(box[3])) + 1, h)
+        if x1 > x0 and y1 > y0:
+            return Patch(y0, x0, mask[y0:y1, x0:x1].copy())
+    rows, cols = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+    if not len(rows):
+        return Patch(0, 0, np.zeros((0, 0), bool))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    return Patch(int(y0), int(x0), mask[y0:y1, x0:x1].copy())
+
+
+def patch_from_box(box: np.ndarray, hw: tuple[int, int]) -> Patch:
+    """A filled box ``[4]`` xyxy as a patch (pixel centres inside the box, clipped)."""
+    x0, y0 = max(int(np.ceil(box[0] - 0.5)), 0), max(int(np.ceil(box[1] - 0.5)), 0)
+    x1, y1 = min(int(np.ceil(box[2] - 0.5)), hw[1]), min(int(np.ceil(box[3] - 0.5)), hw[0])
+    return Patch(y0, x0, np.ones((max(y1 - y0, 0), max(x1 - x0, 0)), bool))
+
+
+def patch_iou(a: Patch, b: Patch) -> float:
+    """Intersection over union of two patches (0 when either is empty)."""
+    ua, ub = a.area, b.area
+    if ua == 0 or ub == 0:
+        return 0.0
+    (ah, aw), (bh, bw) = a.mask.shape, b.mask.shape
+    y0, x0 = max(a.y0, b.y0), max(a.x0, b.x0)
+    y1, x1 = min(a.y0 + ah, b.y0 + bh), min(a.x0 + aw, b.x0 + bw)
+    inter = 0
+    if y1 > y0 and x1 > x0:
+        sa = a.mask[y0 - a.y0 : y1 - a.y0, x0 - a.x0 : x1 - a.x0]
+        sb = b.mask[y0 - b.y0 : y1 - b.y0, x0 - b.x0 : x1 - b.x0]
+        inter = int((sa & sb).sum())
+    return inter / float(ua + ub - inter)
+
+
+def warp_patch(p: Patch, transform: np.ndarray, hw: tuple[int, int]) -> Patch:
+    """``p`` moved by ``transform float [3, 3]`` (a homography in frame pixels), nearest
+    neighbour, clipped to the ``hw`` frame (empty when it leaves the frame)."""
+    h, w = p.mask.shape
+    if h == 0 or w == 0:
+        return p
+    corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float64) + [p.x0, p.y0]
+    moved = cv2.perspectiveTransform(corners.reshape(-1, 1, 2), transform)[:, 0]
+    x0, y0 = np.floor(moved.min(0)).astype(int)
+    x1, y1 = np.ceil(moved.max(0)).astype(int)
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, hw[1]), min(y1, hw[0])
+    if x1 <= x0 or y1 <= y0:
+        return Patch(0, 0, np.zeros((0, 0), bool))
+    src = np.array([[1, 0, p.x0], [0, 1, p.y0], [0, 0, 1]], np.float64)
+    dst = np.array([[1, 0, -x0], [0, 1, -y0], [0, 0, 1]], np.float64)
+    m = dst @ transform @ src
+    out = cv2.warpPerspective(p.mask.view(np.uint8), m, (x1 - x0, y1 - y0),
+                              flags=cv2.INTER_NEAREST, borderValue=0)  # fmt: skip
+    return Patch(int(y0), int(x0), out > 0)
+
+
+def dilate_patch(p: Patch, radius: int, hw: tuple[int, int]) -> Patch:
+    """``p`` grown by a disc of ``radius`` px, clipped to the ``hw`` frame."""
+    if radius <= 0 or p.mask.size == 0:
+        return p
+    h, w = p.mask.shape
+    y0, x0 = max(p.y0 - radius, 0), max(p.x0 - radius, 0)
+    y1, x1 = min(p.y0 + h + radius, hw[0]), min(p.x0 + w + radius, hw[1])
+    canvas = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    sy, sx = p.y0 - y0, p.x0 - x0
+    canvas[sy : sy + h, sx : sx + w] = p.mask
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    return Patch(int(y0), int(x0), cv2.dilate(canvas, k) > 0)
+
+
+def patch_depth(p: Patch, depth_m: np.ndarray) -> np.ndarray:
+    """The depth (metres) under the patch, ``float32 [h, w]`` (0 outside the frame)."""
+    h, w = p.mask.shape
+    out = np.zeros((h, w), np.float32)
+    H, W = depth_m.shape
+    y0, x0 = max(p.y0, 0), max(p.x0, 0)
+    y1, x1 = min(p.y0 + h, H), min(p.x0 + w, W)
+    if y1 > y0 and x1 > x0:
+        out[y0 - p.y0 : y1 - p.y0, x0 - p.x0 : x1 - p.x0] = depth_m[y0:y1, x0:x1]
+    return out

@@ -1,0 +1,365 @@
+"""The track stage: masks that remember, between a frame's detections and the masking logic.
+
+Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
+
+1. **Predict.** The camera's motion ``H`` (background homography, :mod:`camera_motion`) moves
+   every track's box filter (:class:`~slimseg.dynamic.kalman.BoxKalman`) before its
+   constant-velocity step; the track's last observed mask follows through the accumulated
+   transform (camera homographies, then the object's own velocity).
+2. **Associate (BYTE).** Detections scoring ``>= high`` against every track, then those in
+   ``[low, high)`` against the confirmed tracks left; cost 1 - mask IoU (box IoU without
+   masks), objects of other classes never match; Hungarian assignment (scipy), gated.
+3. **Update.** A match takes the detection's mask and box; an unmatched detection scoring
+   ``>= new`` opens a tentative track.
+4. **Coast.** A confirmed track without a match emits its predicted mask for up to
+   ``max_coast`` frames, dilated per missed frame and cut to the track's depth band; its
+   mobility is ``p · coast_decay^misses``, so Eq. 1 gives coasted masks up first.
+5. **Moving probability.** Where the epipolar check runs, its decision on a tracked object
+   updates the track's ``p`` (:meth:`Tracker.observe_motion`); ``p`` relaxes to the class prior.
+
+Every detection the per-frame logic would use (score above the masking threshold) is emitted
+whether or not it matched, so recall can only go up; low-score detections matched to a
+confirmed track (BYTE's second pass) and coasted masks are added. With ``model=False``
+(``--segment-every N``, the frames the model skips) every confirmed track is carried.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from slimseg.dynamic.camera_motion import CameraMotion
+from slimseg.dynamic.kalman import BoxKalman
+from slimseg.dynamic.mask_patch import (
+    Patch,
+    dilate_patch,
+    patch_depth,
+    patch_from_box,
+    patch_from_mask,
+    patch_iou,
+    warp_patch,
+)
+from slimseg.dynamic.track_settings import TrackSettings
+
+SOURCE_DETECTION, SOURCE_COAST, SOURCE_CARRIED = "det", "coast", "carried"
+
+
+@dataclass
+class FrameDets:
+    """One frame's detections in frame pixels: ``boxes float [M, 4]`` xyxy, ``scores [M]``,
+    ``classes int [M]``, ``masks bool [M, H, W]`` (None: a box-only model), frame ``hw``."""
+
+    boxes: np.ndarray
+    scores: np.ndarray
+    classes: np.ndarray
+    masks: np.ndarray | None
+    hw: tuple[int, int]
+
+
+@dataclass
+class TrackedFrame:
+    """What the masking logic gets: per object ``boxes [M, 4]`` xyxy, ``classes [M]``,
+    ``masks bool [M, H, W]`` (None: box-only), ``mobility float32 [M]`` (replaces the class
+    prior), ``track_ids int [M]`` (-1: untracked detection), ``source [M]`` (det / coast /
+    carried), ``misses int [M]``; ``seconds`` the stage took."""
+
+    boxes: np.ndarray
+    classes: np.ndarray
+    masks: np.ndarray | None
+    mobility: np.ndarray
+    track_ids: np.ndarray
+    source: list[str]
+    misses: np.ndarray
+    scores: np.ndarray
+    det_index: np.ndarray
+    """``int [M]``: the object's index among this frame's input detections (-1: predicted)"""
+    seconds: float = 0.0
+
+    @property
+    def coasted(self) -> np.ndarray:
+        """``bool [M]``: predicted (coasted or carried), not detected, in this frame."""
+        return np.array([s != SOURCE_DETECTION for s in self.source], bool)
+
+
+@dataclass
+class Track:
+    """One object over time (see the module docstring)."""
+
+    id: int
+    cls: int
+    prior: float
+    p: float
+    kf: BoxKalman
+    patch: Patch | None
+    """last observed mask (None: box-only), in the frame it was observed"""
+    transform: np.ndarray = field(default_factory=lambda: np.eye(3))
+    """last-observed frame pixels → current frame pixels"""
+    depth_m: float = 0.0
+    hits: int = 1
+    misses: int = 0
+    since_seen: int = 0
+    confirmed: bool = False
+    dead: bool = False
+    """a guard fired: the track is removed at the end of the frame"""
+    predicted: Patch | None = None
+
+    def mobility(self, decay: float) -> float:
+        return self.p * decay**self.misses
+
+
+class Tracker:
+    """The stage's state over a sequence: call :meth:`step` once per frame in order."""
+
+    def __init__(
+        self,
+        settings: TrackSettings,
+        class_mobility: np.ndarray,
+        fps: float = 30.0,
+        mover_prior: float = 0.0,
+    ) -> None:
+        """``class_mobility [K]``: class priors; only classes above ``mover_prior`` are
+        tracked (Eq. 1 never masks the others: they pass through as detections)."""
+        self.s = settings
+        self.mover_prior = mover_prior
+        self.priors = np.asarray(class_mobility, np.float32)
+        self.dt = 1.0 / fps if fps > 0 else 1.0 / 30
+        self.tracks: list[Track] = []
+        self._next_id = 1
+        self._hw: tuple[int, int] | None = None
+        self._box_only = False
+        self.coasted = 0
+        """predicted masks emitted so far (coasted or carried)"""
+
+    @property
+    def hw(self) -> tuple[int, int] | None:
+        """Frame size of the sequence (None before the first frame)."""
+        return self._hw
+
+    def step(
+        self,
+        dets: FrameDets | None,
+        motion: CameraMotion,
+        emit_conf: float,
+        depth_m: np.ndarray | None = None,
+    ) -> TrackedFrame:
+        """Advance one frame. ``dets``: this frame's detections at a threshold at or below
+        ``low`` (None: the model did not run on this frame); ``emit_conf``: the masking score
+        threshold (detections above it are always emitted); ``depth_m [H, W]`` metres (0 =
+        invalid) for the coasting depth gate (None: no gate)."""
+        t0 = time.perf_counter()
+        if dets is None and self._hw is None:
+            raise ValueError("the first frame of a sequence needs detections (the model runs)")
+        relax = 0.0 if self.s.p_relax_s <= 0 else math.exp(-self.dt / self.s.p_relax_s)
+        for t in self.tracks:
+            t.kf.predict(motion)
+            t.transform = motion.H @ t.transform if motion.ok else t.transform
+            v = t.kf.velocity
+            t.transform = np.array([[1, 0, v[0]], [0, 1, v[1]], [0, 0, 1.0]]) @ t.transform
+            t.since_seen += 1
+            t.p = float(t.prior + relax * (t.p - t.prior))
+        # objs: (box, cls, patch, mobility, id, source, misses, score, detection index)
+        if dets is None:
+            objs = self._carry(depth_m, emit_conf)
+        else:
+            objs = self._associate(dets, emit_conf, depth_m)
+        return self._frame(objs, self._hw, t0)
+
+    # -- model frames ------------------------------------------------------------------------
+
+    def _associate(self, dets: FrameDets, emit_conf: float, depth_m) -> list[tuple]:
+        s, hw = self.s, dets.hw
+        self._hw, self._box_only = hw, dets.masks is None
+        boxes = np.asarray(dets.boxes, np.float64).reshape(-1, 4)
+        scores = np.asarray(dets.scores, np.float64).reshape(-1)
+        classes = np.asarray(dets.classes, int).reshape(-1)
+        patches = [
+            patch_from_mask(m, b) if dets.masks is not None else patch_from_box(b, hw)
+            for m, b in zip(
+                dets.masks if dets.masks is not None else [None] * len(boxes), boxes, strict=True
+            )
+        ]
+        for t in self.tracks:
+            t.predicted = self._predict_patch(t, hw)
+        movers = self.priors[classes] > self.mover_prior
+        high = np.flatnonzero((scores >= s.high) & movers)
+        low = np.flatnonzero((scores >= s.low) & (scores < s.high) & movers)
+        matched: dict[int, Track] = {}
+        free = list(self.tracks)
+        for idx, pool, gate in ((high, free, s.iou_high), (low, None, s.iou_low)):
+            pool = [t for t in free if t.confirmed] if pool is None else pool
+            pairs = self._match(idx, pool, patches, boxes, classes, gate)
+            for d, t in pairs:
+                matched[d] = t
+            used = {id(t) for _, t in pairs}
+            free = [t for t in free if id(t) not in used]
+        objs = []
+        movers = self.priors[classes] > self.mover_prior
+        for d in range(len(boxes)):
+            t = matched.get(d)
+            if t is not None:
+                self._observe(t, patches[d], boxes[d], depth_m)
+            elif scores[d] >= s.new and movers[d]:
+                t = self._open(classes[d], scores[d], patches[d], boxes[d], depth_m)
+            if t is None and scores[d] <= emit_conf:
+                continue  # below the masking threshold and no track backs it
+            if t is not None and scores[d] <= emit_conf and not t.confirmed:
+                continue
+            mob = float(self.priors[classes[d]]) if t is None else t.mobility(s.coast_decay)
+            tid = -1 if t is None else t.id
+            objs.append((boxes[d], classes[d], patches[d], mob, tid, SOURCE_DETECTION, 0,
+                         scores[d], d))  # fmt: skip
+        for t in free:
+            t.misses += 1
+        objs += self._coast([t for t in free if t.confirmed], depth_m, SOURCE_COAST)
+        self.tracks = [t for t in self.tracks if t.misses <= s.keep_frames and not t.dead]
+        return objs
+
+    def _match(self, idx, pool, patches, boxes, classes, gate) -> list[tuple[int, Track]]:
+        if len(idx) == 0 or not pool:
+            return []
+        iou = np.zeros((len(idx), len(pool)))
+        for i, d in enumerate(idx):
+            for j, t in enumerate(pool):
+                if t.cls != classes[d]:
+                    continue
+                if t.predicted is not None and t.patch is not None:
+                    iou[i, j] = patch_iou(patches[d], t.predicted)
+                else:
+                    iou[i, j] = _box_iou(boxes[d], t.kf.box)
+        rows, cols = linear_sum_assignment(1.0 - iou)
+        return [(int(idx[r]), pool[c]) for r, c in zip(rows, cols, strict=True)
+                if iou[r, c] >= gate]  # fmt: skip
+
+    def _observe(self, t: Track, patch: Patch, box: np.ndarray, depth_m) -> None:
+        t.kf.update(box)
+        t.patch, t.transform, t.predicted = patch, np.eye(3), None
+        t.hits += 1
+        t.misses = t.since_seen = 0
+        t.confirmed = t.confirmed or t.hits >= self.s.min_hits
+        t.depth_m = _median_depth(patch, depth_m, t.depth_m)
+
+    def _open(self, cls, score, patch, box, depth_m) -> Track:
+        prior = float(self.priors[cls])
+        t = Track(self._next_id, int(cls), prior, prior, BoxKalman(box), patch)
+        t.confirmed = score >= self.s.confirm or self.s.min_hits <= 1
+        t.depth_m = _median_depth(patch, depth_m, 0.0)
+        self._next_id += 1
+        self.tracks.append(t)
+        return t
+
+    # -- predictions -------------------------------------------------------------------------
+
+    def _predict_patch(self, t: Track, hw) -> Patch | None:
+        if t.patch is None:
+            return None
+        if t.since_seen == 0:
+            return t.patch
+        return warp_patch(t.patch, t.transform, hw)
+
+    def _carry(self, depth_m, emit_conf) -> list[tuple]:
+        hw = self._hw
+        for t in self.tracks:
+            t.predicted = self._predict_patch(t, hw)
+        objs = self._coast([t for t in self.tracks if t.confirmed], depth_m, SOURCE_CARRIED)
+        self.tracks = [t for t in self.tracks if not t.dead]
+        return objs
+
+    def _coast(self, tracks: list[Track], depth_m, source: str) -> list[tuple]:
+        """Emit the predicted masks of ``tracks`` that pass the guards (the rest are ended)."""
+        s, hw, objs = self.s, self._hw, []
+        for t in tracks:
+            if t.misses > s.max_coast:  # carried frames keep the misses of the last model frame
+                continue
+            box = t.kf.box
+            if _outside_share(box, hw) > s.max_outside:
+                t.dead = True
+                continue
+            if t.patch is None:
+                patch = patch_from_box(box, hw)
+            else:
+                patch = dilate_patch(t.predicted, s.coast_dilate_px * t.since_seen, hw)
+            if depth_m is not None and s.depth_band_m > 0 and t.depth_m > 0 and patch.area:
+                d = patch_depth(patch, depth_m)
+                known = patch.mask & (d > 0)
+                near = known & (np.abs(d - t.depth_m) <= s.depth_band_m)
+                if known.sum() and near.sum() < s.min_depth_share * known.sum():
+                    t.dead = True
+                    continue
+                patch = Patch(patch.y0, patch.x0, patch.mask & (near | (d <= 0)))
+            if patch.area == 0:
+                continue
+            self.coasted += 1
+            objs.append((patch.box if t.patch is not None else box, t.cls, patch,
+                         t.mobility(s.coast_decay), t.id, source, t.misses, 0.0, -1))  # fmt: skip
+        return objs
+
+    # -- moving probability ------------------------------------------------------------------
+
+    def observe_motion(
+        self, frame: TrackedFrame, checked: list[int], decided: np.ndarray, moving: np.ndarray
+    ) -> np.ndarray:
+        """Feed the epipolar check's decisions on objects ``checked`` (indices into ``frame``)
+        to their tracks' moving probability; returns the updated ``mobility float32 [M]``
+        (an untracked object the check finds static gets 0, as without tracking)."""
+        by_id = {t.id: t for t in self.tracks}
+        mob = frame.mobility.copy()
+        for k, dec, mov in zip(checked, decided, moving, strict=True):
+            tid = int(frame.track_ids[k])
+            t = by_id.get(tid)
+            if not dec:
+                continue
+            if t is None:
+                mob[k] = mob[k] if mov else 0.0
+                continue
+            t.p = (1 - self.s.p_alpha) * t.p + self.s.p_alpha * float(mov)
+            mob[k] = t.mobility(self.s.coast_decay)
+        return mob
+
+    def _frame(self, objs: list[tuple], hw, t0: float) -> TrackedFrame:
+        n = len(objs)
+        boxes = np.array([o[0] for o in objs], np.float32).reshape(n, 4)
+        masks = None
+        if not self._box_only:
+            masks = np.stack([o[2].paste(hw) for o in objs]) if n else np.zeros((0, *hw), bool)
+        return TrackedFrame(
+            boxes=boxes,
+            classes=np.array([o[1] for o in objs], np.int64),
+            masks=masks,
+            mobility=np.array([o[3] for o in objs], np.float32),
+            track_ids=np.array([o[4] for o in objs], np.int64),
+            source=[o[5] for o in objs],
+            misses=np.array([o[6] for o in objs], np.int64),
+            scores=np.array([o[7] for o in objs], np.float32),
+            det_index=np.array([o[8] for o in objs], np.int64),
+            seconds=time.perf_counter() - t0,
+        )
+
+
+def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
+    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = iw * ih
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def _outside_share(box: np.ndarray, hw: tuple[int, int]) -> float:
+    """Share of ``box [4]`` xyxy lying outside the ``hw`` frame."""
+    area = max(box[2] - box[0], 0) * max(box[3] - box[1], 0)
+    if area <= 0:
+        return 1.0
+    iw = max(0.0, min(box[2], hw[1]) - max(box[0], 0))
+    ih = max(0.0, min(box[3], hw[0]) - max(box[1], 0))
+    return float(1.0 - iw * ih / area)
+
+
+def _median_depth(patch: Patch, depth_m: np.ndarray | None, fallback: float) -> float:
+    if depth_m is None or patch.area == 0:
+        return fallback
+    d = patch_depth(patch, depth_m)[patch.mask]
+    d = d[d > 0]
+    return float(np.median(d)) if len(d) else fallback
