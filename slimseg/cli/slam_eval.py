@@ -8,6 +8,12 @@ import sys
 from pathlib import Path
 
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.cli.track_args import (
+    add_dropout_arg,
+    add_track_args,
+    dropout_from_args,
+    track_plan_from_args,
+)
 from slimseg.dynamic.pipeline import MODES
 from slimseg.errors import SlimsegError
 
@@ -45,6 +51,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="mask modes from the sequence's annotations.json instances instead of a model "
         "(synthetic sequences): the masking logic on perfect detections",
     )
+    add_dropout_arg(p)
     p.add_argument(
         "--modes",
         default=None,
@@ -68,6 +75,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features (mask modes)")
     add_masking_args(p)
+    add_track_args(p)
     p.add_argument(
         "--sweep",
         action="append",
@@ -142,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
     masking = masking_from_args(args)
+    track = track_plan_from_args(args)
+    dropout = dropout_from_args(args)
     if args.runs < 1:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")
     if not 0 < args.speed <= 10:
@@ -149,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sweep:
         from slimseg.cli.slam_sweep import run_sweep_command
 
-        return run_sweep_command(args, masking, say)
+        return run_sweep_command(args, masking, say, track, dropout)
     if len(args.sequence) > 1:
         raise SlimsegError("several --sequence values need --sweep (one table per sequence)")
     args.sequence = args.sequence[0]
@@ -172,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         vocab=args.vocab,
         masking=masking,
         keypoints=args.keypoints,
+        track=track,
+        dropout=dropout,
         features=args.features,
         realtime=not args.no_realtime,
         speed=args.speed,

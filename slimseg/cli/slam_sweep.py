@@ -6,8 +6,10 @@ import argparse
 import json
 from collections.abc import Callable
 
+from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.pipeline import MODES
+from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.errors import SlimsegError
 
 DEFAULT_SWEEP_MODE = "fusion"
@@ -29,9 +31,14 @@ def sweep_mode(text: str | None) -> str:
 
 
 def run_sweep_command(
-    args: argparse.Namespace, masking: MaskingSettings, say: Callable[[str], None]
+    args: argparse.Namespace,
+    masking: MaskingSettings,
+    say: Callable[[str], None],
+    track: TrackPlan = TRACK_OFF,
+    dropout: Dropout | None = None,
 ) -> int:
-    """Validate the sweep options, run it, print and write the tables."""
+    """Validate the sweep options, run it, print and write the tables (every setting under
+    the ``track`` stage, on ground-truth instances with ``dropout`` if given)."""
     from slimseg.data.tum import TumSequence
     from slimseg.slam.sweep import parse_sweep
     from slimseg.slam.sweep_report import table, write_sweep
@@ -63,6 +70,8 @@ def run_sweep_command(
         speed=args.speed,
         threads=args.threads,
         progress=not args.quiet,
+        track=track,
+        dropout=dropout,
     )
     sweeps = run_sweep(plan, args.out, say)
     model = "ground-truth instances" if args.gt_instances else f"model {args.model}"

@@ -32,6 +32,8 @@ from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_modes
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
+from slimseg.dynamic.track import FrameDets
+from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
@@ -68,9 +70,10 @@ class CachedDetections:
             (int(hw[0]), int(hw[1])),
         )
 
-    def select(self, conf: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def select(self, conf: float, with_scores: bool = False) -> tuple:
         """The detections scoring above ``conf``: ``(boxes [m, 4], classes [m], masks bool
-        [m, H, W] or None)``, in the cached (decreasing score) order."""
+        [m, H, W] or None)``, in the cached (decreasing score) order; ``with_scores``: and
+        ``scores [m]`` last."""
         keep = np.flatnonzero(self.scores > conf)
         masks = None
         if self.crops is not None:
@@ -79,6 +82,8 @@ class CachedDetections:
             for j, k in enumerate(keep):
                 y0, x0, crop = self.crops[k]
                 masks[j, y0 : y0 + crop.shape[0], x0 : x0 + crop.shape[1]] = crop
+        if with_scores:
+            return self.boxes[keep], self.classes[keep], masks, self.scores[keep]
         return self.boxes[keep], self.classes[keep], masks
 
 
@@ -174,15 +179,30 @@ class SettingMasks:
     logic_ms: float
     frames: int
     digest: str = ""
+    model_share: float = 1.0
+    """share of frames the model ran on (``--segment-every N``: 1/N)"""
 
 
 def mask_with(
-    cache: DetectionCache, mode: str, masking: MaskingSettings, out: Path
+    cache: DetectionCache,
+    mode: str,
+    masking: MaskingSettings,
+    out: Path,
+    track: TrackPlan = TRACK_OFF,
 ) -> SettingMasks:
     """Apply ``mode`` under ``masking`` to every cached frame; write ``out/<rgb ts>.png``
     (uint8, 255 = dynamic), exactly what ``slimseg dynamic --mode mode`` writes for these
-    settings (the epipolar modes get the previous frame's features, without depth)."""
+    settings (the epipolar modes get the previous frame's features, without depth). ``track``:
+    the track stage (the cache must hold detections down to its ``low`` threshold); with
+    ``segment_every`` N the model's time counts once per N frames."""
     settings = FrameRules.from_masking(cache.mobility, mode, masking)
+    if track.on and cache.conf_floor > track.floor(masking.conf) + 1e-9:
+        raise ValueError(f"the cache holds detections from conf {cache.conf_floor}; the track "
+                         f"stage needs them from {track.floor(masking.conf)}")  # fmt: skip
+    stage = None
+    if track.on:
+        stage = TrackedSequence(track.settings, cache.mobility, mode, settings.mover_prior,
+                                cache.sequence.fps)  # fmt: skip
     rng = np.random.default_rng(0)  # as slimseg dynamic: depth-RANSAC's sampling
     have_truth = all(f.truth is not None for f in cache.frames)
     score = ModeScore() if have_truth and cache.frames else None
@@ -191,12 +211,22 @@ def mask_with(
     digest = hashlib.sha1()
     out.mkdir(parents=True, exist_ok=True)
     for i, f in enumerate(cache.frames):
+        depth = None
+        if mode == "box+depth-ransac" or stage is not None:
+            depth = cache.sequence.load(i)[1]  # reading is not the logic's time
         t0 = time.perf_counter()
-        boxes, classes, masks = f.detections.select(masking.conf)
-        depth = cache.sequence.load(i)[1] if mode == "box+depth-ransac" else None
         kps = f.features.keypoints
-        inputs = FrameInputs(kps, boxes, classes, masks, f.detections.hw, depth,
-                             f.features.descriptors, previous)  # fmt: skip
+        if stage is None:
+            boxes, classes, masks = f.detections.select(masking.conf)
+            inputs = FrameInputs(kps, boxes, classes, masks, f.detections.hw, depth,
+                                 f.features.descriptors, previous)  # fmt: skip
+        else:
+            dets = None
+            if track.runs_model(i):
+                boxes, classes, masks, scores = f.detections.select(track.floor(masking.conf),
+                                                                    with_scores=True)  # fmt: skip
+                dets = FrameDets(boxes, scores, classes, masks, f.detections.hw)
+            inputs, _ = stage.inputs(f.features, dets, masking.conf, depth, previous)
         res = process_modes(inputs=inputs, settings=settings, modes=(mode,), rng=rng)[mode]
         t_logic += time.perf_counter() - t0
         write_png(out / mask_name(f.stamp), res.mask)
@@ -205,6 +235,6 @@ def mask_with(
             score.add(res.dynamic, f.truth)
         previous = PreviousFrame(f.features)
     n = max(len(cache.frames), 1)
-    return SettingMasks(
-        score, 1000 * t_logic / n + cache.prep_ms, len(cache.frames), digest.hexdigest()
-    )
+    logic_ms = 1000 * t_logic / n + cache.prep_ms
+    return SettingMasks(score, logic_ms, len(cache.frames), digest.hexdigest(),
+                        1.0 / track.segment_every)  # fmt: skip

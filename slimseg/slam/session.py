@@ -22,7 +22,9 @@ import cv2
 import numpy as np
 
 from slimseg.data.tum import MAX_DT, TumSequence, mask_name, read_trajectory
+from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
+from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.slam.condition_runs import ConditionResult, EngineRunConfig, evaluate_condition
 from slimseg.slam.conditions import (
@@ -58,6 +60,10 @@ class Plan:
     """score threshold, dilation and Eq. 1/3/4 parameters of the mask modes; its dilation also
     widens the ground-truth masks"""
     keypoints: int = 1000
+    track: TrackPlan = TRACK_OFF
+    """the track stage of the mask modes (off: every frame judged alone)"""
+    dropout: Dropout | None = None
+    """ground-truth instances only: simulated missed detections"""
     features: int = 1000
     realtime: bool = True
     speed: float = 1.0
@@ -115,19 +121,25 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
                                     note=f"read from {folder}")  # fmt: skip
         elif name not in ("raw", "oracle"):
             if predictor is None:
-                predictor = make_predictor(plan.model, plan.gt_instances, seq.root, plan.threads)
+                predictor = make_predictor(plan.model, plan.gt_instances, seq.root, plan.threads,
+                                           plan.dropout)  # fmt: skip
             conds[name] = _mode_condition(plan, predictor, name, out, say)
     return conds
 
 
 def make_predictor(
-    model: str | None, gt_instances: bool, sequence: Path, threads: int | None = None
+    model: str | None,
+    gt_instances: bool,
+    sequence: Path,
+    threads: int | None = None,
+    dropout: Dropout | None = None,
 ) -> object:
-    """The model's ``Predictor``, or the ``sequence``'s ground-truth instances."""
+    """The model's ``Predictor``, or the ``sequence``'s ground-truth instances (with the
+    simulated ``dropout``, if any)."""
     if gt_instances:
         from slimseg.dynamic.annotations import AnnotationInstances
 
-        return AnnotationInstances(sequence)
+        return AnnotationInstances(sequence, dropout)
     from slimseg.deploy.predictor import Predictor
 
     return Predictor.from_path(model, threads=threads)
@@ -141,14 +153,24 @@ def _mode_condition(
     folder = out / "masks" / mode.replace("+", "_")
     rep = run_sequence(
         predictor, plan.sequence.root, folder, mode, plan.masking, plan.keypoints,
-        progress=plan.progress,
+        progress=plan.progress, track=plan.track,
     )  # fmt: skip
-    ms = sum(rep.ms_per_frame.values())
+    ms = rep.ms_per_frame["model"] + rep.ms_per_frame["masking_logic"]
     say(f"{mode}: masks for {rep.frames} frames in {folder / 'masks'} ({ms:.1f} ms/frame)")
     source = "--gt-instances" if plan.gt_instances else "--model"
     settings = preset_name(plan.masking) or "custom"
     note = f"slimseg dynamic --mode {mode} {source}, {settings} settings"
-    name = f"{mode} (gt instances)" if plan.gt_instances else mode
+    tags = []
+    if plan.gt_instances:
+        tags.append("gt instances")
+    if plan.dropout is not None:
+        tags.append(f"dropout {plan.dropout.rate:g}:{plan.dropout.burst}")
+        note += f", --gt-dropout {plan.dropout.rate:g}:{plan.dropout.burst}"
+    if plan.track.on:
+        every = plan.track.segment_every
+        tags.append("tracked" + (f", model every {every}" if every > 1 else ""))
+        note += f", --track ({plan.track.describe()})"
+    name = f"{mode} ({', '.join(tags)})" if tags else mode
     return Condition(name, "masked", masks=folder / "masks", masking_ms=ms, note=note)
 
 

@@ -97,6 +97,9 @@ def write_sweep(out: Path, plan: SweepPlan, sweeps: list[SequenceSweep], model: 
         "# slam-eval sweep",
         "",
         f"- masks: `--modes {plan.mode}`, {model}; base settings: {plan.base.describe()}",
+        f"- track stage: {plan.track.describe()}"
+        + ("" if plan.dropout is None else
+           f"; ground-truth dropout {plan.dropout.rate:g} in bursts of {plan.dropout.burst}"),
         f"- sweep: {plan.how} over " + ", ".join(f"{k} = {', '.join(f'{v:g}' for v in vals)}"
                                                  for k, vals in plan.spec.items()),
         f"- engine: {plan.engine}, {runs} run(s) per setting (ATE median, min–max), "

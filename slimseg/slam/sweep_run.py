@@ -20,8 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from slimseg.data.tum import TumSequence
+from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.detection_cache import SettingMasks, build_cache, mask_with
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
+from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.slam.condition_runs import ConditionResult, evaluate_condition
 from slimseg.slam.conditions import Condition
@@ -62,6 +64,10 @@ class SweepPlan:
     speed: float = 1.0
     threads: int | None = None
     progress: bool = True
+    track: TrackPlan = TRACK_OFF
+    """the track stage every setting runs with (off: every frame judged alone)"""
+    dropout: Dropout | None = None
+    """ground-truth instances only: simulated missed detections"""
 
 
 @dataclass
@@ -104,7 +110,7 @@ def run_sweep(plan: SweepPlan, out: Path, say: Callable[[str], None]) -> list[Se
     check_mode(plan.spec, plan.mode, plan.gt_instances)
     vocab_label = check_engine(plan.engine, plan.vocab)
     points = sweep_points(plan.base, plan.spec, plan.how, ignore_conf=plan.gt_instances)
-    floor_conf = min(p.settings.conf for p in points)
+    floor_conf = plan.track.floor(min(p.settings.conf for p in points))
     say(
         f"sweep: {len(points)} settings x {plan.runs if plan.engine == 'orbslam3' else 1} runs "
         f"on {len(plan.sequences)} sequence(s); detections once per frame at conf {floor_conf}"
@@ -113,7 +119,8 @@ def run_sweep(plan: SweepPlan, out: Path, say: Callable[[str], None]) -> list[Se
     sweeps = []
     for label, seq in zip(sequence_labels(plan.sequences), plan.sequences, strict=True):
         if predictor is None or plan.gt_instances:
-            predictor = make_predictor(plan.model, plan.gt_instances, seq.root, plan.threads)
+            predictor = make_predictor(plan.model, plan.gt_instances, seq.root, plan.threads,
+                                       plan.dropout)  # fmt: skip
         sweeps.append(_one_sequence(plan, seq, label, points, predictor, vocab_label, out, say))
     return sweeps
 
@@ -146,8 +153,8 @@ def _one_sequence(
         say(f"{label} {cond.name}: ATE {ate} ({s['scored_runs']}/{s['runs']} runs), {s['status']}")
         return res
 
-    cache = build_cache(predictor, seq, min(p.settings.conf for p in points), plan.keypoints,
-                        plan.progress)  # fmt: skip
+    floor_conf = plan.track.floor(min(p.settings.conf for p in points))
+    cache = build_cache(predictor, seq, floor_conf, plan.keypoints, plan.progress)
     result.model_ms = cache.model_ms
     say(f"{label}: {len(cache.frames)} frames, model {cache.model_ms:.1f} ms/frame "
         f"({cache.calls} calls)")  # fmt: skip
@@ -159,9 +166,10 @@ def _one_sequence(
     by_digest: dict[str, str] = {}
     for p in points:
         where = folder / "masks" / _slug(p.label)
-        sm = mask_with(cache, plan.mode, p.settings, where)
+        sm = mask_with(cache, plan.mode, p.settings, where, plan.track)
         result.masks[p.label] = sm
-        cond = Condition(p.label, "masked", masks=where, masking_ms=cache.model_ms + sm.logic_ms,
+        ms = cache.model_ms * sm.model_share + sm.logic_ms
+        cond = Condition(p.label, "masked", masks=where, masking_ms=ms,
                          note=f"--mode {plan.mode}, {p.settings.as_dict()}")  # fmt: skip
         first = by_digest.setdefault(sm.digest, p.label)
         if first != p.label:
