@@ -41,8 +41,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=sorted(PRESETS),
         default=None,
         help="sequences modelled on TUM fr3: walking_xyz (camera moves tens of cm along x/y/z), "
-        "walking_static, walking_halfsphere, sitting_static; 2-3 people close to the camera "
-        "(default: the small-motion sequences)",
+        "walking_static, walking_halfsphere, sitting_static, walking_rpy (camera turns fast "
+        "about roll, pitch and yaw, peaks of 60-80 deg/s, at one spot); 2-3 people close to the "
+        "camera (default: the small-motion sequences)",
+    )
+    p.add_argument(
+        "--exposure-ms",
+        type=float,
+        default=None,
+        metavar="MS",
+        help="shutter time of the sequences' motion blur in milliseconds, 0 to 33.3: camera "
+        "and walker motion during the exposure blurs the RGB frames (rgb/, background/rgb/); "
+        "depth, dynamic/ masks and annotations stay sharp. 0 = no blur. Default: the "
+        "preset's, 20 for walking_rpy, 0 for the others and the default sequences",
     )
     p.add_argument(
         "--seq-size",
@@ -79,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         progress=not args.quiet,
         preset=args.preset,
+        exposure_ms=args.exposure_ms,
     )
     print(report.summary())
     return 0

@@ -8,8 +8,9 @@ No download: ``generate(out, train, val, imgsz, seed)`` renders everything from 
   and renderers (:mod:`.person`: the articulated, walking person);
 - :mod:`.texture`, :mod:`.camera`: procedural room (wall, floor, clutter) seen by a pinhole;
 - :mod:`.scene`: one frame (layered instances, depth, sensor effects), ``render_image``;
-- :mod:`.world`, :mod:`.sequence`: TUM RGB-D sequences (room, objects, walkers, camera path;
-  rendered frames with dynamic masks and static backgrounds);
+- :mod:`.world`, :mod:`.sequence`, :mod:`.presets`: TUM RGB-D sequences (room, objects,
+  walkers, camera path; rendered frames with dynamic masks and static backgrounds);
+  :mod:`.blur`: their motion blur over a finite exposure;
 - :mod:`.coco_writer`, :mod:`.generate`: COCO json, data.yaml (written atomically).
 """
 

@@ -2,9 +2,11 @@
 
 Frames: camera x right, y down, z forward (OpenCV/TUM). The world frame is the camera frame
 of a reference pose; the camera translates in x/y/z and turns by ``yaw`` about the vertical
-(y) axis. The room is a fronto-parallel wall at ``Z = wall_z`` and an optional floor at
-``Y = floor_y`` (y down, so the floor is ``floor_y`` metres below the camera's reference
-height). Depth is the camera-frame ``z`` of the surface hit, as in TUM depth images.
+(y) axis, then (only the ``walking_rpy`` preset) by ``pitch`` about its own x axis and
+``roll`` about its own optical (z) axis. The room is a fronto-parallel wall at
+``Z = wall_z`` and an optional floor at ``Y = floor_y`` (y down, so the floor is ``floor_y``
+metres below the camera's reference height). Depth is the camera-frame ``z`` of the surface
+hit, as in TUM depth images.
 """
 
 from __future__ import annotations
@@ -42,35 +44,79 @@ class Intrinsics:
 
 @dataclass(frozen=True)
 class Pose:
-    """Camera-to-world pose: position ``(x, y, z)`` in metres and ``yaw`` (radians, about y)."""
+    """Camera-to-world pose: position ``(x, y, z)`` in metres and rotation
+    ``R = R_y(yaw) R_x(pitch) R_z(roll)`` (radians; right-handed rotations about the world's
+    vertical y axis, then the camera's own x axis, then its optical z axis; positive pitch
+    tilts the view up, towards -y). With ``pitch = roll = 0`` (every pose but the
+    ``walking_rpy`` preset's) the yaw-only formulas below are used, keeping their bytes."""
 
     x: float = 0.0
     y: float = 0.0
     z: float = 0.0
     yaw: float = 0.0
+    pitch: float = 0.0
+    roll: float = 0.0
+
+    @property
+    def yaw_only(self) -> bool:
+        """True when the pose turns about the vertical axis only."""
+        return self.pitch == 0.0 and self.roll == 0.0
 
     def rotation(self) -> np.ndarray:
         """``float64 [3, 3]`` camera-to-world rotation."""
         c, s = np.cos(self.yaw), np.sin(self.yaw)
-        return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        ry = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+        if self.yaw_only:
+            return ry
+        c, s = np.cos(self.pitch), np.sin(self.pitch)
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+        c, s = np.cos(self.roll), np.sin(self.roll)
+        rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return ry @ rx @ rz
 
     def quaternion(self) -> tuple[float, float, float, float]:
         """``(qx, qy, qz, qw)`` of :meth:`rotation` (TUM order)."""
-        return (0.0, float(np.sin(self.yaw / 2)), 0.0, float(np.cos(self.yaw / 2)))
+        if self.yaw_only:
+            return (0.0, float(np.sin(self.yaw / 2)), 0.0, float(np.cos(self.yaw / 2)))
+        q = _axis_quat(1, self.yaw)
+        q = _quat_mul(q, _axis_quat(0, self.pitch))
+        q = _quat_mul(q, _axis_quat(2, self.roll))
+        return (float(q[0]), float(q[1]), float(q[2]), float(q[3]))
 
     def position(self) -> np.ndarray:
         """``float64 [3]`` camera centre in the world."""
         return np.array([self.x, self.y, self.z])
 
 
+def _axis_quat(axis: int, angle: float) -> np.ndarray:
+    """``float64 [4]`` ``(qx, qy, qz, qw)`` of a rotation by ``angle`` about axis 0/1/2."""
+    q = np.zeros(4)
+    q[axis], q[3] = np.sin(angle / 2), np.cos(angle / 2)
+    return q
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a b`` of ``(x, y, z, w)`` quaternions (rotation ``a`` after ``b``)."""
+    av, aw, bv, bw = a[:3], a[3], b[:3], b[3]
+    v = aw * bv + bw * av + np.cross(av, bv)
+    return np.array([*v, aw * bw - av @ bv])
+
+
 @lru_cache(maxsize=8)
 def _normalized_grid(k: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only ``float32 [H, W]`` normalized ray coordinates ``(xn, yn)`` of every pixel."""
     xn = (np.arange(k.width, dtype=np.float32) - k.cx) / k.fx
     yn = (np.arange(k.height, dtype=np.float32) - k.cy) / k.fy
     xs, ys = np.meshgrid(xn, yn)
     xs.setflags(write=False)
     ys.setflags(write=False)
     return xs, ys
+
+
+def normalized_grid(k: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Normalized ray coordinates ``(xn, yn)`` of every pixel, ``float32 [H, W]`` each
+    (cached, read-only)."""
+    return _normalized_grid(k)
 
 
 def border_rays(k: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -105,18 +151,23 @@ def room_hits(
     pose: Pose, xn: np.ndarray, yn: np.ndarray, wall_z: float, floor_y: float | None
 ) -> RoomHits:
     """Intersect camera rays ``(xn, yn, 1)`` with the wall and floor planes."""
-    c, s = np.cos(pose.yaw), np.sin(pose.yaw)
-    dx = (c * xn + s).astype(np.float32)
-    dz = (c - s * xn).astype(np.float32)
+    if pose.yaw_only:
+        c, s = np.cos(pose.yaw), np.sin(pose.yaw)
+        dx = (c * xn + s).astype(np.float32)
+        dy = yn
+        dz = (c - s * xn).astype(np.float32)
+    else:  # the ray's world direction R (xn, yn, 1)
+        r = pose.rotation().astype(np.float32)
+        dx, dy, dz = (r[j, 0] * xn + r[j, 1] * yn + r[j, 2] for j in range(3))
     t_wall = (wall_z - pose.z) / np.maximum(dz, 1e-3)
     if floor_y is None:
         t_floor = np.full_like(t_wall, np.inf)
     else:
-        t_floor = np.where(yn > 1e-4, (floor_y - pose.y) / np.maximum(yn, 1e-4), np.inf)
+        t_floor = np.where(dy > 1e-4, (floor_y - pose.y) / np.maximum(dy, 1e-4), np.inf)
     floor = t_floor < t_wall
     t = np.where(floor, t_floor, t_wall).astype(np.float32)
     u = pose.x + t * dx
-    v = np.where(floor, pose.z + t * dz, pose.y + t * yn)
+    v = np.where(floor, pose.z + t * dz, pose.y + t * dy)
     return RoomHits(t, floor, u.astype(np.float32), v.astype(np.float32))
 
 

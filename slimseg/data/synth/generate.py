@@ -11,9 +11,10 @@ from tqdm import tqdm
 
 from slimseg.data.synth.categories import CATEGORIES, MOBILITY, NAMES
 from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
-from slimseg.data.synth.presets import PRESETS
+from slimseg.data.synth.presets import PRESETS, default_exposure_ms
 from slimseg.data.synth.scene import STREAM_TRAIN, STREAM_VAL, render_image
 from slimseg.data.synth.sequence import write_sequence
+from slimseg.data.synth.world import FPS
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png, write_text
 
@@ -59,6 +60,7 @@ def _check(
     frames: int,
     seq_size: tuple[int, int],
     overwrite: bool,
+    exposure_ms: float | None,
 ) -> None:
     if train < 0 or val < 0 or (train == 0) != (val == 0):
         raise SlimsegError(
@@ -78,6 +80,11 @@ def _check(
         raise SlimsegError(f"--sequences {sequences} must be 0 or more")
     if sequences and frames < 1:
         raise SlimsegError(f"--frames {frames} must be at least 1")
+    if exposure_ms is not None and not 0.0 <= exposure_ms <= 1000.0 / FPS:
+        raise SlimsegError(
+            f"--exposure-ms {exposure_ms:g}: the shutter time must be 0 (no motion blur) to "
+            f"{1000.0 / FPS:.1f} ms (one frame interval at {FPS:g} Hz)"
+        )
     if min(seq_size) < 64:
         raise SlimsegError(f"--seq-size {seq_size[0]} {seq_size[1]}: both must be at least 64")
     if out.exists() and not out.is_dir():
@@ -99,6 +106,7 @@ def generate(
     overwrite: bool = False,
     progress: bool = True,
     preset: str | None = None,
+    exposure_ms: float | None = None,
 ) -> SynthReport:
     """Render and write the dataset into ``out``; returns a :class:`SynthReport`.
 
@@ -107,14 +115,15 @@ def generate(
     see :mod:`slimseg.data.synth.sequence`) and ``out/data.yaml``, written last. Every file is
     written atomically. ``overwrite`` first deletes only what this function writes
     (``train/``, ``val/``, ``sequences/``, ``data.yaml``). ``preset``: the sequences' camera
-    path and walkers (:mod:`slimseg.data.synth.presets`). ``train = val = 0`` with sequences
-    writes a sequences-only dataset (no image splits in data.yaml). Raises ``SlimsegError`` on
-    bad input.
+    path and walkers (:mod:`slimseg.data.synth.presets`); ``exposure_ms``: the sequences'
+    motion-blur shutter time (None: the preset's default; 0: none). ``train = val = 0`` with
+    sequences writes a sequences-only dataset (no image splits in data.yaml). Raises
+    ``SlimsegError`` on bad input.
     """
     out = Path(out)
     if preset is not None and preset not in PRESETS:
         raise SlimsegError(f"--preset {preset!r}: valid presets are {sorted(PRESETS)}")
-    _check(out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite)
+    _check(out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite, exposure_ms)
     start = time.perf_counter()
     if overwrite and out.is_dir():
         for name in _OWNED:
@@ -133,10 +142,19 @@ def generate(
                 report.images[split] = n
         for s in range(sequences):
             counts = write_sequence(
-                out / "sequences" / f"seq_{s:03d}", seed, s, frames, seq_size, bar.update, preset
+                out / "sequences" / f"seq_{s:03d}",
+                seed,
+                s,
+                frames,
+                seq_size,
+                bar.update,
+                preset,
+                exposure_ms,
             )
             report.sequence_instances += counts["instances"]
-    command = synth_command(train, val, imgsz, seed, sequences, frames, seq_size, preset)
+    command = synth_command(
+        train, val, imgsz, seed, sequences, frames, seq_size, preset, exposure_ms=exposure_ms
+    )
     _write_data_yaml(out, command, train > 0, sequences)
     report.seconds = time.perf_counter() - start
     return report
@@ -177,10 +195,11 @@ def synth_command(
     seq_size: tuple[int, int] = (640, 480),
     preset: str | None = None,
     out: str = "<dir>",
+    exposure_ms: float | None = None,
 ) -> str:
     """The ``slimseg data synth`` command that writes exactly this dataset into ``out``: every
-    option that changes a file (sequence options only with sequences), none that does not
-    (``--overwrite``, ``--quiet``)."""
+    option that changes a file (sequence options only with sequences; ``--exposure-ms`` only
+    when it is not the preset's default), none that does not (``--overwrite``, ``--quiet``)."""
     parts = [f"slimseg data synth --out {out} --train {train} --val {val}"]
     parts.append(f"--imgsz {imgsz} --seed {seed}")
     if sequences:
@@ -188,6 +207,11 @@ def synth_command(
         parts.append(f"--seq-size {seq_size[0]} {seq_size[1]}")
         if preset is not None:
             parts.append(f"--preset {preset}")
+        if exposure_ms is not None and exposure_ms != default_exposure_ms(preset):
+            short = f"{exposure_ms:g}"  # repr when %g would round it
+            parts.append(
+                f"--exposure-ms {short if float(short) == exposure_ms else repr(exposure_ms)}"
+            )
     return " ".join(parts)
 
 

@@ -14,6 +14,12 @@ Layout of one sequence folder::
 
 ``background/depth`` and ``depth`` share the depth frame's timestamp; ``dynamic`` and
 ``background/rgb`` share the colour frame's.
+
+With motion blur (``World.exposure`` > 0, :mod:`slimseg.data.synth.blur`) ``rgb`` and
+``background/rgb`` are blurred over the exposure; ``depth``, ``background/depth``,
+``dynamic`` and the annotations stay the sharp instant of the timestamp, and ``rgb`` equals
+``background/rgb`` outside the walkers' blurred footprint (their sharp masks plus the streak
+around them) rather than outside ``dynamic``.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slimseg.data.synth.blur import WalkerLayer, blur_frame
 from slimseg.data.synth.camera import Pose, project, render_room
 from slimseg.data.synth.categories import CATEGORIES
 from slimseg.data.synth.coco_writer import CocoBuilder, frame_annotations
@@ -78,8 +85,11 @@ def placements_at(world: World, pose: Pose, t: float) -> list[Placement]:
         uv, z = project(k, pose, np.stack([bottom, top]))
         if z[0] < 0.3:
             continue
-        size = float(uv[0, 1] - uv[1, 1])
-        cx, cy = float(uv[0, 0]), float((uv[0, 1] + uv[1, 1]) / 2)
+        dx, dy = uv[0] - uv[1]  # image of the upright axis, top -> bottom
+        size = float(np.hypot(dx, dy))
+        cx, cy = float((uv[0, 0] + uv[1, 0]) / 2), float((uv[0, 1] + uv[1, 1]) / 2)
+        if dx != 0.0:  # a rolled camera: the sprite turns with the vertical (never for yaw only)
+            style = style.with_params(tilt=style.params.get("tilt", 0.0) + np.arctan2(-dx, dy))
         out.append(Placement(style, cx, cy, size, float(z[0]), th.track_id, th.moving))
     return out
 
@@ -98,8 +108,13 @@ def render_sequence_frame(world: World, i: int) -> SequenceFrame:
 
     nrng = np.random.default_rng([STREAM_SEQUENCE_NOISE, world.seed * 1_000_003 + world.index, i])
     noise = sample_noise(nrng, world.sensor, k.height, k.width)
+    changed = dynamic
+    if world.exposure > 0:
+        layers = _walker_layers(world, pose, i / FPS, labels, placements)
+        poses = world.exposure_poses(i)
+        bg_rgb, rgb, changed = blur_frame(k, poses, rgb, bg_rgb, bg_depth_m, layers)
     bg_out = finish_rgb(bg_rgb, world.sensor, noise)
-    rgb_out = np.where(dynamic[..., None], finish_rgb(rgb, world.sensor, noise), bg_out)
+    rgb_out = np.where(changed[..., None], finish_rgb(rgb, world.sensor, noise), bg_out)
     frame = Frame(
         rgb=rgb_out,
         depth=finish_depth(depth_m, world.sensor, noise),
@@ -117,6 +132,27 @@ def render_sequence_frame(world: World, i: int) -> SequenceFrame:
     )
 
 
+def _walker_layers(
+    world: World, pose: Pose, t: float, labels: np.ndarray, placements: list[Placement]
+) -> list[WalkerLayer]:
+    """The visible part of every moving placement as a :class:`WalkerLayer`, far to near; its
+    own motion is that of its centre over the exposure, seen from the camera at ``pose``."""
+    things = {th.track_id: th for th in world.things}
+    out = []
+    for j in sorted(range(len(placements)), key=lambda j: -placements[j].depth):
+        p = placements[j]
+        mask = labels == j + 1
+        if not p.moving or not mask.any():
+            continue
+        th = things[p.track_id]
+        ends = [th.at(t + d * world.exposure / 2)[1] - (0.0, th.height / 2, 0.0) for d in (-1, 1)]
+        uv, _ = project(world.k, pose, np.stack(ends))
+        out.append(
+            WalkerLayer(mask, p.depth, (float(uv[1, 0] - uv[0, 0]), float(uv[1, 1] - uv[0, 1])))
+        )
+    return out
+
+
 _HEADERS = {
     "rgb": "# color images\n# file: '{name}'\n# timestamp filename\n",
     "depth": "# depth maps\n# file: '{name}'\n# timestamp filename\n",
@@ -132,14 +168,16 @@ def write_sequence(
     size: tuple[int, int] = (640, 480),
     on_frame: Callable[[], None] | None = None,
     preset: str | None = None,
+    exposure_ms: float | None = None,
 ) -> dict[str, int]:
     """Render and write sequence ``index`` into ``folder`` (TUM layout, see module doc).
 
     Returns counts: ``frames``, ``instances`` and per-category annotation counts.
     ``on_frame`` is called after each frame (progress bars). ``preset``: see
-    :mod:`slimseg.data.synth.presets` (None: the default sequences).
+    :mod:`slimseg.data.synth.presets` (None: the default sequences); ``exposure_ms``: motion
+    blur's shutter time (None: the preset's default, 0: no blur).
     """
-    world = build_world(seed, index, frames, *size, preset=preset)
+    world = build_world(seed, index, frames, *size, preset=preset, exposure_ms=exposure_ms)
     k = world.k
     for sub in ("rgb", "depth", "dynamic", "background/rgb", "background/depth"):
         (folder / sub).mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,8 @@
 
 The world is layered: a textured back wall and floor (``camera.Room``) and upright,
 camera-facing object sprites standing on the floor. A pinhole camera moves slowly in x/y/z
-and yaw, so static objects move on screen by amounts that depend on their depth (parallax).
+and yaw (the ``walking_rpy`` preset: also fast in pitch and roll), so static objects move on
+screen by amounts that depend on their depth (parallax).
 Walkers (:func:`make_walker`) cross the room, or pace in place, articulating a side-view gait.
 :mod:`slimseg.data.synth.sequence` renders and writes the frames.
 """
@@ -16,7 +17,7 @@ import numpy as np
 from slimseg.data.synth.camera import Intrinsics, Pose, Room
 from slimseg.data.synth.categories import BY_NAME, CATEGORIES
 from slimseg.data.synth.person import walking_pose
-from slimseg.data.synth.presets import PRESETS, preset_motion
+from slimseg.data.synth.presets import PRESETS, default_exposure_ms, preset_motion
 from slimseg.data.synth.scene import STREAM_SEQUENCE, Sensor, frame_rng, make_room
 from slimseg.data.synth.shapes import sample_style
 from slimseg.data.synth.style import Style
@@ -77,22 +78,35 @@ class World:
     index: int
     frames: int
     meta: dict = field(default_factory=dict)
+    exposure: float = 0.0  # seconds the shutter is open, centred on each frame; 0: no blur
 
     def pose(self, i: int) -> Pose:
         """Camera-to-world pose of frame ``i``."""
         return camera_pose(self.motion, self.drift, i / FPS)
 
+    def pose_at(self, t: float) -> Pose:
+        """Camera-to-world pose at time ``t`` seconds (frame ``i`` is at ``i / FPS``)."""
+        return camera_pose(self.motion, self.drift, t)
+
+    def exposure_poses(self, i: int) -> tuple[Pose, Pose, Pose]:
+        """Frame ``i``'s poses at the shutter's opening, at its timestamp and at the closing."""
+        t, half = i / FPS, self.exposure / 2
+        return self.pose_at(t - half), self.pose(i), self.pose_at(t + half)
+
 
 def camera_pose(
     motion: dict[str, tuple[float, float, float]], drift: tuple[float, float], t: float
 ) -> Pose:
-    """Smooth camera path: a sinusoid per axis (``x, y, z, yaw``) plus a slow x/z drift."""
+    """Smooth camera path: a sinusoid per axis (``x, y, z, yaw`` and, if ``motion`` names
+    them, ``pitch, roll``) plus a slow x/z drift."""
     val = {a: amp * np.sin(2 * np.pi * f * t + ph) for a, (amp, f, ph) in motion.items()}
     return Pose(
         x=float(val["x"] + drift[0] * t),
         y=float(val["y"]),
         z=float(val["z"] + drift[1] * t),
         yaw=float(val["yaw"]),
+        pitch=float(val.get("pitch", 0.0)),
+        roll=float(val.get("roll", 0.0)),
     )
 
 
@@ -156,13 +170,20 @@ def build_world(
     width: int = 640,
     height: int = 480,
     preset: str | None = None,
+    exposure_ms: float | None = None,
 ) -> World:
     """Random room, 3-6 static objects (sometimes a standing person), 1-3 walkers, camera path.
 
-    Deterministic in ``(seed, index, preset)``; ``frames`` only bounds the camera path.
-    ``preset`` (a :data:`~slimseg.data.synth.presets.PRESETS` name) replaces the camera path
-    and the walkers; None keeps the default sequences byte for byte.
+    Deterministic in ``(seed, index, preset)``; ``frames`` only bounds the camera path (and,
+    for a preset whose walkers are placed in view, when they are). ``preset`` (a
+    :data:`~slimseg.data.synth.presets.PRESETS` name) replaces the camera path and the
+    walkers; None keeps the default sequences byte for byte. ``exposure_ms``: the shutter time
+    of the motion blur (:mod:`slimseg.data.synth.blur`); None: the preset's default (no
+    preset: 0, no blur).
     """
+    exposure = default_exposure_ms(preset) if exposure_ms is None else float(exposure_ms)
+    if not 0.0 <= exposure <= 1000.0 / FPS:
+        raise SlimsegError(f"exposure {exposure} ms: must be 0 to {1000.0 / FPS:.1f} ms")
     rng = frame_rng(seed, index, STREAM_SEQUENCE)
     k = Intrinsics.tum(width, height)
     duration = frames / FPS
@@ -208,7 +229,9 @@ def build_world(
         )
         things.append(walker)
     if preset is not None:
-        motion, drift = _apply_preset(preset, seed, index, things, n_static, floor_y, half_fov)
+        motion, drift = _apply_preset(
+            preset, seed, index, things, n_static, floor_y, half_fov, duration
+        )
     poses = [camera_pose(motion, drift, i / FPS) for i in range(frames)]
     room = make_room(rng, k, poses, wall_z, floor_y, clutter=0.6)
     sensor = Sensor(
@@ -221,6 +244,7 @@ def build_world(
         holes=int(rng.integers(0, 3)),
     )
     world = World(k, room, things, sensor, motion, drift, seed, index, frames)
+    world.exposure = exposure / 1000.0
     if preset is not None:
         world.meta["preset"] = preset
     return world
@@ -234,11 +258,13 @@ def _apply_preset(
     n_static: int,
     floor_y: float,
     half_fov: float,
+    duration: float,
 ) -> tuple[dict[str, tuple[float, float, float]], tuple[float, float]]:
     """Replace the walkers in ``things`` (in place) and return the preset's camera path.
 
     The default walkers were drawn first all the same: the room and sensor that follow them
-    in ``build_world``'s random stream stay those of the seed.
+    in ``build_world``'s random stream stay those of the seed. With ``preset.in_view``,
+    walker ``j`` of ``n`` is in the central part of the view at ``duration * (j + 0.5) / n``.
     """
     if name not in PRESETS:
         raise SlimsegError(f"unknown sequence preset {name!r}; valid: {sorted(PRESETS)}")
@@ -246,7 +272,8 @@ def _apply_preset(
     rng = frame_rng(seed, index, STREAM_SEQUENCE_PRESET)
     del things[n_static:]
     lo_n, hi_n = preset.walkers
-    for j in range(int(rng.integers(lo_n, hi_n + 1))):
+    n = int(rng.integers(lo_n, hi_n + 1))
+    for j in range(n):
         walker = make_walker(
             rng,
             n_static + j,
@@ -256,6 +283,7 @@ def _apply_preset(
             speed_range=preset.speed,
             max_sway=0.2,
             pace_m=preset.pace_m,
+            in_view_at=duration * (j + 0.5) / n if preset.in_view else None,
         )
         things.append(walker)
     return preset_motion(preset, rng), (0.0, 0.0)
