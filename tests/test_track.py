@@ -255,3 +255,22 @@ def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) ->
         except SystemExit as e:  # argparse's own refusals
             rc = e.code
         assert rc != 0 and msg in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("mode", "every"), [("fusion", 1), ("fusion+epipolar", 2)])
+def test_cached_sweep_loop_gives_the_same_tracked_masks(
+    sequence: Path, tmp_path: Path, mode: str, every: int
+) -> None:
+    """slam-eval --sweep (cached detections) and slimseg dynamic agree under the stage."""
+    from slimseg.data.tum import TumSequence
+    from slimseg.dynamic.detection_cache import build_cache, mask_with
+    from slimseg.dynamic.masking_settings import DEFAULT
+
+    inst = AnnotationInstances(sequence, Dropout(0.2, 3, seed=2))
+    plan = TrackPlan(COAST, every)
+    run_sequence(inst, sequence, tmp_path / "dyn", mode, DEFAULT, progress=False, track=plan)
+    seq = TumSequence(sequence)
+    cache = build_cache(inst, seq, plan.floor(DEFAULT.conf), progress=False)
+    sm = mask_with(cache, mode, DEFAULT, tmp_path / "sweep" / "masks", plan)
+    assert sm.model_share == pytest.approx(1 / every)
+    assert _digest(tmp_path / "dyn") == _digest(tmp_path / "sweep")
