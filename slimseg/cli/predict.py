@@ -8,6 +8,11 @@ Per frame, in ``--out``: ``<stem>_overlay.png`` (masks tinted, boxes and class l
 detections, a class-colour overlay, the mask of every non-background pixel and a json with
 the pixel count per class. Video frames are named ``frame_000000`` onwards.
 Every file is written to a temporary name, then renamed into place.
+
+With ``--track [PRESET]`` (a folder of frames, taken in sorted order, or a video; a single
+image is refused) the frames go through the track stage instead and the outputs are
+``tracks/<stem>.png`` (``uint16`` instance maps, pixel = track id), ``tracks.csv``,
+``tracks.gif`` and ``tracks.mp4``: see :mod:`slimseg.deploy.track_predict`.
 """
 
 from __future__ import annotations
@@ -22,12 +27,15 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.images import read_rgb
 from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample
 from slimseg.deploy.predictor import BACKENDS, Predictor, combined_mask
+from slimseg.deploy.track_predict import DEFAULT_FPS, track_predict
 from slimseg.detections import Prediction
+from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import write_json, write_png
@@ -43,6 +51,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Run an exported .onnx (onnxruntime) or .pt/.ckpt weights (torch) on an "
         "image, a folder of .png/.jpg/.jpeg/.bmp images or a video. Writes per frame "
         "<stem>_overlay.png, <stem>_mask.png (255 = any object) and <stem>.json to --out. "
+        "With --track: per-frame track-id maps tracks/<stem>.png, tracks.csv and an annotated "
+        "tracks.gif/.mp4 instead, the masks of people just lost included. "
         "Exit 1 if some files could not be read.",
     )
     p.add_argument("--model", required=True, help="model.onnx, weights.pt or checkpoint.ckpt")
@@ -60,6 +70,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=None, help="intra-op CPU threads")
     p.add_argument("--max-det", type=int, default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_track_args(p)
     p.set_defaults(run=run)
 
 
@@ -171,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.max_det < 1:
         raise SlimsegError(f"--max-det must be >= 1, got {args.max_det}")
+    plan = track_plan_from_args(args)
+    if plan.on:
+        return run_tracked(args, plan)
     frames, total, is_video = open_source(args.source)
     predictor = Predictor.from_path(
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
@@ -181,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     sums = dict.fromkeys(STAGES, 0.0)
     done, detections, skipped = 0, 0, []
     start = time.perf_counter()
-    with tqdm(total=total or None, desc="predict", unit="img") as bar:
+    with tqdm(total=total or None, desc="predict", unit="img", disable=args.quiet) as bar:
         for index, (stem, source, image) in enumerate(frames):
             bar.update(1)
             if image is None:
@@ -208,6 +223,49 @@ def run(args: argparse.Namespace) -> int:
         f"{done} image(s), {detections} detection(s) in {elapsed:.2f} s: {rate:.2f} images/s "
         f"end to end; mean ms per image: {stages}"
     )
+    return _report_skipped(skipped)
+
+
+def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
+    """``predict --track``: the frames in order through the track stage."""
+    source = Path(args.source)
+    if source.is_file() and source.suffix.lower() in IMAGE_SUFFIXES:
+        raise SlimsegError(
+            f"--track follows objects across frames: give a folder of frames or a video, "
+            f"not one image ({source})"
+        )
+    frames, total, is_video = open_source(source)
+    fps = _video_fps(source) if is_video else DEFAULT_FPS
+    predictor = Predictor.from_path(
+        args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
+    )
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if not args.quiet:
+        print(f"{predictor} -> {out_dir}")
+        print(f"track stage: {plan.describe()}")
+    report = track_predict(
+        predictor, frames, out_dir, plan, args.conf, args.iou, args.max_det, fps=fps,
+        total=total, progress=not args.quiet,
+    )  # fmt: skip
+    print(report.summary())
+    for note in report.notes:
+        print(note)
+    return _report_skipped(report.skipped)
+
+
+def _video_fps(path: Path) -> float:
+    """The video's frame rate (``DEFAULT_FPS`` when OpenCV does not know it)."""
+    cap = cv2.VideoCapture(str(path))
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+    finally:
+        cap.release()
+    return fps if 0 < fps < 1000 else DEFAULT_FPS
+
+
+def _report_skipped(skipped: list[str]) -> int:
+    """Name the unreadable files on stderr; the exit code (1 if any)."""
     if skipped:
         shown = ", ".join(skipped[:5]) + (
             f" (+{len(skipped) - 5} more)" if len(skipped) > 5 else ""
