@@ -54,7 +54,7 @@ class BoxKalman:
         return self.x[4:6].copy()
 
     def predict(self, motion: CameraMotion) -> None:
-        """Move the state through the camera's homography, then one constant-velocity step."""
+        """Move the state through the camera's motion, then one constant-velocity step."""
         if motion.ok:
             c = motion.points(self.x[None, :2])[0]
             s = local_scale(motion.H, (self.x[0], self.x[1]))

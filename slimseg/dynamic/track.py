@@ -2,10 +2,10 @@
 
 Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
 
-1. **Predict.** The camera's motion ``H`` (background homography, :mod:`camera_motion`) moves
+1. **Predict.** The camera's motion ``H`` (background similarity, :mod:`camera_motion`) moves
    every track's box filter (:class:`~slimseg.dynamic.kalman.BoxKalman`) before its
    constant-velocity step; the track's last observed mask follows through the accumulated
-   transform (camera homographies, then the object's own velocity).
+   transform (camera motions, then the object's own velocity).
 2. **Associate (BYTE).** Detections scoring ``>= high`` against every track, then those in
    ``[low, high)`` against the confirmed tracks left; cost 1 - mask IoU (box IoU without
    masks), objects of other classes never match; Hungarian assignment (scipy), gated.
