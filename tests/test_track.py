@@ -274,3 +274,22 @@ def test_cached_sweep_loop_gives_the_same_tracked_masks(
     sm = mask_with(cache, mode, DEFAULT, tmp_path / "sweep" / "masks", plan)
     assert sm.model_share == pytest.approx(1 / every)
     assert _digest(tmp_path / "dyn") == _digest(tmp_path / "sweep")
+
+
+@pytest.mark.slow
+def test_slam_eval_tracked_conditions(sequence: Path, tmp_path: Path, capsys) -> None:
+    """slam-eval runs the mask modes through the stage and says so in the condition name;
+    --sweep runs every setting tracked (the dense engine: no vocabulary needed)."""
+    import json
+
+    pytest.importorskip("evo", reason="the [slam] extra (make test installs it)")
+    base = ["slam-eval", "--sequence", str(sequence), "--gt-instances", "--engine", "dense",
+            "--gt-dropout", "0.2:3", "--track", "--quiet", "--json"]  # fmt: skip
+    assert main([*base, "--modes", "raw,seg", "--out", str(tmp_path / "e")]) == 0
+    rows = {r["condition"]: r for r in json.loads(capsys.readouterr().out)}
+    assert "seg (gt instances, dropout 0.2:3, tracked)" in rows
+    assert main([*base, "--modes", "seg", "--sweep", "dilation=0,5",
+                 "--out", str(tmp_path / "s")]) == 0  # fmt: skip
+    capsys.readouterr()
+    text = (tmp_path / "s" / "sweep.md").read_text()
+    assert "track stage: coast preset" in text and "dropout 0.2 in bursts of 3" in text
