@@ -120,7 +120,9 @@ def _sequence(args: argparse.Namespace, seq_dir: Path, rungs: list[Rung]) -> lis
             build_vocabulary(
                 paths[:: max(1, len(paths) // VOCAB_IMAGES)], vocab, VOCAB_K, VOCAB_LEVELS
             )
-    plan = session.Plan(sequence=seq, names=["raw"], runs=args.runs, vocab=vocab, speed=args.speed)
+    plan = session.Plan(
+        sequence=seq, names=["raw"], runs=args.runs, vocab=vocab, speed=args.speed, progress=False
+    )
     session.check_engine(plan.engine, vocab)
     gt = session.ground_truth(seq)
     cfg = session.engine_settings(plan, seq, folder)
