@@ -293,3 +293,13 @@ def test_slam_eval_tracked_conditions(sequence: Path, tmp_path: Path, capsys) ->
     capsys.readouterr()
     text = (tmp_path / "s" / "sweep.md").read_text()
     assert "track stage: coast preset" in text and "dropout 0.2 in bursts of 3" in text
+    # the stage's knobs sweep like the masking settings
+    assert main([*base, "--modes", "seg", "--sweep", "max_coast=0,1",
+                 "--out", str(tmp_path / "k")]) == 0  # fmt: skip
+    rows = {r["condition"]: r for r in json.loads(capsys.readouterr().out)}
+    assert {"max_coast=0", "max_coast=1"} <= set(rows)
+    assert rows["max_coast=0"]["recall"] < rows["base (slimseg)"]["recall"]
+    no_track = [a for a in base if a != "--track"]
+    assert main([*no_track, "--modes", "seg", "--sweep", "max_coast=0,1",
+                 "--out", str(tmp_path / "n")]) != 0  # fmt: skip
+    assert "add --track" in capsys.readouterr().err

@@ -81,8 +81,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="append",
         metavar="KEY=v1,v2,...",
         help="evaluate the mask mode under each value (repeatable): keys conf, dilation, "
-        "min_static, m_th_start, m_th_step, ratio (Eq. 3), t_o (Eq. 4); --modes names one mask "
-        "mode (default fusion)",
+        "min_static, m_th_start, m_th_step, ratio (Eq. 3), t_o (Eq. 4), and with --track the "
+        "track stage's max_coast, coast_decay, coast_dilate, track_high, track_low, "
+        "depth_band, p_alpha; --modes names one mask mode (default fusion)",
     )
     p.add_argument(
         "--sweep-mode",

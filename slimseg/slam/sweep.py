@@ -2,7 +2,10 @@
 
 Keys (:data:`SWEEP_KEYS`) name fields of :class:`slimseg.dynamic.masking_settings.MaskingSettings`:
 ``conf`` (detector score threshold), ``dilation`` (px), ``min_static`` (Eq. 1),
-``m_th_start`` / ``m_th_step`` (Eq. 1), ``ratio`` (Eq. 3's fraction), ``t_o`` (Eq. 4).
+``m_th_start`` / ``m_th_step`` (Eq. 1), ``ratio`` (Eq. 3's fraction), ``t_o`` (Eq. 4). With
+``--track``, the keys of :data:`TRACK_SWEEP_KEYS` name knobs of the track stage
+(:class:`slimseg.dynamic.track_settings.TrackSettings`): ``max_coast``, ``coast_decay``,
+``coast_dilate``, ``track_high``, ``track_low``, ``depth_band``, ``p_alpha``.
 
 Modes: ``oneway`` varies one key at a time, the others at the base settings (the chosen
 preset with any flags applied); ``grid`` evaluates the full product. Both always include the
@@ -15,6 +18,7 @@ import itertools
 from dataclasses import dataclass, field, replace
 
 from slimseg.dynamic.masking_settings import PRESETS, MaskingSettings, SettingsError, preset_name
+from slimseg.dynamic.track_settings import TrackSettings, TrackSettingsError, check_track_value
 
 SWEEP_KEYS: dict[str, str] = {
     "conf": "conf",
@@ -25,7 +29,17 @@ SWEEP_KEYS: dict[str, str] = {
     "ratio": "frame_ratio",
     "t_o": "t_o",
 }
-INT_KEYS = ("dilation", "min_static")
+# sweep key -> TrackSettings field (the track stage's knobs; they need --track)
+TRACK_SWEEP_KEYS: dict[str, str] = {
+    "max_coast": "max_coast",
+    "coast_decay": "coast_decay",
+    "coast_dilate": "coast_dilate_px",
+    "track_high": "high",
+    "track_low": "low",
+    "depth_band": "depth_band_m",
+    "p_alpha": "p_alpha",
+}
+INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate")
 SWEEP_MODES = ("oneway", "grid")
 FUSION_MODES = ("fusion", "fusion+epipolar")
 # keys that change nothing in some masking modes (a sweep of them there would be flat noise)
@@ -34,6 +48,7 @@ ACTS_IN: dict[str, tuple[str, ...]] = {
     "t_o": FUSION_MODES,
     "min_static": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "m_th_step": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
+    "p_alpha": ("semantic+epipolar", "fusion+epipolar"),
 }
 
 
@@ -53,8 +68,8 @@ def parse_sweep(items: list[str]) -> dict[str, tuple[Value, ...]]:
         key = key.strip()
         if not sep or not key:
             raise SweepError(f"--sweep {item!r}: expected KEY=v1,v2,... (e.g. conf=0.1,0.25)")
-        if key not in SWEEP_KEYS:
-            valid = ", ".join(SWEEP_KEYS)
+        if key not in SWEEP_KEYS and key not in TRACK_SWEEP_KEYS:
+            valid = ", ".join([*SWEEP_KEYS, *TRACK_SWEEP_KEYS])
             raise SweepError(f"--sweep {item!r}: unknown key {key!r}; valid: {valid}")
         if key in out:
             raise SweepError(f"--sweep {key} given twice: list all its values in one item")
@@ -82,8 +97,11 @@ def _check(key: str, value: Value, item: str) -> None:
     from slimseg.dynamic.masking_settings import check_value
 
     try:
-        check_value(SWEEP_KEYS[key], value)
-    except SettingsError as e:
+        if key in TRACK_SWEEP_KEYS:
+            check_track_value(TRACK_SWEEP_KEYS[key], value)
+        else:
+            check_value(SWEEP_KEYS[key], value)
+    except (SettingsError, TrackSettingsError) as e:
         raise SweepError(f"--sweep {item!r}: {e}") from None
 
 
@@ -108,11 +126,24 @@ class SweepPoint:
     values: dict[str, Value] = field(default_factory=dict)
     reference: bool = False
     """a named preset added for comparison, not one of the sweep's points"""
+    track: TrackSettings | None = None
+    """the track stage's knobs at this point (None: the stage is off)"""
 
 
-def values_of(settings: MaskingSettings, keys: list[str] | tuple[str, ...]) -> dict[str, Value]:
-    """The sweep-key values of ``settings``."""
-    return {k: getattr(settings, SWEEP_KEYS[k]) for k in keys}
+def key_value(settings: MaskingSettings, track: TrackSettings | None, key: str) -> Value | None:
+    """The value of sweep ``key`` in the masking ``settings`` or the ``track`` knobs."""
+    if key in TRACK_SWEEP_KEYS:
+        return None if track is None else getattr(track, TRACK_SWEEP_KEYS[key])
+    return getattr(settings, SWEEP_KEYS[key])
+
+
+def values_of(
+    settings: MaskingSettings,
+    keys: list[str] | tuple[str, ...],
+    track: TrackSettings | None = None,
+) -> dict[str, Value]:
+    """The sweep-key values of ``settings`` (and ``track``)."""
+    return {k: key_value(settings, track, k) for k in keys}
 
 
 def sweep_points(
@@ -120,38 +151,54 @@ def sweep_points(
     spec: dict[str, tuple[Value, ...]],
     how: str = "oneway",
     ignore_conf: bool = False,
+    track: TrackSettings | None = None,
 ) -> list[SweepPoint]:
     """The settings to evaluate: the base first, then the sweep's points (``oneway`` or
     ``grid``), then each named preset not among them (``reference``). No setting twice; with
     ``ignore_conf`` (ground-truth instances, all scoring 1) settings differing only in
-    ``conf`` count as the same, and a preset equal to a point is named in its label."""
+    ``conf`` count as the same, and a preset equal to a point is named in its label.
+    ``track``: the track stage's base knobs (None: off; track keys then refused)."""
     if how not in SWEEP_MODES:
         raise SweepError(f"--sweep-mode {how!r}: valid: {', '.join(SWEEP_MODES)}")
     keys = list(spec)
+    track_keys = [k for k in keys if k in TRACK_SWEEP_KEYS]
+    if track_keys and track is None:
+        raise SweepError(f"--sweep {track_keys[0]}: a knob of the track stage; add --track")
 
     def effective(s: MaskingSettings) -> MaskingSettings:
         return s.with_values(conf=base.conf) if ignore_conf else s
 
+    def same(p: SweepPoint, s: MaskingSettings, t: TrackSettings | None) -> bool:
+        return effective(p.settings) == effective(s) and p.track == t
+
     name = preset_name(base)
-    points = [SweepPoint(f"base ({name})" if name else "base", base, values_of(base, keys))]
+    points = [SweepPoint(f"base ({name})" if name else "base", base,
+                         values_of(base, keys, track), track=track)]  # fmt: skip
     if how == "oneway":
         combos = [{k: v} for k in keys for v in spec[k]]
     else:
         combos = [dict(zip(keys, c, strict=True)) for c in itertools.product(*spec.values())]
     for combo in combos:
-        s = base.with_values(**{SWEEP_KEYS[k]: v for k, v in combo.items()})
-        if any(effective(p.settings) == effective(s) for p in points):
+        masking = {SWEEP_KEYS[k]: v for k, v in combo.items() if k in SWEEP_KEYS}
+        knobs = {TRACK_SWEEP_KEYS[k]: v for k, v in combo.items() if k in TRACK_SWEEP_KEYS}
+        s = base.with_values(**masking)
+        try:
+            t = track.with_values(**knobs) if track is not None else None
+        except TrackSettingsError as e:  # e.g. track_low above track_high
+            raise SweepError(f"--sweep {combo}: {e}") from None
+        if any(same(p, s, t) for p in points):
             continue
-        changed = {k: v for k, v in combo.items() if getattr(base, SWEEP_KEYS[k]) != v}
+        changed = {k: v for k, v in combo.items() if key_value(base, track, k) != v}
         label = " ".join(f"{k}={_fmt(v)}" for k, v in changed.items())
-        points.append(SweepPoint(label, s, values_of(s, keys)))
+        points.append(SweepPoint(label, s, values_of(s, keys, t), track=t))
     for pname, s in PRESETS.items():
-        same = [i for i, p in enumerate(points) if effective(p.settings) == effective(s)]
-        if not same:
-            points.append(SweepPoint(f"preset {pname}", s, values_of(s, keys), reference=True))
-        elif points[same[0]].settings != s:  # equal masks, another conf: say so in the label
-            p = points[same[0]]
-            points[same[0]] = replace(p, label=f"{p.label} (= preset {pname})")
+        equal = [i for i, p in enumerate(points) if same(p, s, track)]
+        if not equal:
+            points.append(SweepPoint(f"preset {pname}", s, values_of(s, keys, track),
+                                     reference=True, track=track))  # fmt: skip
+        elif points[equal[0]].settings != s:  # equal masks, another conf: say so in the label
+            p = points[equal[0]]
+            points[equal[0]] = replace(p, label=f"{p.label} (= preset {pname})")
     return points
 
 
@@ -162,11 +209,14 @@ def _fmt(v: Value) -> str:
 def slice_through(points: list[SweepPoint], key: str, center: SweepPoint) -> list[SweepPoint]:
     """The points that differ from ``center`` in ``key`` only (``center`` included), sorted by
     that key's value: one curve of the sweep plot."""
-    others = [k for k in SWEEP_KEYS.values() if k != SWEEP_KEYS[key]]
+    others = [k for k in (*SWEEP_KEYS, *TRACK_SWEEP_KEYS) if k != key]
+
+    def value(p: SweepPoint, k: str) -> Value | None:
+        return key_value(p.settings, p.track, k)
+
     same = [
         p
         for p in points
-        if not p.reference
-        and all(getattr(p.settings, f) == getattr(center.settings, f) for f in others)
+        if not p.reference and all(value(p, k) == value(center, k) for k in others)
     ]
-    return sorted(same, key=lambda p: getattr(p.settings, SWEEP_KEYS[key]))
+    return sorted(same, key=lambda p: value(p, key))

@@ -15,12 +15,12 @@ from pathlib import Path
 
 from slimseg.slam.condition_runs import ConditionResult
 from slimseg.slam.report import csv_text
-from slimseg.slam.sweep import SWEEP_KEYS, SweepPoint, slice_through
+from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS, SweepPoint, key_value, slice_through
 from slimseg.slam.sweep_run import SequenceSweep, SweepPlan
 from slimseg.utils.atomic import atomic_path, write_text
 from slimseg.utils.table import format_table
 
-SETTING_COLUMNS = tuple(SWEEP_KEYS.values())
+SETTING_COLUMNS = tuple(SWEEP_KEYS.values()) + tuple(f"track_{k}" for k in TRACK_SWEEP_KEYS)
 COLUMNS = (
     "sequence", "condition", "kind", *SETTING_COLUMNS, "ate_rmse", "ate_min", "ate_max",
     "ate_std", "rpe_trans_s", "rpe_rot_s", "precision", "recall", "tp", "fp", "fn",
@@ -42,6 +42,7 @@ def sweep_rows(sw: SequenceSweep) -> list[dict]:
     for p in sw.points:
         row = _row(sw, sw.results[p.label], "reference" if p.reference else "point")
         row.update(p.settings.as_dict())
+        row.update({f"track_{k}": key_value(p.settings, p.track, k) for k in TRACK_SWEEP_KEYS})
         sm = sw.masks[p.label]
         if sm.score is not None:
             s = sm.score
@@ -78,7 +79,8 @@ def table(rows: list[dict], keys: list[str], markdown: bool = True) -> str:
     body = []
     for r in rows:
         spread = "-" if r["ate_min"] is None else f"{r['ate_min']:.4f}–{r['ate_max']:.4f}"
-        vals = ["" if r[SWEEP_KEYS[k]] is None else f"{r[SWEEP_KEYS[k]]:g}" for k in keys]
+        cols = [f"track_{k}" if k in TRACK_SWEEP_KEYS else SWEEP_KEYS[k] for k in keys]
+        vals = ["" if r[c] is None else f"{r[c]:g}" for c in cols]
         lost = "-" if r["lost_median"] is None else f"{int(r['lost_median'])}/{r['lost_max']}"
         body.append([r["condition"], *vals, _m(r["ate_rmse"]), spread, _m(r["rpe_trans_s"]),
                      _pct(r["precision"]), _pct(r["recall"]), _m(r["masking_ms"], 1), lost,
@@ -160,13 +162,12 @@ def plot_sweep(path: Path, plan: SweepPlan, sweeps: list[SequenceSweep]) -> None
 
 
 def _panel(ax, sw: SequenceSweep, key: str, points: list[SweepPoint]) -> None:
-    field = SWEEP_KEYS[key]
     xs, med, lo, hi, prec, rec = [], [], [], [], [], []
     for p in points:
         s = sw.results[p.label].summary()
         if s["ate_rmse"] is None:
             continue
-        xs.append(getattr(p.settings, field))
+        xs.append(key_value(p.settings, p.track, key))
         med.append(s["ate_rmse"])
         lo.append(s["ate_rmse"] - s["ate_min"])
         hi.append(s["ate_max"] - s["ate_rmse"])

@@ -109,7 +109,8 @@ def run_sweep(plan: SweepPlan, out: Path, say: Callable[[str], None]) -> list[Se
     """Everything after option parsing; returns one :class:`SequenceSweep` per sequence."""
     check_mode(plan.spec, plan.mode, plan.gt_instances)
     vocab_label = check_engine(plan.engine, plan.vocab)
-    points = sweep_points(plan.base, plan.spec, plan.how, ignore_conf=plan.gt_instances)
+    points = sweep_points(plan.base, plan.spec, plan.how, ignore_conf=plan.gt_instances,
+                          track=plan.track.settings)  # fmt: skip
     floor_conf = plan.track.floor(min(p.settings.conf for p in points))
     say(
         f"sweep: {len(points)} settings x {plan.runs if plan.engine == 'orbslam3' else 1} runs "
@@ -166,7 +167,8 @@ def _one_sequence(
     by_digest: dict[str, str] = {}
     for p in points:
         where = folder / "masks" / _slug(p.label)
-        sm = mask_with(cache, plan.mode, p.settings, where, plan.track)
+        stage = plan.track if p.track is None else TrackPlan(p.track, plan.track.segment_every)
+        sm = mask_with(cache, plan.mode, p.settings, where, stage)
         result.masks[p.label] = sm
         ms = cache.model_ms * sm.model_share + sm.logic_ms
         cond = Condition(p.label, "masked", masks=where, masking_ms=ms,
