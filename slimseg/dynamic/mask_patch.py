@@ -8,6 +8,7 @@ operation here (IoU, homography warp, dilation, depth gate, paste) costs the cro
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -21,8 +22,9 @@ class Patch:
     x0: int
     mask: np.ndarray
 
-    @property
+    @cached_property
     def area(self) -> int:
+        """Set pixels (computed once: a patch's mask is never modified in place)."""
         return int(self.mask.sum())
 
     @property
