@@ -52,7 +52,7 @@ def ladder(name: str) -> list[Rung]:
     if name == "track":
         return [
             Rung("per-frame", "fusion"),
-            Rung("tracks, no coast", "fusion", TrackPlan(NO_COAST)),
+            Rung("tracks no coast", "fusion", TrackPlan(NO_COAST)),
             *[
                 Rung(f"coast K={k}", "fusion", TrackPlan(COAST.with_values(max_coast=k)))
                 for k in (1, 3, 5)
