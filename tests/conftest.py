@@ -23,6 +23,29 @@ def randomize_batchnorm(model: nn.Module, seed: int = 0) -> nn.Module:
     return model
 
 
+def batchnorm_from(model: nn.Module, batch: torch.Tensor) -> nn.Module:
+    """BatchNorm statistics of one ``batch [B, 3, H, W]`` (0-1 floats): unit-variance
+    activations, so a randomly initialised network's outputs depend on the image (random init
+    alone gives near-constant activations: equal scores, empty masks). Returns it in eval."""
+    for m in model.modules():
+        if isinstance(m, nn.BatchNorm2d):
+            m.momentum = None
+            m.reset_running_stats()
+    model.train()
+    with torch.no_grad():
+        model(batch)
+    return model.eval()
+
+
+def open_class_bias(model: nn.Module) -> nn.Module:
+    """Zero the detect head's class-logit biases (the prior bias ~ -7 keeps every random-init
+    score under any threshold)."""
+    with torch.no_grad():
+        for branch in model.detect.cls:
+            branch[-1].bias.fill_(0.0)
+    return model
+
+
 @pytest.fixture(autouse=True)
 def _seed() -> None:
     torch.manual_seed(0)

@@ -10,6 +10,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
+from conftest import batchnorm_from
 from onnx import numpy_helper
 from torch import nn
 
@@ -34,15 +35,8 @@ def _calibrated(name: str) -> nn.Module:
     boxes spanning the DFL range) and depend on the image."""
     torch.manual_seed(0)
     model = build_model(name, num_classes=NC)
-    for m in model.modules():
-        if isinstance(m, nn.BatchNorm2d):
-            m.momentum = None
-            m.reset_running_stats()
     frames = np.concatenate([parity_inputs(IMGSZ, seed=s)[1] for s in range(10, 14)])
-    model.train()
-    with torch.no_grad():
-        model(torch.from_numpy(frames))
-    return model.eval()
+    return batchnorm_from(model, torch.from_numpy(frames))
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
+from conftest import batchnorm_from, open_class_bias
 
 import slimseg
 from slimseg.cli import predict as predict_cli
@@ -71,18 +72,9 @@ def files(tmp_path_factory):
     root = tmp_path_factory.mktemp("predict")
     torch.manual_seed(0)
     model = slimseg.build_model("yolov8n-seg", num_classes=len(NAMES))
-    for m in model.modules():
-        if isinstance(m, torch.nn.BatchNorm2d):
-            m.momentum = None
-            m.reset_running_stats()
     rng = np.random.default_rng(0)
     batch = torch.from_numpy(np.stack([_scene(rng, IMGSZ, IMGSZ) for _ in range(4)]))
-    model.train()
-    with torch.no_grad():
-        model(batch)
-        for branch in model.detect.cls:  # prior bias ~ -7: no score above conf otherwise
-            branch[-1].bias.fill_(0.0)
-    fused = model.eval().fuse()
+    fused = open_class_bias(batchnorm_from(model, batch)).fuse()
     info = WeightsInfo(fused.spec, NAMES, MOBILITY, train_config={"imgsz": IMGSZ})
     paths = {"pt": save_weights(root / "model.pt", fused, info)}
     paths["onnx"] = root / "model.onnx"

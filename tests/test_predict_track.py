@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from conftest import batchnorm_from, open_class_bias
 from PIL import Image
 
 import slimseg
@@ -213,18 +214,11 @@ def tiny_weights(tmp_path_factory) -> Path:
     random weights give scores above the threshold), fused, as ``.pt`` weights."""
     torch.manual_seed(0)
     model = slimseg.build_model("yolov8n-seg", num_classes=len(NAMES))
-    for m in model.modules():
-        if isinstance(m, torch.nn.BatchNorm2d):
-            m.momentum = None
-            m.reset_running_stats()
     batch = torch.from_numpy(np.stack(_frames(4))).permute(0, 3, 1, 2).float() / 255
-    model.train()
-    with torch.no_grad(), warnings.catch_warnings():
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model(torch.nn.functional.interpolate(batch, size=(64, 64)))
-        for branch in model.detect.cls:
-            branch[-1].bias.fill_(0.0)
-    fused = model.eval().fuse()
+        batchnorm_from(model, torch.nn.functional.interpolate(batch, size=(64, 64)))
+    fused = open_class_bias(model).fuse()
     info = WeightsInfo(fused.spec, NAMES, MOBILITY, train_config={"imgsz": 64})
     return save_weights(tmp_path_factory.mktemp("tiny") / "model.pt", fused, info)
 

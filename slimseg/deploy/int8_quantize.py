@@ -47,6 +47,8 @@ CALIB_METHODS = ("minmax", "percentile", "entropy")
 # window, the full range: the ranges of minmax (docs/int8.md).
 ENTROPY_BINS = 2048
 ENTROPY_QUANTIZED_BINS = 255
+# Operators each target's file quantizes (None: every one onnxruntime can).
+QUANTIZED_OPS: dict[str, list[str] | None] = {"tensorrt": ["Conv"], "onnxruntime": None}
 MIN_INT8_OPSET = 13  # per-channel QuantizeLinear/DequantizeLinear (axis attribute)
 # What each target's file holds (the ``int8.quantization`` metadata entry).
 QUANTIZATION = {
@@ -169,16 +171,14 @@ def quantize_onnx(
         dw = ORT_QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
         plan = plan_placement_ort(graph, family, dw)
         log.info("INT8 placement (onnxruntime): %s; ops %s", plan.summary(), plan.ops)
-        with _quiet_stdout():
-            cache = _entropy_cache(pre, reader, None) if method == "entropy" else None
-            _quantize_ort(pre, out_path, None if cache else reader, plan, calibrate_method, cache)
-        return plan
-    dw = QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
-    plan = plan_placement(graph, family, dw)
-    log.info("INT8 placement: %s", plan.summary())
+    else:
+        dw = QUANTIZE_DEPTHWISE if quantize_depthwise is None else quantize_depthwise
+        plan = plan_placement(graph, family, dw)
+        log.info("INT8 placement: %s", plan.summary())
     with _quiet_stdout():
-        cache = _entropy_cache(pre, reader, ["Conv"]) if method == "entropy" else None
-        _quantize_trt(pre, out_path, None if cache else reader, plan, calibrate_method, cache)
+        ops = QUANTIZED_OPS[target]
+        cache = _entropy_cache(pre, reader, ops) if method == "entropy" else None
+        _quantize(pre, out_path, None if cache else reader, plan, calibrate_method, cache, target)
     return plan
 
 
@@ -211,55 +211,39 @@ def _entropy_cache(pre: Path, reader, op_types: list[str] | None) -> Path:
     return cache
 
 
-def _quantize_trt(
-    pre: Path, out_path: Path, reader, plan: Placement, calibrate_method, cache: Path | None
+def _quantize(
+    pre: Path,
+    out_path: Path,
+    reader,
+    plan: Placement,
+    calibrate_method,
+    cache: Path | None,
+    target: str,
 ) -> None:
-    """TensorRT's form: symmetric int8 activations and weights, float biases, Conv only."""
+    """Q/DQ on every node of ``plan.quantize``, per-channel int8 symmetric weights, in each
+    target's form. ``tensorrt``: symmetric int8 activations, float biases, Conv only.
+    ``onnxruntime``: U8S8, uint8 asymmetric activations (both-sided percentile ranges too),
+    int32 biases, every operator. ``cache``: entropy ranges computed beforehand."""
     from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
 
+    if target == "onnxruntime":
+        activation = QuantType.QUInt8
+        options = {"ActivationSymmetric": False, "CalibTensorRangeSymmetric": False}
+    else:
+        activation = QuantType.QInt8
+        options = {"ActivationSymmetric": True, "QuantizeBias": False}
     cached = {"calibration_cache_path": str(cache)} if cache else {}
     quantize_static(
         str(pre),
         str(out_path),
         reader,
         quant_format=QuantFormat.QDQ,
-        op_types_to_quantize=["Conv"],
+        op_types_to_quantize=QUANTIZED_OPS[target],
         nodes_to_quantize=plan.quantize,
         per_channel=True,
-        activation_type=QuantType.QInt8,
+        activation_type=activation,
         weight_type=QuantType.QInt8,
         calibrate_method=calibrate_method,
-        extra_options={
-            "ActivationSymmetric": True,
-            "WeightSymmetric": True,
-            "QuantizeBias": False,
-        },
-        **cached,
-    )
-
-
-def _quantize_ort(
-    pre: Path, out_path: Path, reader, plan: Placement, calibrate_method, cache: Path | None
-) -> None:
-    """U8S8 QDQ: uint8 asymmetric activations (both-sided percentile ranges too), int8
-    symmetric per-channel weights, int32 biases, on every node of ``plan.quantize``."""
-    from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
-
-    cached = {"calibration_cache_path": str(cache)} if cache else {}
-    quantize_static(
-        str(pre),
-        str(out_path),
-        reader,
-        quant_format=QuantFormat.QDQ,
-        nodes_to_quantize=plan.quantize,
-        per_channel=True,
-        activation_type=QuantType.QUInt8,
-        weight_type=QuantType.QInt8,
-        calibrate_method=calibrate_method,
-        extra_options={
-            "ActivationSymmetric": False,
-            "WeightSymmetric": True,
-            "CalibTensorRangeSymmetric": False,
-        },
+        extra_options={**options, "WeightSymmetric": True},
         **cached,
     )

@@ -46,12 +46,10 @@ from tqdm import tqdm
 
 from slimseg.data.visualize import class_color
 from slimseg.deploy.predictor import Predictor
-from slimseg.detections import Prediction
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.masking_settings import DEFAULT
-from slimseg.dynamic.semantic import instances_of
-from slimseg.dynamic.track import SOURCE_COAST, SOURCE_DETECTION, FrameDets, TrackedFrame
-from slimseg.dynamic.track_run import TrackedSequence, TrackPlan
+from slimseg.dynamic.track import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
+from slimseg.dynamic.track_run import TrackedSequence, TrackPlan, frame_dets
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU
 from slimseg.utils.atomic import atomic_path, write_png, write_text
@@ -110,13 +108,6 @@ class TrackReport:
             f"(model {1000 * self.model_s / n:.1f} + track stage {1000 * self.track_s / n:.1f})"
             f" -> {', '.join(self.files) or 'nothing written'}"
         )
-
-
-def frame_dets(pred: Prediction, hw: tuple[int, int]) -> FrameDets:
-    """A prediction (instances, or a semantic class map's components) as the stage's input."""
-    boxes, classes, masks = instances_of(pred)
-    scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
-    return FrameDets(boxes, scores, classes, masks, hw)
 
 
 def track_predict(

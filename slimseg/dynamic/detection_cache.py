@@ -30,10 +30,9 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
 from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_modes
-from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
 from slimseg.dynamic.track import FrameDets
-from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan
+from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan, frame_dets
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
@@ -153,9 +152,8 @@ def build_cache(
         cache.calls += 1
         t1 = time.perf_counter()
         feats = orb_features(rgb, keypoints)
-        boxes, classes, masks = instances_of(pred)
-        scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
-        dets = CachedDetections.pack(boxes, scores, classes, masks, rgb.shape[:2])
+        d = frame_dets(pred, rgb.shape[:2])
+        dets = CachedDetections.pack(d.boxes, d.scores, d.classes, d.masks, d.hw)
         t2 = time.perf_counter()
         truth = None
         gt = cv2.imread(str(gt_dir / mask_name(stamp)), cv2.IMREAD_GRAYSCALE)

@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
 from slimseg.errors import SlimsegError
+from slimseg.utils.value_ranges import Range, describe_values, in_range
 
 # Frame width the dilation was chosen at (TUM / Bonn RGB-D frames are 640 x 480): a runtime on
 # other frame sizes scales it by max(h, w) / DILATION_REFERENCE_PX.
@@ -71,13 +72,11 @@ class MaskingSettings:
 
     def describe(self) -> str:
         """``slimseg preset (conf 0.1, dilation_px 5, ...)``, or ``custom (...)``."""
-        name = preset_name(self)
-        values = ", ".join(f"{k} {v:g}" for k, v in self.as_dict().items())
-        return f"{name + ' preset' if name else 'custom'} ({values})"
+        return describe_values(preset_name(self), self.as_dict())
 
 
 # field -> (lowest, highest, integer, what it is); bounds inclusive except those listed below
-RANGES: dict[str, tuple[float, float, bool, str]] = {
+RANGES: dict[str, Range] = {
     "conf": (0.0, 1.0, False, "detector score threshold, 0 <= conf < 1"),
     "dilation_px": (0, 200, True, "mask dilation in whole pixels, 0-200"),
     "min_static": (0, 100_000, True, "Eq. 1 static points, a whole number >= 0"),
@@ -92,12 +91,8 @@ OPEN_HIGH = ("conf",)
 
 def check_value(name: str, value: object) -> None:
     """Raise :class:`SettingsError` unless ``value`` is valid for field ``name``."""
-    lo, hi, integer, what = RANGES[name]
-    typed = isinstance(value, int) if integer else isinstance(value, int | float)
-    ok = typed and not isinstance(value, bool) and lo <= value <= hi
-    ok = ok and not (name in OPEN_LOW and value == lo) and not (name in OPEN_HIGH and value == hi)
-    if not ok:
-        raise SettingsError(f"masking setting {name} = {value!r}: expected {what}")
+    if not in_range(value, RANGES[name], name in OPEN_LOW, name in OPEN_HIGH):
+        raise SettingsError(f"masking setting {name} = {value!r}: expected {RANGES[name][3]}")
 
 
 PAPERS = MaskingSettings(

@@ -40,8 +40,8 @@ from slimseg.dynamic.pipeline import (
 )
 from slimseg.dynamic.recall_loss import RecallLoss
 from slimseg.dynamic.semantic import instances_of
-from slimseg.dynamic.track import FrameDets, TrackedFrame
-from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan
+from slimseg.dynamic.track import TrackedFrame
+from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan, frame_dets
 from slimseg.utils.atomic import write_png
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
@@ -145,7 +145,7 @@ def run_sequence(
             inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors,
                                  previous)  # fmt: skip
         else:
-            dets = None if pred is None else _frame_dets(pred, hw)
+            dets = None if pred is None else frame_dets(pred, hw)
             inputs, tracked = stage.inputs(feats, dets, conf, depth, previous)
             boxes, classes, masks = inputs.boxes, inputs.classes, inputs.masks
             report.coasted += int(tracked.coasted.sum())
@@ -217,13 +217,6 @@ def _instances(predictor: object, root: Path) -> AnnotationInstances:
     if isinstance(predictor, AnnotationInstances) and predictor.dropout is None:
         return predictor
     return AnnotationInstances(root)
-
-
-def _frame_dets(pred: object, hw: tuple[int, int]) -> FrameDets:
-    """A prediction (instances or a class map) as the track stage's detections."""
-    boxes, classes, masks = instances_of(pred)
-    scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
-    return FrameDets(boxes, scores, classes, masks, hw)
 
 
 def _coasted_only(

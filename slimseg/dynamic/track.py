@@ -176,12 +176,10 @@ class Tracker:
         boxes = np.asarray(dets.boxes, np.float64).reshape(-1, 4)
         scores = np.asarray(dets.scores, np.float64).reshape(-1)
         classes = np.asarray(dets.classes, int).reshape(-1)
-        patches = [
-            patch_from_mask(m, b) if dets.masks is not None else patch_from_box(b, hw)
-            for m, b in zip(
-                dets.masks if dets.masks is not None else [None] * len(boxes), boxes, strict=True
-            )
-        ]
+        if dets.masks is None:  # a box-only model: the filled box is the object
+            patches = [patch_from_box(b, hw) for b in boxes]
+        else:
+            patches = [patch_from_mask(m, b) for m, b in zip(dets.masks, boxes, strict=True)]
         for t in self.tracks:
             t.predicted = self._predict_patch(t, hw)
         movers = self.priors[classes] > self.mover_prior
@@ -197,7 +195,6 @@ class Tracker:
             used = {id(t) for _, t in pairs}
             free = [t for t in free if id(t) not in used]
         objs = []
-        movers = self.priors[classes] > self.mover_prior
         for d in range(len(boxes)):
             t = matched.get(d)
             if t is not None:

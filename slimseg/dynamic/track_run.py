@@ -15,9 +15,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from slimseg.detections import Prediction
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
+from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track import FrameDets, TrackedFrame, Tracker
 from slimseg.dynamic.track_settings import TrackSettings
 from slimseg.errors import SlimsegError
@@ -58,6 +60,14 @@ class TrackPlan:
             return "off (per-frame)"
         every = f", model on every {self.segment_every} frames" if self.segment_every > 1 else ""
         return f"{self.settings.describe()}{every}"
+
+
+def frame_dets(pred: Prediction, hw: tuple[int, int]) -> FrameDets:
+    """A prediction (its instances, or a semantic class map's components, each scoring 1) as
+    the track stage's detections of an ``hw`` frame."""
+    boxes, classes, masks = instances_of(pred)
+    scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
+    return FrameDets(boxes, scores, classes, masks, hw)
 
 
 class TrackedSequence:

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.value_ranges import Range, describe_values, in_range
 
 
 class TrackSettingsError(SlimsegError):
@@ -82,12 +83,11 @@ class TrackSettings:
     def describe(self) -> str:
         """``coast preset (high 0.25, ...)`` or ``custom (...)``."""
         name = next((k for k, v in TRACK_PRESETS.items() if v == self), None)
-        values = ", ".join(f"{k} {v:g}" for k, v in self.as_dict().items())
-        return f"{name + ' preset' if name else 'custom'} ({values})"
+        return describe_values(name, self.as_dict())
 
 
 # field -> (lowest, highest, integer, what it is), bounds inclusive
-TRACK_RANGES: dict[str, tuple[float, float, bool, str]] = {
+TRACK_RANGES: dict[str, Range] = {
     "high": (0.0, 1.0, False, "first-pass score threshold, 0-1"),
     "low": (0.0, 1.0, False, "second-pass score threshold, 0-1"),
     "new": (0.0, 1.0, False, "score that opens a track, 0-1"),
@@ -109,10 +109,10 @@ TRACK_RANGES: dict[str, tuple[float, float, bool, str]] = {
 
 def check_track_value(name: str, value: object) -> None:
     """Raise :class:`TrackSettingsError` unless ``value`` is valid for field ``name``."""
-    lo, hi, integer, what = TRACK_RANGES[name]
-    typed = isinstance(value, int) if integer else isinstance(value, int | float)
-    if not (typed and not isinstance(value, bool) and lo <= value <= hi):
-        raise TrackSettingsError(f"track setting {name} = {value!r}: expected {what}")
+    if not in_range(value, TRACK_RANGES[name]):
+        raise TrackSettingsError(
+            f"track setting {name} = {value!r}: expected {TRACK_RANGES[name][3]}"
+        )
 
 
 COAST = TrackSettings()
