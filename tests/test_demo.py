@@ -80,13 +80,13 @@ def test_missing_slam_extra_is_one_line_and_the_export_still_happens(
 
 @pytest.mark.slow
 def test_demo_with_the_slam_stage_small(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
-    """The whole `make demo` shrunk: 1 epoch at 64 px, then 30 frames at 320x240 tracked
-    twice per condition."""
+    """The whole `make demo` shrunk: 16 + 16 sequence-world frames at 320x240, 1 epoch at
+    64 px, then 30 frames at 320x240 tracked twice per condition."""
     pytest.importorskip("pyorbslam3", reason="the [slam] extra")
     pytest.importorskip("evo", reason="the [slam] extra")
     out = tmp_path / "demo"
-    argv = ["demo", "--out", str(out), "--epochs", "1", "--train-images", "8", "--val-images",
-            "4", "--imgsz", "64", "--quiet", "--slam-frames", "30", "--slam-size", "320", "240",
+    argv = ["demo", "--out", str(out), "--epochs", "1", "--seq-train", "1", "--seq-val", "1",
+            "--imgsz", "64", "--quiet", "--slam-frames", "30", "--slam-size", "320", "240",
             "--slam-runs", "2"]  # fmt: skip
     assert main(argv) == 0
     printed = capsys.readouterr().out

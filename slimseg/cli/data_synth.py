@@ -63,6 +63,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar=("W", "H"),
         help="sequence frame size (TUM: 640 480)",
     )
+    w = p.add_argument_group(
+        "training frames from the sequence world (640x480 rooms, people walking close to "
+        "the camera: what slimseg dynamic and slam-eval mask)"
+    )
+    w.add_argument(
+        "--seq-train",
+        type=int,
+        default=0,
+        metavar="N",
+        help="training worlds: short sequences, presets mixed, written under "
+        "train_sequences/ with annotations.json and listed as the train split's 'sequences' "
+        "(beside --train images, if any); their seeds never meet an evaluation sequence's",
+    )
+    w.add_argument("--seq-val", type=int, default=0, metavar="N", help="validation worlds")
+    w.add_argument(
+        "--seq-frames", type=int, default=96, help="frames each world spans at 30 Hz (default 96)"
+    )
+    w.add_argument(
+        "--seq-step",
+        type=int,
+        default=6,
+        help="write every N-th of them (default 6: 16 frames per world, 0.2 s apart)",
+    )
     p.add_argument(
         "--overwrite",
         action="store_true",
@@ -77,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     """Generate the dataset described by ``args``; print a one-line summary. Bad arguments
     raise ``SlimsegError``."""
     from slimseg.data.synth import generate
+    from slimseg.data.synth.world_frames import WorldSplits
 
     report = generate(
         args.out,
@@ -91,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         preset=args.preset,
         exposure_ms=args.exposure_ms,
+        worlds=WorldSplits(args.seq_train, args.seq_val, args.seq_frames, args.seq_step),
     )
     print(report.summary())
     return 0

@@ -13,6 +13,7 @@ from slimseg.data.config import load_data_config
 from slimseg.data.dataset import ZooDataset
 from slimseg.data.synth import generate
 from slimseg.data.synth.presets import PRESETS
+from slimseg.data.synth.world_frames import WorldSplits
 from slimseg.engine.config import load_train_config
 from slimseg.engine.preview import prediction_grid
 from slimseg.errors import SlimsegError
@@ -24,6 +25,9 @@ from slimseg.models.checkpoint import load_weights
 from slimseg.utils.atomic import write_json, write_png
 
 DEMO_RECIPE = "cpu-demo"  # slimseg/configs/train/cpu-demo.yaml
+#: The demo trains on the world it is judged on: 32 + 8 short sequences of the sequence
+#: renderer, every 6th of 96 frames (512 + 128 frames at 640x480; docs/slam_defaults.md).
+DEMO_WORLDS = WorldSplits(train=32, val=8, frames=96, step=6)
 SLAM_SEED_OFFSET = 1  # the sequence's seed is --seed + 1: not the training images' seed
 
 
@@ -45,8 +49,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", default="yolov8n-seg-gs-rep")
     p.add_argument("--epochs", type=int, default=None, help="default: the cpu-demo recipe's")
     p.add_argument("--imgsz", type=int, default=320)
-    p.add_argument("--train-images", type=int, default=512)
-    p.add_argument("--val-images", type=int, default=128)
+    p.add_argument(
+        "--seq-train",
+        type=int,
+        default=DEMO_WORLDS.train,
+        help=f"training worlds of the sequence world (default {DEMO_WORLDS.train}: "
+        f"{DEMO_WORLDS.train * DEMO_WORLDS.per_world} frames at 640x480, presets mixed, "
+        "seeds no evaluation sequence uses)",
+    )
+    p.add_argument(
+        "--seq-val",
+        type=int,
+        default=DEMO_WORLDS.val,
+        help=f"validation worlds (default {DEMO_WORLDS.val})",
+    )
+    p.add_argument(
+        "--train-images",
+        type=int,
+        default=0,
+        help="still images (square collages) mixed into training (default 0)",
+    )
+    p.add_argument("--val-images", type=int, default=0, help="still images mixed into val")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     g = p.add_argument_group("SLAM stage (export/, slam/, slam.png)")
@@ -99,14 +122,26 @@ def run(args: argparse.Namespace) -> int:
     if data_yaml.is_file():
         print(f"[1/{n}] reusing the synthetic dataset in {data_yaml.parent}")
     else:
-        print(f"[1/{n}] generating {args.train_images}+{args.val_images} synthetic images")
+        worlds = WorldSplits(args.seq_train, args.seq_val, DEMO_WORLDS.frames, DEMO_WORLDS.step)
+        frames = (worlds.train + worlds.val) * worlds.per_world
+        print(
+            f"[1/{n}] rendering {frames} training and validation frames from "
+            f"{worlds.train}+{worlds.val} synthetic sequences"
+            + (
+                f" and {args.train_images}+{args.val_images} still images"
+                if args.train_images
+                else ""
+            )
+        )
         report = generate(
             out / "data",
             args.train_images,
             args.val_images,
             args.imgsz,
             args.seed,
+            seq_size=tuple(args.slam_size),  # the frames the SLAM stage will mask
             progress=not args.quiet,
+            worlds=worlds,
         )
         print(report.summary())
     cfg = load_train_config(DEMO_RECIPE).override(

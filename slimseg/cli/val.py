@@ -196,7 +196,7 @@ def _run_ceiling(args: argparse.Namespace) -> int:
     if args.ceiling < 1:
         raise SlimsegError(f"--ceiling {args.ceiling}: the grid ratio must be >= 1 (e.g. 4)")
     base = CocoDataset.from_config(load_data_config(args.data), args.split)
-    gt = load_gt(base.annotations_json)
+    gt = load_gt(base.ground_truth)
     image_ids = [rec.id for rec in base.records]
     dets = ceiling_detections(gt, args.ceiling, image_ids)
     quality = mask_quality(gt, dets, image_ids=image_ids, cat_ids=base.cat_ids)

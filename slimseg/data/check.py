@@ -30,6 +30,7 @@ from slimseg.data.coco_rle import instance_area
 from slimseg.data.config import DataConfig, load_data_config
 from slimseg.data.images import depth_path_for, read_depth, read_image_rgb8
 from slimseg.data.problems import ERROR, INFO, KINDS, WARNING, ImageProblem, LoadReport, kind_level
+from slimseg.data.sequence_split import merge_split
 from slimseg.errors import SlimsegError
 from slimseg.utils.table import format_table
 
@@ -140,8 +141,10 @@ class CheckReport:
 
 def _targets(
     source: DataConfig | str | Path, images: str | Path | None, split: str | None
-) -> tuple[Path, list[tuple[str, Path, Path, Path | None]], tuple[str, ...] | None]:
-    """(source path, [(split name, images dir, json, depth dir)], names) of a check input."""
+) -> tuple[Path, list[tuple[str, Path, Path, Path | None, dict | None]], tuple[str, ...] | None]:
+    """(source path, [(split name, images dir, json, depth dir, merged json)], names) of a
+    check input; the merged json (else None) of a split read from sequences, whose ``json``
+    is then the yaml."""
     if isinstance(source, DataConfig) or Path(source).suffix.lower() in (".yaml", ".yml"):
         cfg = source if isinstance(source, DataConfig) else load_data_config(source)
         wanted = [split] if split else [s for s in ("train", "val") if getattr(cfg, s)]
@@ -153,7 +156,11 @@ def _targets(
         out = []
         for name in wanted:
             s = cfg.split(name)
-            out.append((name, s.images, s.annotations, s.depth))
+            if s.sequences:  # one merged json over the split's parts (data.sequence_split)
+                root, data = merge_split(s.parts, f"{cfg.source}: '{name}'")
+                out.append((name, root, cfg.source, None, data))
+            else:
+                out.append((name, s.images, s.annotations, s.depth, None))
         return cfg.source, out, cfg.names
     path = Path(source).expanduser()
     if path.is_dir():
@@ -168,7 +175,7 @@ def _targets(
         img_dir = Path(images).expanduser()
     if not img_dir.is_dir():
         raise SlimsegError(f"{img_dir}: images folder not found (pass --images DIR)")
-    return path, [("dataset", img_dir, ann, None)], None
+    return path, [("dataset", img_dir, ann, None, None)], None
 
 
 def _check_image(
@@ -204,9 +211,10 @@ def _check_split(
     names: tuple[str, ...] | None,
     workers: int,
     progress: bool,
+    merged: dict | None = None,
 ) -> SplitCheck:
     report = LoadReport(max_examples=None)
-    data = load_coco_json(ann)
+    data = load_coco_json(ann) if merged is None else merged
     try:
         index: CocoIndex = build_index(data, names, report, ann)
     except SlimsegError as exc:
@@ -239,6 +247,8 @@ def check_dataset(
     """
     src, targets, names = _targets(source, images, split)
     report = CheckReport(src)
-    for name, img_dir, ann, depth in targets:
-        report.splits.append(_check_split(name, img_dir, ann, depth, names, workers, progress))
+    for name, img_dir, ann, depth, merged in targets:
+        report.splits.append(
+            _check_split(name, img_dir, ann, depth, names, workers, progress, merged)
+        )
     return report

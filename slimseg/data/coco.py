@@ -50,6 +50,7 @@ from slimseg.data.coco_rle import decode_instance_masks
 from slimseg.data.images import depth_path_for, read_depth, read_image_rgb8
 from slimseg.data.problems import ImageProblem, LoadReport
 from slimseg.data.sample import Sample
+from slimseg.data.sequence_split import merge_split
 from slimseg.errors import SlimsegError
 
 if TYPE_CHECKING:
@@ -83,6 +84,7 @@ class CocoDataset:
         annotations_json: str | Path,
         names: Sequence[str] | None = None,
         depth_dir: str | Path | None = None,
+        data: dict | None = None,
     ) -> None:
         self.images_dir = Path(images_dir)
         self.annotations_json = Path(annotations_json)
@@ -92,7 +94,9 @@ class CocoDataset:
         if self.depth_dir is not None and not self.depth_dir.is_dir():
             raise SlimsegError(f"{self.depth_dir}: depth folder not found")
         self.report = LoadReport()
-        data = load_coco_json(self.annotations_json)
+        self._data = data  # kept only when given (a merged split has no json file)
+        if data is None:
+            data = load_coco_json(self.annotations_json)
         index = build_index(data, names, self.report, self.annotations_json)
         self.records = index.images
         self.names = index.names
@@ -101,10 +105,27 @@ class CocoDataset:
         self._reported: set[int] = set()
 
     @classmethod
-    def from_config(cls, config: DataConfig, split: str = "train") -> CocoDataset:
-        """The ``split`` (``"train"``/``"val"``) of a :class:`~slimseg.data.config.DataConfig`."""
+    def from_config(
+        cls, config: DataConfig, split: str = "train", depth: bool = True
+    ) -> CocoDataset:
+        """The ``split`` (``"train"``/``"val"``) of a :class:`~slimseg.data.config.DataConfig`.
+
+        A split that names sequences is merged into one json
+        (:func:`~slimseg.data.sequence_split.merge_split`; ``annotations_json`` is then the
+        yaml, ``images_dir`` the parts' common folder). ``depth=False`` skips the depth maps
+        (training does not read them)."""
         s = config.split(split)
-        return cls(s.images, s.annotations, names=config.names, depth_dir=s.depth)
+        depth_dir = s.depth if depth else None
+        if not s.sequences:
+            return cls(s.images, s.annotations, names=config.names, depth_dir=depth_dir)
+        root, data = merge_split(s.parts, f"{config.source}: '{split}'")
+        return cls(root, config.source, names=config.names, data=data)
+
+    @property
+    def ground_truth(self) -> Path | dict:
+        """The COCO ground truth for evaluation: the json path, or the merged dict of a
+        split read from sequences."""
+        return self.annotations_json if self._data is None else self._data
 
     @property
     def num_classes(self) -> int:

@@ -8,6 +8,10 @@ Schema::
       images: DIR         # folder that file_name in the json is relative to
       annotations: FILE   # COCO instances json
       depth: DIR          # optional: uint16 PNG depth per image, same relative path, .png
+      sequences: [DIR, ...]  # optional: annotated TUM-layout sequences (annotations.json
+                          # beside rgb/), alone or besides images/annotations
+                          # (slimseg.data.sequence_split)
+      stride: N           # optional, with sequences: every N-th frame of each (default 1)
     val:                  # optional if train is given; same keys as train
       images: DIR
       annotations: FILE
@@ -37,23 +41,43 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from slimseg.data.sequence_split import SEQUENCE_ANNOTATIONS, SplitPart
 from slimseg.errors import SlimsegError
 from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
 _TOP_KEYS = {"path", "train", "val", "names", "mobility", "sequences"}
-_SPLIT_KEYS = {"images", "annotations", "depth"}
+_SPLIT_KEYS = {"images", "annotations", "depth", "sequences", "stride"}
 SPLITS = ("train", "val")
 TUM_LISTS = ("rgb.txt", "depth.txt")  # what makes a folder a TUM-layout sequence
 
 
 @dataclass(frozen=True)
 class SplitConfig:
-    """One split: images folder, COCO json, optional depth folder (all absolute paths)."""
+    """One split (absolute paths): an images folder with its COCO json (and optional depth
+    folder), annotated sequence folders taken every ``stride``-th frame, or both. At least one
+    of ``images`` (with ``annotations``) and ``sequences`` is set."""
 
-    images: Path
-    annotations: Path
+    images: Path | None = None
+    annotations: Path | None = None
     depth: Path | None = None
+    sequences: tuple[Path, ...] = ()
+    stride: int = 1
+
+    @property
+    def parts(self) -> list[SplitPart]:
+        """The split's sources for :func:`~slimseg.data.sequence_split.merge_split`."""
+        out = []
+        if self.images is not None and self.annotations is not None:
+            out.append(SplitPart(self.images, self.annotations))
+        out += [SplitPart(f, f / SEQUENCE_ANNOTATIONS, self.stride) for f in self.sequences]
+        return out
+
+    @property
+    def reference_json(self) -> Path:
+        """The json whose categories give default names: the split's own, else its first
+        sequence's."""
+        return self.annotations if self.annotations is not None else self.parts[0].annotations
 
 
 @dataclass(frozen=True)
@@ -106,56 +130,83 @@ def _resolve(base: Path, value: Any, src: Path, field: str) -> Path:
 
 def _split(raw: Any, root: Path, src: Path, name: str) -> SplitConfig:
     if not isinstance(raw, Mapping):
-        raise _err(src, name, "expected a mapping with 'images' and 'annotations'")
+        raise _err(src, name, "expected a mapping with 'images' and 'annotations' or 'sequences'")
     unknown = set(raw) - _SPLIT_KEYS
     if unknown:
         raise _err(src, name, f"unknown keys {sorted(unknown)} (allowed: {sorted(_SPLIT_KEYS)})")
-    for key in ("images", "annotations"):
-        if key not in raw:
-            raise _err(src, f"{name}.{key}", "missing")
-    images = _resolve(root, raw["images"], src, f"{name}.images")
-    if not images.is_dir():
-        raise _err(src, f"{name}.images", f"folder {images} not found")
-    ann = _resolve(root, raw["annotations"], src, f"{name}.annotations")
-    if not ann.is_file():
-        raise _err(src, f"{name}.annotations", f"file {ann} not found")
-    depth = None
+    has_seq = raw.get("sequences") is not None
+    images = ann = depth = None
+    if not has_seq or "images" in raw or "annotations" in raw:
+        for key in ("images", "annotations"):
+            if key not in raw:
+                hint = "" if has_seq else " (or name annotated TUM sequences with 'sequences')"
+                raise _err(src, f"{name}.{key}", f"missing{hint}")
+        images = _resolve(root, raw["images"], src, f"{name}.images")
+        if not images.is_dir():
+            raise _err(src, f"{name}.images", f"folder {images} not found")
+        ann = _resolve(root, raw["annotations"], src, f"{name}.annotations")
+        if not ann.is_file():
+            raise _err(src, f"{name}.annotations", f"file {ann} not found")
     if raw.get("depth") is not None:
+        if images is None or has_seq:
+            raise _err(
+                src, f"{name}.depth", "goes with an images-only split (sequences keep their own)"
+            )
         depth = _resolve(root, raw["depth"], src, f"{name}.depth")
         if not depth.is_dir():
             raise _err(src, f"{name}.depth", f"folder {depth} not found")
-    return SplitConfig(images, ann, depth)
+    stride = raw.get("stride", 1)
+    if "stride" in raw and not has_seq:
+        raise _err(src, f"{name}.stride", "applies to 'sequences' only")
+    if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+        raise _err(src, f"{name}.stride", f"expected a whole number of frames >= 1, got {stride!r}")
+    sequences: tuple[Path, ...] = ()
+    if has_seq:
+        folders = _sequences(raw["sequences"], root, src, f"{name}.sequences", lists=False)
+        for fld, folder in folders.items():
+            if not (folder / SEQUENCE_ANNOTATIONS).is_file():
+                raise _err(
+                    src,
+                    fld,
+                    f"{folder} has no {SEQUENCE_ANNOTATIONS} (the COCO instances of its frames, "
+                    "file_name relative to the folder; 'slimseg data synth --sequences' writes "
+                    "one, a labelling tool's COCO export gives one)",
+                )
+        sequences = tuple(folders.values())
+    return SplitConfig(images, ann, depth, sequences, stride)
 
 
-def _sequences(raw: Any, root: Path, src: Path) -> dict[str, Path]:
-    """``sequences``: a list of folders (named by folder name) or ``{name: folder}``; every
-    folder must exist and hold the TUM lists."""
+def _sequences(
+    raw: Any, root: Path, src: Path, key: str = "sequences", lists: bool = True
+) -> dict[str, Path]:
+    """``sequences`` (or a split's ``key``): a list of folders (named by folder name) or
+    ``{name: folder}``; every folder must exist and, with ``lists``, hold the TUM lists.
+    A split's sequences (``lists=False``) are returned by field (``train.sequences[0]``), so
+    two folders of one name may both train."""
     items: list[tuple[str, Path, str]] = []  # (name, folder, field)
     if isinstance(raw, list) and raw:
         for i, v in enumerate(raw):
-            folder = _resolve(root, v, src, f"sequences[{i}]")
-            items.append((folder.name, folder, f"sequences[{i}]"))
+            folder = _resolve(root, v, src, f"{key}[{i}]")
+            items.append((folder.name, folder, f"{key}[{i}]"))
     elif isinstance(raw, Mapping) and raw:
         for k, v in raw.items():
             if not isinstance(k, str) or not k.strip():
-                raise _err(src, "sequences", f"sequence names must be non-empty strings, got {k!r}")
-            items.append((k, _resolve(root, v, src, f"sequences.{k}"), f"sequences.{k}"))
+                raise _err(src, key, f"sequence names must be non-empty strings, got {k!r}")
+            items.append((k, _resolve(root, v, src, f"{key}.{k}"), f"{key}.{k}"))
     else:
-        raise _err(
-            src, "sequences", "expected a non-empty list of sequence folders or {name: folder}"
-        )
+        raise _err(src, key, "expected a non-empty list of sequence folders or {name: folder}")
     out: dict[str, Path] = {}
     for name, folder, fld in items:
-        if name in out:
+        if lists and name in out:
             raise _err(
                 src, fld, f"a second sequence named '{name}'; use a mapping {{name: folder}}"
             )
         if not folder.is_dir():
             raise _err(src, fld, f"folder {folder} not found")
         missing = [f for f in TUM_LISTS if not (folder / f).is_file()]
-        if missing:
+        if lists and missing:
             raise _err(src, fld, f"{folder} is not a TUM-layout sequence (no {', '.join(missing)})")
-        out[name] = folder
+        out[name if lists else fld] = folder
     return out
 
 
@@ -202,7 +253,7 @@ def load_data_config(path: str | Path) -> DataConfig:
     if not splits and not sequences:
         raise SlimsegError(f"{src}: needs a 'train' and/or 'val' split (or 'sequences')")
     ref_split = "val" if "val" in splits else "train"
-    ref_json = splits[ref_split].annotations if splits else None
+    ref_json = splits[ref_split].reference_json if splits else None
 
     cats: list[dict] | None = None
     names_raw = raw.get("names")

@@ -88,8 +88,7 @@ class SegDataModule(L.LightningDataModule):
 
     def _base(self, split: str) -> CocoDataset:
         # depth maps are not a training target: skip reading them (40% of the decode time)
-        s = self.data.split(split)
-        return CocoDataset(s.images, s.annotations, names=self.data.names)
+        return CocoDataset.from_config(self.data, split, depth=False)
 
     def setup(self, stage: str | None = None) -> None:
         if stage in (None, "fit") and self.train_set is None:

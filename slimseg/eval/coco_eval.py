@@ -152,7 +152,7 @@ class CocoEvaluator:
         cls, dataset: CocoDataset, iou_types: Sequence[str] = IOU_TYPES
     ) -> CocoEvaluator:
         """An evaluator for a :class:`~slimseg.data.coco.CocoDataset`'s json and classes."""
-        return cls(dataset.annotations_json, dataset.cat_ids, iou_types, dataset.names)
+        return cls(dataset.ground_truth, dataset.cat_ids, iou_types, dataset.names)
 
     def reset(self) -> None:
         """Forget every update (start a new evaluation)."""

@@ -15,10 +15,17 @@ from slimseg.data.synth.presets import PRESETS, default_exposure_ms
 from slimseg.data.synth.scene import STREAM_TRAIN, STREAM_VAL, render_image
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.data.synth.world import FPS
+from slimseg.data.synth.world_frames import (
+    FOLDER,
+    MAX_EVAL_SEQUENCES,
+    NO_WORLDS,
+    WorldSplits,
+    write_world_split,
+)
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png, write_text
 
-_OWNED = ("train", "val", "sequences", "data.yaml")  # what --overwrite may delete
+_OWNED = ("train", "val", "sequences", *FOLDER.values(), "data.yaml")  # what --overwrite may delete
 
 
 @dataclass
@@ -32,6 +39,8 @@ class SynthReport:
     sequences: int = 0
     frames: int = 0
     sequence_instances: int = 0
+    world_frames: dict[str, int] = field(default_factory=dict)
+    world_instances: int = 0
     seconds: float = 0.0
 
     def summary(self) -> str:
@@ -41,6 +50,9 @@ class SynthReport:
             imgs = " + ".join(f"{n} {s}" for s, n in self.images.items())
             per_class = ", ".join(f"{name} {self.instances.get(name, 0)}" for name in NAMES)
             parts.append(f"{imgs} images (instances: {per_class})")
+        if self.world_frames:
+            frames = " + ".join(f"{n} {s}" for s, n in self.world_frames.items())
+            parts.append(f"{frames} sequence-world frames ({self.world_instances} instances)")
         if self.sequences:
             plural = "s" if self.sequences != 1 else ""
             parts.append(
@@ -61,17 +73,21 @@ def _check(
     seq_size: tuple[int, int],
     overwrite: bool,
     exposure_ms: float | None,
+    worlds: WorldSplits,
 ) -> None:
+    worlds.check()
     if train < 0 or val < 0 or (train == 0) != (val == 0):
         raise SlimsegError(
             f"--train {train} / --val {val}: give both splits at least 1 image, or both 0 "
             "with --sequences N (a sequences-only dataset)"
         )
-    if train == val == sequences == 0:
+    if train == val == sequences == worlds.train == 0:
         raise SlimsegError(
-            "--train 0 --val 0 --sequences 0: nothing to generate; give --train N --val N "
-            "and/or --sequences N"
+            "--train 0 --val 0 --sequences 0: nothing to generate; give --train N --val N, "
+            "--seq-train N --seq-val N and/or --sequences N"
         )
+    if sequences >= MAX_EVAL_SEQUENCES:
+        raise SlimsegError(f"--sequences {sequences}: at most {MAX_EVAL_SEQUENCES - 1}")
     if seed < 0:
         raise SlimsegError(f"--seed {seed} must be 0 or more")
     if imgsz < 64 or imgsz % 32:
@@ -107,6 +123,7 @@ def generate(
     progress: bool = True,
     preset: str | None = None,
     exposure_ms: float | None = None,
+    worlds: WorldSplits = NO_WORLDS,
 ) -> SynthReport:
     """Render and write the dataset into ``out``; returns a :class:`SynthReport`.
 
@@ -117,13 +134,18 @@ def generate(
     (``train/``, ``val/``, ``sequences/``, ``data.yaml``). ``preset``: the sequences' camera
     path and walkers (:mod:`slimseg.data.synth.presets`); ``exposure_ms``: the sequences'
     motion-blur shutter time (None: the preset's default; 0: none). ``train = val = 0`` with
-    sequences writes a sequences-only dataset (no image splits in data.yaml). Raises
-    ``SlimsegError`` on bad input.
+    sequences writes a sequences-only dataset (no image splits in data.yaml). ``worlds``:
+    training/validation frames rendered from the sequence world
+    (:mod:`slimseg.data.synth.world_frames`, ``out/{train,val}_sequences/``), the splits'
+    ``sequences`` in data.yaml, alone or beside the still images. Raises ``SlimsegError`` on
+    bad input.
     """
     out = Path(out)
     if preset is not None and preset not in PRESETS:
         raise SlimsegError(f"--preset {preset!r}: valid presets are {sorted(PRESETS)}")
-    _check(out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite, exposure_ms)
+    _check(
+        out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite, exposure_ms, worlds
+    )
     start = time.perf_counter()
     if overwrite and out.is_dir():
         for name in _OWNED:
@@ -134,12 +156,18 @@ def generate(
                 p.unlink()
     out.mkdir(parents=True, exist_ok=True)
     report = SynthReport(data_yaml=out / "data.yaml", sequences=sequences, frames=frames)
-    total = train + val + sequences * frames
+    total = train + val + sequences * frames + (worlds.train + worlds.val) * worlds.per_world
+    world_folders: dict[str, list[str]] = {}
     with tqdm(total=total, desc="synth", unit="img", disable=not progress) as bar:
         for split, n, stream in (("train", train, STREAM_TRAIN), ("val", val, STREAM_VAL)):
             if n:
                 _write_split(out / split, n, imgsz, seed, stream, report, bar)
                 report.images[split] = n
+            if worlds.train:
+                names, inst = write_world_split(out, split, worlds, seed, seq_size, bar.update)
+                world_folders[split] = names
+                report.world_frames[split] = len(names) * worlds.per_world
+                report.world_instances += inst
         for s in range(sequences):
             counts = write_sequence(
                 out / "sequences" / f"seq_{s:03d}",
@@ -153,9 +181,18 @@ def generate(
             )
             report.sequence_instances += counts["instances"]
     command = synth_command(
-        train, val, imgsz, seed, sequences, frames, seq_size, preset, exposure_ms=exposure_ms
+        train,
+        val,
+        imgsz,
+        seed,
+        sequences,
+        frames,
+        seq_size,
+        preset,
+        exposure_ms=exposure_ms,
+        worlds=worlds,
     )
-    _write_data_yaml(out, command, train > 0, sequences)
+    _write_data_yaml(out, command, train > 0, sequences, world_folders)
     report.seconds = time.perf_counter() - start
     return report
 
@@ -196,15 +233,20 @@ def synth_command(
     preset: str | None = None,
     out: str = "<dir>",
     exposure_ms: float | None = None,
+    worlds: WorldSplits = NO_WORLDS,
 ) -> str:
     """The ``slimseg data synth`` command that writes exactly this dataset into ``out``: every
     option that changes a file (sequence options only with sequences; ``--exposure-ms`` only
     when it is not the preset's default), none that does not (``--overwrite``, ``--quiet``)."""
     parts = [f"slimseg data synth --out {out} --train {train} --val {val}"]
     parts.append(f"--imgsz {imgsz} --seed {seed}")
+    if worlds.train:
+        parts.append(f"--seq-train {worlds.train} --seq-val {worlds.val}")
+        parts.append(f"--seq-frames {worlds.frames} --seq-step {worlds.step}")
+    if sequences or worlds.train:
+        parts.append(f"--seq-size {seq_size[0]} {seq_size[1]}")
     if sequences:
         parts.append(f"--sequences {sequences} --frames {frames}")
-        parts.append(f"--seq-size {seq_size[0]} {seq_size[1]}")
         if preset is not None:
             parts.append(f"--preset {preset}")
         if exposure_ms is not None and exposure_ms != default_exposure_ms(preset):
@@ -215,19 +257,27 @@ def synth_command(
     return " ".join(parts)
 
 
-def _write_data_yaml(out: Path, command: str, images: bool, sequences: int) -> None:
-    """``data.yaml``: the image splits when there are images (a sequences-only set has none:
-    ``slimseg train`` then says so), names and mobility always, the sequence folders."""
+def _write_data_yaml(
+    out: Path, command: str, images: bool, sequences: int, worlds: dict[str, list[str]]
+) -> None:
+    """``data.yaml``: the splits when there are images or sequence-world frames (a
+    sequences-only set has none: ``slimseg train`` then says so), names and mobility always,
+    the sequence folders. A split with both lists its worlds beside the images (and no depth
+    folder: depth goes with an images-only split)."""
     lines = [
         "# slimseg synthetic dataset; to regenerate it (<dir>: this folder):",
         f"# {command}",
         "path: .",
     ]
-    for split in ("train", "val") if images else ():
-        lines.append(
-            f"{split}: {{images: {split}/images, annotations: {split}/annotations.json, "
-            f"depth: {split}/depth}}"
-        )
+    for split in ("train", "val") if images or worlds else ():
+        keys = []
+        if images:
+            keys.append(f"images: {split}/images, annotations: {split}/annotations.json")
+            if not worlds:
+                keys.append(f"depth: {split}/depth")
+        if worlds:
+            keys.append("sequences: " + _yaml_list(worlds[split]))
+        lines.append(f"{split}: {{{', '.join(keys)}}}")
     lines.append("names: " + _yaml_list([f"'{n}'" if " " in n else n for n in NAMES]))
     lines.append("mobility: " + _yaml_list(list(MOBILITY)))
     if sequences:

@@ -94,15 +94,22 @@ def placements_at(world: World, pose: Pose, t: float) -> list[Placement]:
     return out
 
 
-def render_sequence_frame(world: World, i: int) -> SequenceFrame:
-    """Render frame ``i`` of ``world`` with its dynamic mask and static background."""
+def render_sequence_frame(world: World, i: int, background: bool = True) -> SequenceFrame:
+    """Render frame ``i`` of ``world`` with its dynamic mask and static background.
+
+    ``background=False`` (training frames): the static background is composed only where
+    motion blur needs it; otherwise ``background_rgb``/``background_depth`` are the frame's
+    own (not the scene without walkers). ``frame`` is identical either way."""
     pose = world.pose(i)
     k = world.k
     room_rgb, room_depth = render_room(k, pose, world.room)
     placements = placements_at(world, pose, i / FPS)
     rgb, depth_m, labels = compose(room_rgb, room_depth, placements)
-    static = [p for p in placements if not p.moving]
-    bg_rgb, bg_depth_m, _ = compose(room_rgb, room_depth, static)
+    if background or world.exposure > 0:
+        static = [p for p in placements if not p.moving]
+        bg_rgb, bg_depth_m, _ = compose(room_rgb, room_depth, static)
+    else:
+        bg_rgb, bg_depth_m = rgb, depth_m
     moving_ids = [j + 1 for j, p in enumerate(placements) if p.moving]
     dynamic = np.isin(labels, moving_ids)
 
@@ -169,30 +176,37 @@ def write_sequence(
     on_frame: Callable[[], None] | None = None,
     preset: str | None = None,
     exposure_ms: float | None = None,
+    step: int = 1,
 ) -> dict[str, int]:
     """Render and write sequence ``index`` into ``folder`` (TUM layout, see module doc).
 
-    Returns counts: ``frames``, ``instances`` and per-category annotation counts.
+    Returns counts: ``frames`` (written), ``instances`` and per-category annotation counts.
     ``on_frame`` is called after each frame (progress bars). ``preset``: see
     :mod:`slimseg.data.synth.presets` (None: the default sequences); ``exposure_ms``: motion
-    blur's shutter time (None: the preset's default, 0: no blur).
+    blur's shutter time (None: the preset's default, 0: no blur). ``step > 1`` writes
+    training frames: every ``step``-th of the ``frames`` (true timestamps, so a 30 / step Hz
+    sequence), without ``dynamic/`` and ``background/`` (nothing trains on them).
     """
     world = build_world(seed, index, frames, *size, preset=preset, exposure_ms=exposure_ms)
     k = world.k
-    for sub in ("rgb", "depth", "dynamic", "background/rgb", "background/depth"):
+    extras = step == 1
+    subs = ("rgb", "depth", "dynamic", "background/rgb", "background/depth")
+    for sub in subs if extras else subs[:2]:
         (folder / sub).mkdir(parents=True, exist_ok=True)
     name = f"slimseg_synth_{preset or 'seq'}_{index:03d}"
     coco = CocoBuilder(f"slimseg synthetic RGB-D sequence {index} (seed {seed})")
     rgb_lines, depth_lines, gt_lines = [], [], []
-    counts: dict[str, int] = {"frames": frames}
-    for i in range(frames):
-        sf = render_sequence_frame(world, i)
+    kept = range(0, frames, step)
+    counts: dict[str, int] = {"frames": len(kept)}
+    for i in kept:
+        sf = render_sequence_frame(world, i, background=extras)
         ts, tsd = timestamp(i), timestamp(i, DEPTH_OFFSET_US)
         write_png(folder / "rgb" / f"{ts}.png", sf.frame.rgb)
         write_png(folder / "depth" / f"{tsd}.png", sf.frame.depth)
-        write_png(folder / "dynamic" / f"{ts}.png", sf.dynamic)
-        write_png(folder / "background" / "rgb" / f"{ts}.png", sf.background_rgb)
-        write_png(folder / "background" / "depth" / f"{tsd}.png", sf.background_depth)
+        if extras:
+            write_png(folder / "dynamic" / f"{ts}.png", sf.dynamic)
+            write_png(folder / "background" / "rgb" / f"{ts}.png", sf.background_rgb)
+            write_png(folder / "background" / "depth" / f"{tsd}.png", sf.background_depth)
         rgb_lines.append(f"{ts} rgb/{ts}.png\n")
         depth_lines.append(f"{tsd} depth/{tsd}.png\n")
         p, q = sf.pose, sf.pose.quaternion()
