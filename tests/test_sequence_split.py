@@ -31,8 +31,8 @@ def worlds(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _write_yaml(path: Path, **fields: object) -> Path:
-    base = {"path": ".", "names": ["person", "dog", "sports ball", "bottle", "chair", "tv"]}
+def _write_yaml(path: Path, root: Path, **fields: object) -> Path:
+    base = {"path": str(root), "names": ["person", "dog", "sports ball", "bottle", "chair", "tv"]}
     path.write_text(yaml.safe_dump(base | fields))
     return path
 
@@ -65,7 +65,9 @@ def test_world_seeds_never_meet_an_evaluation_sequence(tmp_path: Path) -> None:
     assert not np.array_equal(fa, fb)
 
 
-def test_merged_split_reads_every_stride_th_frame_with_unique_ids(worlds: Path) -> None:
+def test_merged_split_reads_every_stride_th_frame_with_unique_ids(
+    worlds: Path, tmp_path: Path
+) -> None:
     cfg = load_data_config(worlds / "data.yaml")
     train = CocoDataset.from_config(cfg, "train")
     assert len(train) == 6 and train.images_dir == (worlds / "train_sequences").resolve()
@@ -76,7 +78,7 @@ def test_merged_split_reads_every_stride_th_frame_with_unique_ids(worlds: Path) 
     assert sample.image.shape == (120, 160, 3) and len(sample.classes) > 0
     # stride 2 on top: frames 0 and 2 of each world's three
     raw = yaml.safe_load((worlds / "data.yaml").read_text())
-    y = _write_yaml(worlds / "stride.yaml", train=dict(raw["train"], stride=2))
+    y = _write_yaml(tmp_path / "stride.yaml", worlds, train=dict(raw["train"], stride=2))
     assert len(CocoDataset.from_config(load_data_config(y), "train")) == 4
 
 
@@ -129,8 +131,22 @@ def test_bad_sequence_splits_get_one_line(worlds: Path, tmp_path: Path, case: st
     else:
         split["depth"] = "train_sequences"
         expect = "'train.depth'"
-    y = _write_yaml(root / "bad.yaml", train=split)
+    y = _write_yaml(root / "bad.yaml", root, train=split)
     with pytest.raises(SlimsegError, match=expect) as err:
         CocoDataset.from_config(load_data_config(y), "train")
     assert "\n" not in str(err.value)
     assert main(["data", "check", str(y)]) == 2
+
+
+def test_regenerate_comment_writes_the_same_world_frames(worlds: Path, tmp_path: Path) -> None:
+    import shlex
+
+    comment = (worlds / "data.yaml").read_text().splitlines()[1]
+    argv = shlex.split(comment.removeprefix("# ").replace("<dir>", str(tmp_path / "regen")))
+    assert main([*argv[1:], "--quiet"]) == 0
+
+    def files(root: Path) -> dict[str, bytes]:
+        return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*")
+                if p.is_file()}  # fmt: skip
+
+    assert files(tmp_path / "regen") == files(worlds)
