@@ -243,25 +243,27 @@ DEPTH_RANGE_M = (0.05, 100.0)  # plausible median depth of a frame: outside, dep
 
 
 def _check_camera_keys(path: Path, cfg: dict) -> None:
-    """Refuse a key that is not one of :data:`CAMERA_KEYS` / :data:`CAMERA_EXTRA_KEYS` (plain)
-    or that misspells a read one (``fX``, ``Camera.FX``, ``depth_scal``)."""
-    spellings = {k for names in CAMERA_KEYS.values() for k in names}
-    plain = [k for names in CAMERA_KEYS.values() for k in names if "." not in k]
+    """Refuse a plain key that is not one of :data:`CAMERA_KEYS` / :data:`CAMERA_EXTRA_KEYS`
+    (``fX``, ``depth_scal``) and a dotted key that is a read one in another case
+    (``Camera.FX``); other dotted keys are ORB-SLAM settings slimseg does not read."""
+    spellings = [k for names in CAMERA_KEYS.values() for k in names]
+    plain = [k for k in (*spellings, *CAMERA_EXTRA_KEYS) if "." not in k]
     for key in map(str, cfg):
         if key in spellings or key in CAMERA_EXTRA_KEYS:
             continue
-        close = difflib.get_close_matches(key.lower(), [k.lower() for k in spellings], 1, 0.75)
-        if "." in key and not close:
-            continue
-        hint = f" (did you mean {_spelled(close[0], spellings)}?)" if close else ""
+        if "." in key:
+            close = [k for k in spellings if k.lower() == key.lower()]
+            if not close:
+                continue
+        else:
+            lower = {k.lower(): k for k in plain}
+            close = [lower[k] for k in difflib.get_close_matches(key.lower(), lower, 1, 0.75)]
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        reads = ", ".join(k for k in CAMERA_KEYS)
         raise SlimsegError(
-            f"camera file {path}: unknown key {key!r}{hint}; it reads {', '.join(plain)} "
-            f"(or ORB-SLAM's Camera.fx ...) and ignores {', '.join(CAMERA_EXTRA_KEYS)}"
+            f"camera file {path}: unknown key {key!r}{hint}; it reads {reads} (or ORB-SLAM's "
+            f"Camera.fx ...) and ignores {', '.join(CAMERA_EXTRA_KEYS)}"
         )
-
-
-def _spelled(lower: str, spellings: set[str]) -> str:
-    return next(k for k in sorted(spellings) if k.lower() == lower)
 
 
 def read_camera(path: Path) -> dict[str, float]:

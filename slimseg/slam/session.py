@@ -205,9 +205,9 @@ def refuse_masks_inside(out: Path, masks: Path | None) -> None:
     (a new session replaces those)."""
     if masks is None:
         return
-    m = masks.resolve()
+    read = [masks.resolve(), (masks / "masks").resolve()]  # --masks DIR or its masks/
     for p in (out / name for name in OWNED):
-        if m == p.resolve() or p.resolve() in m.parents:
+        if any(m == p.resolve() or p.resolve() in m.parents for m in read):
             raise SlimsegError(
                 f"--masks {masks} is inside {p}, which slam-eval --out {out} replaces: "
                 "copy the masks elsewhere or choose another --out"
