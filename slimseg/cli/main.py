@@ -104,6 +104,7 @@ def describe_os_error(exc: OSError) -> str:
 
 
 def _debug(argv: Sequence[str] | None) -> bool:
+    """``--debug`` given (looked up before parsing, which may itself fail) or the variable."""
     words = sys.argv[1:] if argv is None else argv
     return os.environ.get(DEBUG_ENV, "") not in ("", "0") or "--debug" in words
 
@@ -112,14 +113,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the command; user errors print one line and return 2."""
     parser = build_parser()
     debug = _debug(argv)
-    try:  # a type= parser may raise SlimsegError, which argparse does not catch
+    try:
         args = parser.parse_args(argv)
-    except SlimsegError as exc:
+    except SlimsegError as exc:  # from a type= parser, which argparse lets through
         if debug:
             raise
-        command = next((a for a in (argv or sys.argv[1:]) if not a.startswith("-")), "")
-        print(f"slimseg {command}: error: {exc}".replace("  ", " "), file=sys.stderr)
-        return 2
+        parser.error(str(exc))
     try:
         with cli_logging():
             return int(args.run(args) or 0)

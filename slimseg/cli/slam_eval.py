@@ -172,7 +172,6 @@ def run(args: argparse.Namespace) -> int:
     gt_path = args.sequence / "groundtruth.txt"
     if not gt_path.is_file():
         raise SlimsegError(f"{gt_path} is missing: a trajectory cannot be scored without it")
-    session.ground_truth(seq)  # a malformed pose fails before any engine runs
     session.refuse_masks_inside(args.out, args.masks)
     plan = session.Plan(
         sequence=seq,
