@@ -133,7 +133,13 @@ def test_intrinsics_are_picked_by_folder_name(tmp_path: Path) -> None:
     line = "intrinsics: fx 517.3, fy 516.5, cx 318.6, cy 255.3 from tum-fr1 (the default: no "
     assert plain.describe_camera().startswith(line)  # what slimseg dynamic prints
     own = TumSequence(_tum_folder(tmp_path, "x/rgbd_dataset_freiburg3_sitting", "fx: 600\n"))
-    assert own.camera_source == "camera.yaml" and own.camera.fx == 600.0
+    assert own.camera_source == "camera.yaml (fx), the rest tum-fr3 (folder name)"
+    assert (own.camera.fx, own.camera.cx) == (600.0, 320.1)  # the rest: the folder's camera
+    assert own.describe_camera().endswith(f"from {own.root / 'camera.yaml'} (fx), the rest "
+                                          "tum-fr3 (folder name)")  # fmt: skip
+    full = "fx: 600\nfy: 601\ncx: 300\ncy: 200\n"
+    own = TumSequence(_tum_folder(tmp_path, "x/rgbd_dataset_freiburg2_own", full))
+    assert own.camera_source == "camera.yaml" and own.camera.cy == 200.0
     assert own.describe_camera().endswith(f"from {own.root / 'camera.yaml'}")
     assert calibration_for("fr2_pioneer") == "tum-fr2" and calibration_for("frames") is None
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import cv2
@@ -14,6 +15,7 @@ from slimseg.data.tum import (
     TumSequence,
     associate,
     mask_name,
+    read_camera,
     read_list,
     read_trajectory,
 )
@@ -134,6 +136,74 @@ def test_read_groundtruth_malformed(tmp_path: Path) -> None:
     p.write_text("# gt\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n")
     with pytest.raises(SlimsegError, match=r"groundtruth\.txt:3"):
         read_trajectory(p)
+
+
+ORB_SLAM3_SETTINGS = """%YAML:1.0
+File.version: "1.0"
+Camera.type: "PinHole"
+Camera1.fx: 535.4
+Camera1.fy: 539.2
+Camera1.cx: 320.1
+Camera1.cy: 247.6
+Camera1.k1: 0.0
+Camera.width: 640
+Camera.fps: 30
+Stereo.ThDepth: 40.0
+RGBD.DepthMapFactor: 5000.0
+ORBextractor.nFeatures: 1000
+"""
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("fX: 600\n", "unknown key 'fX' (did you mean fx?)"),
+        ("depth_scal: 1000\n", "did you mean depth_scale?"),
+        ("Camera.FX: 600\n", "did you mean Camera.fx?"),
+        ("colour: 1\n", "unknown key 'colour'"),
+        ("fx: 0.0\n", "fx must be a number > 0, got 0.0"),
+        ("cy: .nan\n", "cy must be a number > 0"),
+        ("fx: yes\n", "fx must be a number > 0, got True"),
+        ("fx: 1\nCamera.fx: 2\n", "fx given twice"),
+    ],
+)
+def test_camera_file_is_read_strictly(tmp_path: Path, text: str, needle: str) -> None:
+    (tmp_path / "camera.yaml").write_text(text)
+    with pytest.raises(SlimsegError, match=r"camera\.yaml") as e:
+        read_camera(tmp_path / "camera.yaml")
+    assert needle in str(e.value)
+
+
+def test_orbslam_settings_file_is_a_camera_file(tmp_path: Path) -> None:
+    (tmp_path / "camera.yaml").write_text(ORB_SLAM3_SETTINGS)
+    assert read_camera(tmp_path / "camera.yaml") == {
+        "fx": 535.4, "fy": 539.2, "cx": 320.1, "cy": 247.6, "depth_scale": 5000.0
+    }  # fmt: skip
+
+
+def test_depth_must_be_16_bit_at_a_plausible_scale(synth_seq: Path, tmp_path: Path) -> None:
+    seq = Path(shutil.copytree(synth_seq, tmp_path / "s"))
+    first = seq / TumSequence(seq).frames[0][1][1]
+    raw = cv2.imread(str(first), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(first), (raw // 256).astype(np.uint8))
+    with pytest.raises(SlimsegError, match=r"is uint8, expected a 16-bit PNG"):
+        TumSequence(seq).load(0)
+    cv2.imwrite(str(first), raw)
+    (seq / "camera.yaml").write_text("depth_scale: 5\n")  # metres x 1000 read as x 5
+    with pytest.raises(SlimsegError, match=r"median depth .* outside 0.05-100.0 m"):
+        TumSequence(seq).load(0)
+
+
+@pytest.mark.parametrize(
+    ("pose", "needle"),
+    [("nan 0 0 0 0 0 1", "not finite"), ("0 0 0 0 0 0 0", "no length"), ("0 0 0 inf 0 0 1", "")],
+)
+def test_trajectory_poses_are_finite_rotations(tmp_path: Path, pose: str, needle: str) -> None:
+    p = tmp_path / "groundtruth.txt"
+    p.write_text(f"# gt\n1 0 0 0 0 0 0 1\n2 {pose}\n")
+    with pytest.raises(SlimsegError, match=r"groundtruth\.txt:3") as e:
+        read_trajectory(p)
+    assert needle in str(e.value)
 
 
 def test_mask_name() -> None:

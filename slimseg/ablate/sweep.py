@@ -288,7 +288,7 @@ def checkpoint_epochs(ckpt: Path) -> int:
     """Epochs a Lightning ``last.ckpt`` has finished."""
     import torch
 
-    return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) + 1
+    return int(torch.load(ckpt, map_location="cpu", weights_only=True)["epoch"]) + 1
 
 
 def score_columns(plan: SweepPlan, run: Run, sha: str) -> dict:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
-import os
 from pathlib import Path
 
 import cv2
@@ -20,9 +20,15 @@ from slimseg.cli.track_args import (
 )
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.pipeline import MODES
-from slimseg.dynamic.restore_run import REPORT_HEADERS, report_rows, restore_sequence
+from slimseg.dynamic.restore_run import (
+    REPORT_HEADERS,
+    RestoreReport,
+    report_rows,
+    restore_sequence,
+)
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import staged_dir, write_text
 from slimseg.utils.table import format_table
 
 
@@ -104,17 +110,19 @@ def run(args: argparse.Namespace) -> int:
             "use --restore-mask pred"
         )
     out = Path(args.out)
-    report = run_sequence(
-        predictor,
-        seq,
-        out,
-        args.mode,
-        masking,
-        args.keypoints,
-        progress=not args.quiet,
-        epipolar_depth=args.epipolar_depth,
-        track=track,
-    )
+    with staged_dir(out) as stage:  # masks/, frames.csv, ... appear complete or not at all
+        report = run_sequence(
+            predictor,
+            seq,
+            stage,
+            args.mode,
+            masking,
+            args.keypoints,
+            progress=not args.quiet,
+            epipolar_depth=args.epipolar_depth,
+            track=track,
+        )
+        restored = _restore(args, sequence, stage, restore_mask) if args.restore else None
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
     print(f"masking settings: {masking.describe()}")
@@ -127,8 +135,8 @@ def run(args: argparse.Namespace) -> int:
     _print_recall_loss(report)
     if report.skipped:
         print(f"{len(report.skipped)} frame(s) without ground truth, e.g. {report.skipped[0]}")
-    if args.restore:
-        _restore(args, sequence, out, restore_mask)
+    if restored is not None:
+        _print_restored(restored, out, restore_mask)
     return 0
 
 
@@ -166,7 +174,9 @@ def _num(v: float) -> str:
     return "-" if math.isnan(v) else f"{v:.1f}"
 
 
-def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) -> None:
+def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) -> RestoreReport:
+    """Restore the frames into ``out/restored`` (``out``: the staging folder, holding this
+    run's ``masks/``); with a true background, the score table in ``out/restoration.csv``."""
     folder = out / "masks" if which == "pred" else sequence / "dynamic"
 
     def masks(i: int, stamp: float) -> np.ndarray:
@@ -184,6 +194,16 @@ def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) ->
         keypoints=args.keypoints,
         progress=not args.quiet,
     )
+    if rep.methods:
+        buf = io.StringIO()
+        writer = csv.writer(buf)
+        writer.writerow(REPORT_HEADERS)
+        writer.writerows(report_rows(rep))
+        write_text(out / "restoration.csv", buf.getvalue())
+    return rep
+
+
+def _print_restored(rep: RestoreReport, out: Path, which: str) -> None:
     cover = 100 * float(np.mean(rep.coverage)) if rep.coverage else float("nan")
     print(
         f"restored {rep.restored} of {rep.frames} frames ({which} masks) into "
@@ -191,17 +211,9 @@ def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) ->
         f"frame, {_pct(cover / 100)} % of removed pixels seen by a reference"
     )
     if rep.methods:
-        rows = report_rows(rep)
         print(f"restoration inside the removed regions vs true background ({rep.scored} frames):")
-        print(format_table(REPORT_HEADERS, rows))
-        path = out / "restoration.csv"
-        tmp = path.with_name(f".{path.name}.tmp")
-        with tmp.open("w", newline="") as f:
-            writer = csv.writer(f)
-            writer.writerow(REPORT_HEADERS)
-            writer.writerows(rows)
-        os.replace(tmp, path)
-        print(f"table written to {path}")
+        print(format_table(REPORT_HEADERS, report_rows(rep)))
+        print(f"table written to {out / 'restoration.csv'}")
 
 
 def _pct(v: float) -> str:

@@ -1,4 +1,12 @@
-"""``slimseg <command>``: the single command-line entry point."""
+"""``slimseg <command>``: the single command-line entry point.
+
+Every user error ends in one line on stderr, ``slimseg <command>: error: <what and where>``,
+and exit code 2: a :class:`~slimseg.errors.SlimsegError` from any reader or check, an
+``OSError`` on a path (an output that cannot be written, an input that cannot be read) and a
+bad option (argparse's own errors and those raised inside a ``type=`` parser). ``slimseg
+--debug <command>`` or ``SLIMSEG_DEBUG=1`` lets the exception through with its traceback, for
+bug reports. Any other exception is a bug and keeps its traceback.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +16,9 @@ import os
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import NoReturn
+
+import cv2
 
 from slimseg.cli import (
     ablate,
@@ -26,6 +37,8 @@ from slimseg.cli import (
 from slimseg.errors import SlimsegError
 from slimseg.version import __version__
 
+DEBUG_ENV = "SLIMSEG_DEBUG"  # set to 1: user errors raise with their traceback (bug reports)
+
 # Each command module exposes ``add_parser(subparsers)`` and ``run(args) -> int``.
 COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic, slam_eval, slam)
 
@@ -34,7 +47,9 @@ COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynami
 def cli_logging() -> Iterator[None]:
     """While a command runs, the library's INFO lines (``slimseg.*`` loggers) print as plain
     lines on the current stdout; the logger is put back as it was afterwards (no handler
-    outlives the command, so a library caller's logging is never changed for good)."""
+    outlives the command, so a library caller's logging is never changed for good). OpenCV's
+    own warnings (``[ WARN:0] ... PNG input buffer is incomplete``) are off meanwhile: the
+    readers report an unreadable file themselves, on one line."""
     logger = logging.getLogger("slimseg")
     handler = logging.StreamHandler(sys.stdout)
     handler.setFormatter(logging.Formatter("%(message)s"))
@@ -45,34 +60,71 @@ def cli_logging() -> Iterator[None]:
     logger.propagate = False
     if level == logging.NOTSET:
         logger.setLevel(logging.INFO)
+    cv2_level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     try:
         yield
     finally:
+        cv2.utils.logging.setLogLevel(cv2_level)
         logger.removeHandler(handler)
         logger.setLevel(level)
         logger.propagate = propagate
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its errors on one line (``slimseg <command>: error: ...``, exit 2)
+    instead of the usage block; subcommand parsers are made of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="slimseg",
         description="Build, train, ablate, fuse and export segmenters for dynamic SLAM.",
     )
     parser.add_argument("--version", action="version", version=f"slimseg {__version__}")
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help=f"show the traceback of a user error (for bug reports; or set {DEBUG_ENV}=1)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
     for command in COMMANDS:
         command.add_parser(sub)
     return parser
 
 
+def describe_os_error(exc: OSError) -> str:
+    """``OSError`` as a line naming the path(s): ``Not a directory: out/masks``."""
+    what = exc.strerror or str(exc)
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    return f"{what}: {' -> '.join(paths)}" if paths else what
+
+
+def _debug(argv: Sequence[str] | None) -> bool:
+    """``--debug`` given (looked up before parsing, which may itself fail) or the variable."""
+    words = sys.argv[1:] if argv is None else argv
+    return os.environ.get(DEBUG_ENV, "") not in ("", "0") or "--debug" in words
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the command; user errors print one line and return 2."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    debug = _debug(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SlimsegError as exc:  # from a type= parser, which argparse lets through
+        if debug:
+            raise
+        parser.error(str(exc))
     try:
         with cli_logging():
             return int(args.run(args) or 0)
     except SlimsegError as exc:
+        if debug:
+            raise
         print(f"slimseg {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -82,6 +134,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # so the interpreter's final flush cannot fail
         return 141
+    except OSError as exc:  # a path the user gave: unreadable input, unwritable output
+        if debug:
+            raise
+        print(f"slimseg {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ Per frame, in ``--out``: ``<stem>_overlay.png`` (masks tinted, boxes and class l
 ``<stem>_classes.png`` (``uint8`` class ids, 0 = background, k + 1 = class k) instead of
 detections, a class-colour overlay, the mask of every non-background pixel and a json with
 the pixel count per class. Video frames are named ``frame_000000`` onwards.
-Every file is written to a temporary name, then renamed into place.
+The files are written into a temporary folder beside ``--out`` and moved into it when the
+last frame is done: a run that fails midway leaves ``--out`` as it was.
 
 With ``--track [PRESET]`` (a folder of frames, taken in sorted order, or a video; a single
 image is refused) the frames go through the track stage instead and the outputs are
@@ -38,7 +39,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
-from slimseg.utils.atomic import write_json, write_png
+from slimseg.utils.atomic import staged_dir, write_json, write_png
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 STAGES = ("preprocess", "inference", "postprocess")
@@ -191,12 +192,12 @@ def run(args: argparse.Namespace) -> int:
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
     )
     out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
     print(f"{predictor} -> {out_dir}")
     sums = dict.fromkeys(STAGES, 0.0)
     done, detections, skipped = 0, 0, []
     start = time.perf_counter()
-    with tqdm(total=total or None, desc="predict", unit="img", disable=args.quiet) as bar:
+    bar = tqdm(total=total or None, desc="predict", unit="img", disable=args.quiet)
+    with bar, staged_dir(out_dir) as stage:  # the files appear when every frame is done
         for index, (stem, source, image) in enumerate(frames):
             bar.update(1)
             if image is None:
@@ -204,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
                 continue
             pred = predictor.predict(image, conf=args.conf, iou=args.iou, max_det=args.max_det)
             save_prediction(
-                out_dir,
+                stage,
                 stem,
                 source,
                 image,
@@ -240,7 +241,6 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
     )
     out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
     if not args.quiet:
         print(f"{predictor} -> {out_dir}")
         print(f"track stage: {plan.describe()}")

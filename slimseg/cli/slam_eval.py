@@ -16,6 +16,7 @@ from slimseg.cli.track_args import (
 )
 from slimseg.dynamic.pipeline import MODES
 from slimseg.errors import SlimsegError
+from slimseg.utils.atomic import staged_dir
 
 SPECIAL = ("raw", "gt", "oracle")
 DEFAULT_MODES = "raw,gt,oracle,fusion"
@@ -171,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
     gt_path = args.sequence / "groundtruth.txt"
     if not gt_path.is_file():
         raise SlimsegError(f"{gt_path} is missing: a trajectory cannot be scored without it")
+    session.refuse_masks_inside(args.out, args.masks)
     plan = session.Plan(
         sequence=seq,
         names=names,
@@ -192,7 +194,10 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     out = args.out
-    rows, info = session.run_plan(plan, out, say)
+    # every file appears when the session is done; masks/, restore/, trajectories/ of an
+    # earlier session are replaced whole (never mixed into the new table)
+    with staged_dir(out, owned=session.OWNED) as stage:
+        rows, info = session.run_plan(plan, stage, say)
     from slimseg.slam.report import as_json_rows, table_lines
 
     say(f"{info.engine} on {seq.root.name}: {info.frames} frames, vocabulary {info.vocabulary}, "

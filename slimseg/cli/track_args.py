@@ -6,6 +6,8 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from typing import TypeVar
 
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.track_run import TrackPlan
@@ -17,6 +19,8 @@ from slimseg.dynamic.track_settings import (
     track_preset,
 )
 from slimseg.errors import SlimsegError
+
+T = TypeVar("T")
 
 # flag -> field: every knob, spelled --track-<field with dashes>
 FLAGS: dict[str, str] = {f"--track-{name.replace('_', '-')}": name for name in TRACK_RANGES}
@@ -58,12 +62,25 @@ def add_dropout_arg(p: argparse.ArgumentParser) -> None:
     """``--gt-dropout RATE:BURST[:SEED]`` (with ``--gt-instances``)."""
     p.add_argument(
         "--gt-dropout",
-        type=Dropout.parse,
+        type=_option_type(Dropout.parse),
         default=None,
         metavar="RATE:BURST[:SEED]",
         help="with --gt-instances: drop each instance from RATE of its frames in bursts of "
         "BURST frames (simulated missed detections, e.g. 0.1:3)",
     )
+
+
+def _option_type(parse: Callable[[str], T]) -> Callable[[str], T]:
+    """``parse`` as an argparse ``type=``: its ``SlimsegError`` becomes argparse's own error,
+    so the message names the option (``argument --gt-dropout: ...``) on one line."""
+
+    def option_type(text: str) -> T:
+        try:
+            return parse(text)
+        except SlimsegError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    return option_type
 
 
 def track_settings_from_args(args: argparse.Namespace) -> TrackSettings | None:

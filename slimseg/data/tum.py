@@ -12,6 +12,12 @@ Layout (TUM RGB-D, Bonn, and ``slimseg data synth --sequences``)::
 Association follows TUM's ``associate.py``: greedy by smallest |t_rgb - t_depth|, each stamp used
 at most once, pairs further apart than ``max_dt`` (0.02 s) dropped.
 
+``camera.yaml`` is read strictly: a key must be one slimseg reads (:data:`CAMERA_KEYS`) or
+one it knows to ignore (:data:`CAMERA_EXTRA_KEYS`, ORB-SLAM's dotted settings), every value a
+finite number > 0; keys it lacks come from the folder-name calibration below. Depth must be
+uint16, and the first frame's median depth must be plausible (:data:`DEPTH_RANGE_M`) at the
+depth scale in use.
+
 Intrinsics: Published pinhole calibrations of the public RGB-D benchmarks, picked by folder name.
 
 Real TUM RGB-D and Bonn folders carry no camera file; the calibration is a property of the
@@ -26,6 +32,7 @@ page (fx 542.822841, fy 542.576870, cx 315.593520, cy 237.756098).
 
 from __future__ import annotations
 
+import difflib
 import logging
 import re
 from dataclasses import dataclass
@@ -78,6 +85,7 @@ def calibration_for(folder: str | Path) -> str | None:
 # TUM freiburg1: the fallback for a folder whose name and files say nothing (see intrinsics)
 TUM_FR1 = {**CALIBRATIONS["tum-fr1"], "depth_scale": TUM_DEPTH_SCALE}
 MAX_DT = 0.02  # s, associate.py's default max_difference
+MIN_QUATERNION_NORM = 1e-6  # a trajectory quaternion shorter than this cannot be normalised
 
 
 class Associations(list[tuple[Stamped, Stamped]]):
@@ -174,7 +182,8 @@ def associate(rgb: list[Stamped], depth: list[Stamped], max_dt: float = MAX_DT) 
 def read_trajectory(path: str | Path) -> np.ndarray:
     """Parse a TUM trajectory (``groundtruth.txt`` or an estimate): ``float64 [K, 8]`` rows
     ``t tx ty tz qx qy qz qw`` (s, m, quaternion last). Raises ``SlimsegError`` naming the file
-    and line for a malformed line."""
+    and line for a malformed line: not 8 numbers, a value that is not finite, or a quaternion
+    of (near) zero length, which no unit rotation is."""
     path = Path(path)
     rows = []
     for no, line in _read_lines(path):
@@ -186,6 +195,13 @@ def read_trajectory(path: str | Path) -> np.ndarray:
             raise SlimsegError(
                 f"{path}:{no}: expected 8 numbers 't tx ty tz qx qy qz qw', got {line!r}"
             ) from None
+        if not np.all(np.isfinite(vals)):
+            raise SlimsegError(f"{path}:{no}: a value is not finite (nan or inf): {line!r}")
+        if np.linalg.norm(vals[4:]) < MIN_QUATERNION_NORM:
+            raise SlimsegError(
+                f"{path}:{no}: quaternion qx qy qz qw = {' '.join(line.split()[4:])} has no "
+                f"length, so it is no rotation: {line!r}"
+            )
         rows.append(vals)
     return np.array(rows, np.float64).reshape(-1, 8)
 
@@ -210,18 +226,51 @@ def mask_name(timestamp: float | str) -> str:
     return f"{stem}.png"
 
 
-def _lookup(cfg: dict, *keys: str) -> float | None:
-    for k in keys:
-        v = cfg.get(k)
-        if v is not None:
-            return float(v)
-    return None
+# camera.yaml: each value slimseg reads and the spellings it accepts for it (ORB-SLAM's settings
+# files name them Camera.fx / Camera1.fx and DepthMapFactor / RGBD.DepthMapFactor)
+CAMERA_KEYS: dict[str, tuple[str, ...]] = {
+    "fx": ("fx", "Camera.fx", "Camera1.fx"),
+    "fy": ("fy", "Camera.fy", "Camera1.fy"),
+    "cx": ("cx", "Camera.cx", "Camera1.cx"),
+    "cy": ("cy", "Camera.cy", "Camera1.cy"),
+    "depth_scale": ("depth_scale", "DepthMapFactor", "RGBD.DepthMapFactor"),
+}
+# plain keys a camera file may carry that slimseg does not read (the synthetic sequences'
+# extras, ORB-SLAM's depth threshold); any other plain key is a typo. Dotted keys are ORB-SLAM
+# settings (ORBextractor.*, Viewer.*, ...) and pass unless they misspell a read one.
+CAMERA_EXTRA_KEYS = ("width", "height", "distortion", "fps", "depth_offset_s", "ThDepth")
+DEPTH_RANGE_M = (0.05, 100.0)  # plausible median depth of a frame: outside, depth_scale is off
 
 
-def read_camera(path: Path) -> Camera:
-    """Intrinsics from a ``camera.yaml`` (``fx fy cx cy depth_scale``; ORB-SLAM's ``Camera.fx``
-    / ``Camera1.fx`` and ``DepthMapFactor`` / ``RGBD.DepthMapFactor`` also accepted). Missing
-    keys fall back to the TUM fr1 defaults."""
+def _check_camera_keys(path: Path, cfg: dict) -> None:
+    """Refuse a plain key that is not one of :data:`CAMERA_KEYS` / :data:`CAMERA_EXTRA_KEYS`
+    (``fX``, ``depth_scal``) and a dotted key that is a read one in another case
+    (``Camera.FX``); other dotted keys are ORB-SLAM settings slimseg does not read."""
+    spellings = [k for names in CAMERA_KEYS.values() for k in names]
+    plain = [k for k in (*spellings, *CAMERA_EXTRA_KEYS) if "." not in k]
+    for key in map(str, cfg):
+        if key in spellings or key in CAMERA_EXTRA_KEYS:
+            continue
+        if "." in key:
+            close = [k for k in spellings if k.lower() == key.lower()]
+            if not close:
+                continue
+        else:
+            lower = {k.lower(): k for k in plain}
+            close = [lower[k] for k in difflib.get_close_matches(key.lower(), lower, 1, 0.75)]
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        reads = ", ".join(k for k in CAMERA_KEYS)
+        raise SlimsegError(
+            f"camera file {path}: unknown key {key!r}{hint}; it reads {reads} (or ORB-SLAM's "
+            f"Camera.fx ...) and ignores {', '.join(CAMERA_EXTRA_KEYS)}"
+        )
+
+
+def read_camera(path: Path) -> dict[str, float]:
+    """The values a ``camera.yaml`` gives, by :data:`CAMERA_KEYS` name (``fx fy cx cy
+    depth_scale``; ORB-SLAM's ``Camera.fx`` / ``Camera1.fx`` and ``DepthMapFactor`` /
+    ``RGBD.DepthMapFactor`` also accepted). ``SlimsegError`` naming the file and key for an
+    unknown or misspelled key, a value that is not a finite number > 0, or a key given twice."""
     try:
         text = path.read_text(encoding="utf-8")
         lines = [ln for ln in text.splitlines() if not ln.startswith("%YAML")]
@@ -230,18 +279,20 @@ def read_camera(path: Path) -> Camera:
         raise SlimsegError(f"cannot read camera file {path}: {e}") from None
     if not isinstance(cfg, dict):
         raise SlimsegError(f"camera file {path}: expected a mapping of fx, fy, cx, cy")
-    vals = {}
-    try:
-        for key in ("fx", "fy", "cx", "cy"):
-            v = _lookup(cfg, key, f"Camera.{key}", f"Camera1.{key}")
-            vals[key] = TUM_FR1[key] if v is None else v
-        v = _lookup(cfg, "depth_scale", "DepthMapFactor", "RGBD.DepthMapFactor")
-    except (TypeError, ValueError) as e:
-        raise SlimsegError(f"camera file {path}: non-numeric intrinsics ({e})") from None
-    vals["depth_scale"] = TUM_FR1["depth_scale"] if v is None else v
-    if vals["depth_scale"] <= 0:
-        raise SlimsegError(f"camera file {path}: depth_scale must be > 0")
-    return Camera(**vals)
+    _check_camera_keys(path, cfg)
+    vals: dict[str, float] = {}
+    for name, spellings in CAMERA_KEYS.items():
+        given = [k for k in spellings if k in cfg]
+        if len(given) > 1:
+            raise SlimsegError(f"camera file {path}: {name} given twice ({', '.join(given)})")
+        if not given:
+            continue
+        v = cfg[given[0]]
+        ok = isinstance(v, int | float) and not isinstance(v, bool)
+        if not ok or not np.isfinite(v) or v <= 0:
+            raise SlimsegError(f"camera file {path}: {given[0]} must be a number > 0, got {v!r}")
+        vals[name] = float(v)
+    return vals
 
 
 class TumSequence:
@@ -272,23 +323,30 @@ class TumSequence:
                 f"{len(lists['depth.txt'])} depth entries, no pair within {max_dt} s"
             )
         cam = self.root / "camera.yaml"
-        if cam.is_file():
-            self.camera, self.camera_source = read_camera(cam), "camera.yaml"
+        given = read_camera(cam) if cam.is_file() else {}
+        key = calibration_for(self.root)
+        fallback = f"{key} (folder name)" if key else f"{DEFAULT} (default)"
+        self.camera = Camera(
+            **{**CALIBRATIONS[key or DEFAULT], "depth_scale": TUM_DEPTH_SCALE, **given}
+        )
+        self._scale_source = str(cam) if "depth_scale" in given else "the TUM default"
+        from_file = [k for k in ("fx", "fy", "cx", "cy") if k in given]
+        if len(from_file) == 4:
+            self.camera_source = "camera.yaml"
+        elif from_file:
+            self.camera_source = f"camera.yaml ({', '.join(from_file)}), the rest {fallback}"
         else:
-            key = calibration_for(self.root)
-            source = f"{key} (folder name)" if key else f"{DEFAULT} (default)"
-            key = key or DEFAULT
-            self.camera = Camera(**CALIBRATIONS[key], depth_scale=TUM_DEPTH_SCALE)
-            self.camera_source = source
-            log.info("sequence %s: intrinsics %s", self.root, source)
+            self.camera_source = fallback
+        if self.camera_source != "camera.yaml":
+            log.info("sequence %s: intrinsics %s", self.root, self.camera_source)
+        self._depth_checked = False
 
     def describe_camera(self) -> str:
         """One line for a command: the intrinsics in use and where they came from."""
         c, source = self.camera, self.camera_source
-        if source == "camera.yaml":
-            source = str(self.root / "camera.yaml")
-        elif source.endswith("(default)"):
+        if source == f"{DEFAULT} (default)":
             source = f"{DEFAULT} (the default: no camera.yaml, no known camera in the folder name)"
+        source = source.replace("camera.yaml", str(self.root / "camera.yaml"), 1)
         return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
 
     @property
@@ -312,6 +370,11 @@ class TumSequence:
         raw = _imread(depth_path, cv2.IMREAD_UNCHANGED)
         if raw.ndim != 2:
             raise SlimsegError(f"depth image {depth_path} has {raw.shape[2]} channels, expected 1")
+        if raw.dtype != np.uint16:
+            raise SlimsegError(
+                f"depth image {depth_path} is {raw.dtype}, expected a 16-bit PNG (uint16, "
+                f"{self.camera.depth_scale:g} units per metre): re-save the depth unscaled"
+            )
         if raw.shape != bgr.shape[:2]:
             raise SlimsegError(
                 f"size mismatch: {rgb_path} is {bgr.shape[1]}x{bgr.shape[0]} but "
@@ -319,8 +382,26 @@ class TumSequence:
             )
         depth = raw.astype(np.float32) / np.float32(self.camera.depth_scale)
         depth[~np.isfinite(depth) | (depth < 0)] = 0.0
+        if not self._depth_checked:
+            self._check_depth_scale(depth, depth_path)
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
         return rgb, depth, t_rgb
+
+    def _check_depth_scale(self, depth: np.ndarray, path: Path) -> None:
+        """Refuse a ``depth_scale`` that puts the first loaded frame's median valid depth
+        outside :data:`DEPTH_RANGE_M` (e.g. millimetre depth read at TUM's 5000 per metre)."""
+        valid = depth[depth > 0]
+        if len(valid):
+            median = float(np.median(valid))
+            lo, hi = DEPTH_RANGE_M
+            if not lo <= median <= hi:
+                raise SlimsegError(
+                    f"depth image {path}: median depth {median:.3g} m at depth_scale "
+                    f"{self.camera.depth_scale:g} (from {self._scale_source}) is outside "
+                    f"{lo}-{hi} m; set depth_scale in camera.yaml to the stored units per metre "
+                    "(TUM 5000, mm 1000)"
+                )
+        self._depth_checked = True
 
 
 def _imread(path: Path, flags: int) -> np.ndarray:

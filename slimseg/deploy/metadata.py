@@ -191,7 +191,8 @@ def from_metadata_props(props: dict[str, str]) -> dict[str, Any]:
 
 def read_onnx_metadata(path: str | Path, props: dict[str, str]) -> dict[str, Any]:
     """Parse ``metadata_props`` of the ONNX file ``path``; :class:`SlimsegError` unless slimseg
-    wrote them. A missing or malformed ``mobility`` becomes 1.0 per class."""
+    wrote them. A missing ``mobility`` (older exports) becomes 1.0 per class; a malformed one
+    is refused."""
     meta = from_metadata_props(props)
     missing = [k for k in REQUIRED_METADATA if k not in meta]
     names, imgsz = meta.get("names"), meta.get("imgsz")
@@ -207,8 +208,65 @@ def read_onnx_metadata(path: str | Path, props: dict[str, str]) -> dict[str, Any
             "re-export it with `slimseg export --weights W.pt`, or predict from the .pt weights"
         )
     mobility = meta.get("mobility")
-    if not isinstance(mobility, list) or len(mobility) != len(names):
+    if mobility is None:  # exports older than the key: every class may move
         meta["mobility"] = [1.0] * len(names)
+    elif not (
+        isinstance(mobility, list)
+        and len(mobility) == len(names)
+        and all(isinstance(m, int | float) and 0 <= m <= 1 for m in mobility)
+    ):
+        raise SlimsegError(
+            f"{path}: metadata 'mobility' must hold one number in [0, 1] per class of 'names' "
+            f"({len(names)}), got {str(mobility)[:80]}; re-export it with slimseg export"
+        )
+    return meta
+
+
+def expected_outputs(meta: dict[str, Any]) -> dict[str, tuple[int, int]]:
+    """``{output name: (rank, channels)}`` a graph with this metadata must have: channels
+    (dim 1) from the class count of ``names`` and ``num_masks`` (see :func:`build_metadata`)."""
+    nc = len(meta["names"])
+    if meta.get("task") == "semantic":
+        return {"logits": (4, nc + 1)}
+    if meta.get("family") == "darknet-yolov3":
+        return {"output0": (3, 5 + nc)}
+    nm = int(meta.get("num_masks", 0) or 0)
+    return {"output0": (3, 4 + nc + nm), **({"output1": (4, nm)} if nm else {})}
+
+
+def check_graph_outputs(path: str | Path, meta: dict[str, Any], graph: dict[str, list]) -> None:
+    """:class:`SlimsegError` unless the graph's outputs (``graph``: name -> shape, a dim an
+    int or a symbol) are those the metadata describes: each of :func:`expected_outputs`
+    present with its rank and (where static) its channel count, and the metadata's own
+    ``outputs`` entry naming the same ones."""
+    expected = expected_outputs(meta)
+    described = meta.get("outputs")
+    if isinstance(described, dict) and set(described) != set(expected):
+        raise SlimsegError(
+            f"{path}: metadata 'outputs' names {sorted(described)}, but its task/family/"
+            f"num_masks imply {sorted(expected)}; re-export it with slimseg export"
+        )
+    for name, (rank, channels) in expected.items():
+        shape = graph.get(name)
+        if shape is None:
+            raise SlimsegError(
+                f"{path}: the metadata describes output {name!r}, the graph has "
+                f"{', '.join(sorted(graph)) or 'no outputs'}; re-export it with slimseg export"
+            )
+        dim = shape[1] if len(shape) > 1 else None
+        if len(shape) != rank or (isinstance(dim, int) and dim != channels):
+            raise SlimsegError(
+                f"{path}: output {name!r} has shape {list(shape)}, the metadata "
+                f"({len(meta['names'])} names) implies rank {rank} with {channels} channels; "
+                "re-export it with slimseg export"
+            )
+
+
+def read_session_metadata(path: str | Path, session: Any) -> dict[str, Any]:
+    """The slimseg metadata of the onnxruntime ``session`` of ``path``, checked against the
+    graph's actual outputs (:func:`read_onnx_metadata`, :func:`check_graph_outputs`)."""
+    meta = read_onnx_metadata(path, dict(session.get_modelmeta().custom_metadata_map))
+    check_graph_outputs(path, meta, {o.name: list(o.shape) for o in session.get_outputs()})
     return meta
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import onnx
 
 from slimseg.deploy.metadata import to_metadata_props
+from slimseg.errors import SlimsegError
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,14 @@ def sidecar_path(out: Path) -> Path:
 
 def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
     """A temporary folder beside ``out`` (created with its parents), removed on exit with
-    whatever is left in it. Use as ``with staging_dir(out) as tmp:``."""
+    whatever is left in it. Use as ``with staging_dir(out) as tmp:``. ``SlimsegError`` first
+    (before any export work) when ``out`` or its sidecar is an existing folder."""
+    for path in (out, sidecar_path(out)):
+        if path.is_dir():
+            raise SlimsegError(
+                f"--out {out}: {path} is a folder; give the file to write, e.g. "
+                f"{out / 'model.onnx'}"
+            )
     out.parent.mkdir(parents=True, exist_ok=True)
     return tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.stem}.")
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from slimseg.deploy.metadata import read_onnx_metadata
+from slimseg.deploy.metadata import read_session_metadata
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.runners import OnnxRunner
 from slimseg.errors import SlimsegError
@@ -33,8 +33,7 @@ class OnnxModel(nn.Module):
         if not self.path.is_file():
             raise SlimsegError(f"{self.path}: model file not found")
         session = cpu_session(self.path, threads)
-        props = dict(session.get_modelmeta().custom_metadata_map)
-        self.metadata: dict[str, Any] = read_onnx_metadata(self.path, props)
+        self.metadata: dict[str, Any] = read_session_metadata(self.path, session)
         if "spec" not in self.metadata:
             raise SlimsegError(
                 f"{self.path}: its metadata has no 'spec': re-export it with slimseg export"

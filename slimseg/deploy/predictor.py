@@ -11,7 +11,7 @@ detections (up to float rounding) whichever file is loaded:
    frame; semantic models (``logits [B, K+1, H, W]``) get a class map instead.
 
 Class names, mobility priors, input size and precision come from the ONNX metadata written by
-``slimseg export`` (:func:`~slimseg.deploy.metadata.read_onnx_metadata`), or from the weights
+``slimseg export`` (:func:`~slimseg.deploy.metadata.read_session_metadata`), or from the weights
 file for torch, where the same metadata dict is built with
 :func:`~slimseg.deploy.metadata.build_metadata`.
 """
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from slimseg.deploy.metadata import build_metadata, int8_target, read_onnx_metadata
+from slimseg.deploy.metadata import build_metadata, int8_target, read_session_metadata
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.predict_postprocess import instance_predictions, semantic_predictions
 from slimseg.deploy.prediction import combined_mask
@@ -138,7 +138,7 @@ class Predictor:
     @classmethod
     def _from_onnx(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
         session = cpu_session(path, threads)
-        meta = read_onnx_metadata(path, dict(session.get_modelmeta().custom_metadata_map))
+        meta = read_session_metadata(path, session)
         runner = OnnxRunner(session)
         static_hw = runner.static_hw
         default = static_hw or parse_imgsz(meta["imgsz"])

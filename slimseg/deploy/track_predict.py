@@ -10,7 +10,8 @@ run on (``carried``). Classes whose mobility prior is at most the masking thresh
 (``m_th_start`` of the ``slimseg`` masking preset) are not tracked: they pass through as
 untracked detections (people and pets are tracked, furniture is not).
 
-Outputs under ``out`` (each written to a temporary name, then renamed into place):
+Outputs under ``out``, written into a temporary folder beside it and moved into place when the
+last frame is done (a run that fails midway leaves ``out`` as it was):
 
 - ``tracks/<stem>.png``: ``uint16 [H, W]`` instance map. 0 = background, ``1 ..
   UNTRACKED_BASE - 1`` = the track id, ``UNTRACKED_BASE + k`` = the frame's k-th untracked
@@ -52,7 +53,7 @@ from slimseg.dynamic.track import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
 from slimseg.dynamic.track_run import TrackedSequence, TrackPlan, frame_dets
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU
-from slimseg.utils.atomic import atomic_path, write_png, write_text
+from slimseg.utils.atomic import atomic_path, staged_dir, write_png, write_text
 
 UNTRACKED_BASE = 60000  # instance-map value of a frame's first untracked detection
 GIF_WIDTH = 480  # the GIF is downscaled to at most this width ...
@@ -138,70 +139,71 @@ def track_predict(
     previous: PreviousFrame | None = None
     hw: tuple[int, int] | None = None
     gif: list[Image.Image] = []
-    video = _Video(out / "tracks.mp4", fps)
-    try:
-        for stem, source, rgb in tqdm(
-            frames, total=total or None, desc="track", unit="frame", disable=not progress
-        ):
-            if rgb is None:
-                report.skipped.append(source)
-                continue
-            if hw is None:
-                hw = rgb.shape[:2]
-            elif rgb.shape[:2] != hw:
-                raise SlimsegError(
-                    f"{source}: {rgb.shape[1]}x{rgb.shape[0]}, the sequence's first frame is "
-                    f"{hw[1]}x{hw[0]}; tracked frames must share one size"
-                )
-            i = report.frames
-            t0 = time.perf_counter()
-            dets = None
-            if plan.runs_model(i):
-                pred = predictor.predict(rgb, conf=plan.floor(conf), iou=iou, max_det=max_det)
-                dets = frame_dets(pred, hw)
-                report.model_frames += 1
-            t1 = time.perf_counter()
-            feats = orb_features(rgb, keypoints)
-            _, tracked = stage.inputs(feats, dets, conf, None, previous)
-            previous = PreviousFrame(feats)
-            report.model_s += t1 - t0
-            report.track_s += time.perf_counter() - t1
-            report.frames += 1
+    with staged_dir(out) as folder:  # the files appear complete or not at all
+        video = _Video(folder / "tracks.mp4", fps)
+        try:
+            for stem, source, rgb in tqdm(
+                frames, total=total or None, desc="track", unit="frame", disable=not progress
+            ):
+                if rgb is None:
+                    report.skipped.append(source)
+                    continue
+                if hw is None:
+                    hw = rgb.shape[:2]
+                elif rgb.shape[:2] != hw:
+                    raise SlimsegError(
+                        f"{source}: {rgb.shape[1]}x{rgb.shape[0]}, the sequence's first frame is "
+                        f"{hw[1]}x{hw[0]}; tracked frames must share one size"
+                    )
+                i = report.frames
+                t0 = time.perf_counter()
+                dets = None
+                if plan.runs_model(i):
+                    pred = predictor.predict(rgb, conf=plan.floor(conf), iou=iou, max_det=max_det)
+                    dets = frame_dets(pred, hw)
+                    report.model_frames += 1
+                t1 = time.perf_counter()
+                feats = orb_features(rgb, keypoints)
+                _, tracked = stage.inputs(feats, dets, conf, None, previous)
+                previous = PreviousFrame(feats)
+                report.model_s += t1 - t0
+                report.track_s += time.perf_counter() - t1
+                report.frames += 1
 
-            tids = tracked.track_ids
-            for k, tid in enumerate(tids):
-                if tid >= 0 and tracked.source[k] == SOURCE_DETECTION:
-                    last_det[int(tid)] = i
-            lost = np.array([i - last_det.get(int(t), i) for t in tids], np.int64)
-            imap, map_ids = instance_map(tracked, hw)
-            write_png(out / "tracks" / f"{stem}.png", imap)
-            rows += _rows(i, stem, tracked, map_ids, names)
-            ids.update(int(t) for t in tids if t >= 0)
-            report.predicted += int(tracked.coasted.sum())
-            drawn = draw_tracked(rgb, tracked, names, lost)
-            video.add(drawn)
-            if len(gif) < GIF_FRAMES:
-                gif.append(_gif_frame(drawn))
-        report.tracks = len(ids)
-        if report.frames:
-            report.files.append(str(out / "tracks") + "/")
-            write_text(out / "tracks.csv", _csv(rows))
-            report.files.append(str(out / "tracks.csv"))
-            with atomic_path(out / "tracks.gif") as tmp:
-                gif[0].save(tmp, format="GIF", save_all=True, append_images=gif[1:], loop=0,
-                            duration=max(20, round(1000 / fps)))  # fmt: skip
-            report.files.append(str(out / "tracks.gif"))
-            if report.frames > GIF_FRAMES:
-                report.notes.append(
-                    f"tracks.gif holds the first {GIF_FRAMES} of {report.frames} frames"
-                    + (" (tracks.mp4 has them all)" if video.ok else "")
-                )
-            if video.finish():
-                report.files.append(str(out / "tracks.mp4"))
-            else:
-                report.notes.append("tracks.mp4 not written: OpenCV cannot write mp4v here")
-    finally:
-        video.close()
+                tids = tracked.track_ids
+                for k, tid in enumerate(tids):
+                    if tid >= 0 and tracked.source[k] == SOURCE_DETECTION:
+                        last_det[int(tid)] = i
+                lost = np.array([i - last_det.get(int(t), i) for t in tids], np.int64)
+                imap, map_ids = instance_map(tracked, hw)
+                write_png(folder / "tracks" / f"{stem}.png", imap)
+                rows += _rows(i, stem, tracked, map_ids, names)
+                ids.update(int(t) for t in tids if t >= 0)
+                report.predicted += int(tracked.coasted.sum())
+                drawn = draw_tracked(rgb, tracked, names, lost)
+                video.add(drawn)
+                if len(gif) < GIF_FRAMES:
+                    gif.append(_gif_frame(drawn))
+            report.tracks = len(ids)
+            if report.frames:
+                report.files.append(str(out / "tracks") + "/")
+                write_text(folder / "tracks.csv", _csv(rows))
+                report.files.append(str(out / "tracks.csv"))
+                with atomic_path(folder / "tracks.gif") as tmp:
+                    gif[0].save(tmp, format="GIF", save_all=True, append_images=gif[1:], loop=0,
+                                duration=max(20, round(1000 / fps)))  # fmt: skip
+                report.files.append(str(out / "tracks.gif"))
+                if report.frames > GIF_FRAMES:
+                    report.notes.append(
+                        f"tracks.gif holds the first {GIF_FRAMES} of {report.frames} frames"
+                        + (" (tracks.mp4 has them all)" if video.ok else "")
+                    )
+                if video.finish():
+                    report.files.append(str(out / "tracks.mp4"))
+                else:
+                    report.notes.append("tracks.mp4 not written: OpenCV cannot write mp4v here")
+        finally:
+            video.close()
     return report
 
 

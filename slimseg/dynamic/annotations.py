@@ -88,25 +88,26 @@ class AnnotationInstances:
                 f"{path} not found: ground-truth instances need a synthetic sequence "
                 "('slimseg data synth --sequences N')"
             )
-        try:
+        self.path = path
+        self._by_stamp: dict[str, tuple[dict, list[dict]]] = {}
+        try:  # every field read here: a malformed file is one error naming it, never a traceback
             coco = json.loads(path.read_text(encoding="utf-8"))
             cats = sorted(coco["categories"], key=lambda c: c["id"])
             images = {im["id"]: im for im in coco["images"]}
-            anns = coco["annotations"]
+            if [c["id"] for c in cats] != list(range(1, len(cats) + 1)):
+                raise SlimsegError(f"{path}: category ids must be 1..K")
+            self.names = [str(c["name"]) for c in cats]
+            self.mobility = [float(c.get("mobility", 1.0)) for c in cats]
+            if not all(0.0 <= m <= 1.0 for m in self.mobility):
+                raise SlimsegError(f"{path}: category mobility must lie in [0, 1]")
+            for im in images.values():
+                self._by_stamp[f"{float(im['timestamp']):.6f}"] = (im, [])
+            for a in coco["annotations"]:
+                im = images.get(a["image_id"])
+                if im is not None:
+                    self._by_stamp[f"{float(im['timestamp']):.6f}"][1].append(a)
         except (OSError, ValueError, KeyError, TypeError) as e:
-            raise SlimsegError(f"cannot read {path}: {e}") from None
-        if [c["id"] for c in cats] != list(range(1, len(cats) + 1)):
-            raise SlimsegError(f"{path}: category ids must be 1..K")
-        self.path = path
-        self.names = [str(c["name"]) for c in cats]
-        self.mobility = [float(c.get("mobility", 1.0)) for c in cats]
-        self._by_stamp: dict[str, tuple[dict, list[dict]]] = {}
-        for im in images.values():
-            self._by_stamp[f"{float(im['timestamp']):.6f}"] = (im, [])
-        for a in anns:
-            im = images.get(a["image_id"])
-            if im is not None:
-                self._by_stamp[f"{float(im['timestamp']):.6f}"][1].append(a)
+            raise SlimsegError(f"cannot read {path}: {type(e).__name__} {e}") from None
         self.dropout = dropout
         self.dropped = 0
         if dropout is not None and dropout.rate > 0:

@@ -117,6 +117,31 @@ class AtomicCheckpointIO(TorchCheckpointIO):
             torch.save(checkpoint, tmp)
 
 
+def check_resume_checkpoint(path: Path, module: L.LightningModule) -> None:
+    """``SlimsegError`` naming ``path`` unless it loads as a Lightning checkpoint (tensors and
+    plain types only, ``weights_only``) holding ``module``'s tensors with their shapes: a
+    truncated file, another file type or another model's run fails here, not inside Lightning
+    after the run folder was written to."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # a truncated zip, a pickle it refuses, not a torch file at all
+        reason = str(e).strip().splitlines()[0][:120] if str(e).strip() else type(e).__name__
+        raise SlimsegError(
+            f"{path}: cannot be read as a training checkpoint ({reason}); restore a copy, or "
+            "start a new run without --resume"
+        ) from None
+    state = ckpt.get("state_dict") if isinstance(ckpt, dict) else None
+    if not isinstance(state, dict) or "epoch" not in ckpt:
+        raise SlimsegError(f"{path}: not a slimseg training checkpoint (no state_dict / epoch)")
+    own = module.state_dict()
+    bad = [k for k, v in own.items() if k not in state or tuple(state[k].shape) != v.shape]
+    if bad:
+        raise SlimsegError(
+            f"{path}: holds another model ({len(bad)} of {len(own)} tensors missing or of "
+            f"another shape, e.g. {bad[0]}); resume with the --model and --data of that run"
+        )
+
+
 def next_run_dir(base: Path) -> Path:
     """``base`` if free (or empty), else ``base-2``, ``base-3``, ..."""
     if not base.exists() or not any(base.iterdir()):
@@ -251,6 +276,8 @@ def _train(
     if freeze:
         frozen_children(module.model, freeze)  # a bad name fails before anything is written
         callbacks = [*(callbacks or []), FreezeModules(freeze)]
+    if resume:
+        check_resume_checkpoint(last_ckpt, module)  # before the run folder is touched
     out = resolve_run_dir(out, resume)
     if weights and not resume:
         logger.info(transfer_weights(module, weights))

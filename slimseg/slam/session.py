@@ -200,19 +200,25 @@ def restored_condition(
                      note=f"PatchMatch restoration of the {cond.name} masks")  # fmt: skip
 
 
+def refuse_masks_inside(out: Path, masks: Path | None) -> None:
+    """``SlimsegError`` when ``--masks`` lives inside a folder of :data:`OWNED` under ``out``
+    (a new session replaces those)."""
+    if masks is None:
+        return
+    read = [masks.resolve(), (masks / "masks").resolve()]  # --masks DIR or its masks/
+    for p in (out / name for name in OWNED):
+        if any(m == p.resolve() or p.resolve() in m.parents for m in read):
+            raise SlimsegError(
+                f"--masks {masks} is inside {p}, which slam-eval --out {out} replaces: "
+                "copy the masks elsewhere or choose another --out"
+            )
+
+
 def clean(out: Path, masks: Path | None) -> None:
     """Delete the previous session's folders under ``out`` (stale runs of another vocabulary
     or intrinsics never mix into a new table); refuse when ``--masks`` lives inside them."""
-    owned = [out / name for name in OWNED]
-    if masks is not None:
-        m = masks.resolve()
-        for p in owned:
-            if m == p.resolve() or p.resolve() in m.parents:
-                raise SlimsegError(
-                    f"--masks {masks} is inside {p}, which slam-eval --out {out} replaces: "
-                    "copy the masks elsewhere or choose another --out"
-                )
-    for p in owned:
+    refuse_masks_inside(out, masks)
+    for p in (out / name for name in OWNED):
         if p.is_dir():
             shutil.rmtree(p)
 
@@ -253,11 +259,12 @@ def ground_truth(seq: TumSequence) -> list:
 
 
 def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[dict], RunInfo]:
-    """Everything after option parsing; returns the summary rows and the table's header."""
+    """Everything after option parsing; returns the summary rows and the table's header.
+    Writes into ``out`` as it goes: give it an empty folder (``slam-eval`` passes the staging
+    folder of :func:`~slimseg.utils.atomic.staged_dir`, which replaces :data:`OWNED` whole)."""
     seq = plan.sequence
     vocab_label = check_engine(plan.engine, plan.vocab)
     say(seq.describe_camera())  # the same line as slimseg dynamic's
-    clean(out, plan.masks)
     gt = ground_truth(seq)
     masked = mask_conditions(plan, out, say)
     conds: list[Condition] = []

@@ -1,8 +1,12 @@
-"""Atomic file writes: every output goes to a temporary name in its folder, then ``os.replace``.
+"""Atomic outputs: every file goes to a temporary name in its folder, then ``os.replace``;
+every folder output is built in a temporary folder beside it, then moved into place.
 
 A reader never sees a half-written file, and an interrupted write leaves the previous version
 (or nothing) in place. ``atomic_path`` serves writers that take a path (``torch.save``,
-``Figure.savefig``, ``cv2.imwrite``); the ``write_*`` helpers cover the common formats.
+``Figure.savefig``, ``cv2.imwrite``); the ``write_*`` helpers cover the common formats;
+``staged_dir`` serves commands whose output is a folder (``slimseg dynamic``'s ``masks/`` and
+``frames.csv``, ``predict``'s files, ``slam-eval``'s ``trajectories/``): a command that fails
+midway leaves its output folder as it was.
 """
 
 from __future__ import annotations
@@ -10,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import shutil
 import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -18,6 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+
+from slimseg.errors import SlimsegError
 
 
 @contextmanager
@@ -29,13 +36,69 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     several machines sharing one folder (NFS, a sweep across a cluster) never share it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tag = f"{socket.gethostname()}.{os.getpid()}.{secrets.token_hex(4)}"
-    tmp = path.with_name(f".{path.stem}.{tag}.tmp{path.suffix}")
+    tmp = path.with_name(f".{path.stem}.{_tag()}.tmp{path.suffix}")
     try:
         yield tmp
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _tag() -> str:
+    return f"{socket.gethostname()}.{os.getpid()}.{secrets.token_hex(4)}"
+
+
+@contextmanager
+def staged_dir(
+    path: str | Path, option: str = "--out", owned: tuple[str, ...] = ()
+) -> Iterator[Path]:
+    """A folder output that appears complete or not at all.
+
+    Yields a fresh temporary folder beside ``path`` (``.NAME.<host.pid.token>.tmp``); the
+    caller writes everything there. On a clean exit each top-level entry moves into ``path``
+    (created), replacing the entry of the same name whole (a ``masks/`` folder of an earlier
+    run is swapped, not merged, so no stale file stays). Entries of ``path`` the command did
+    not write are left alone, except those named in ``owned`` (a command's own subfolders),
+    which are deleted so an earlier run's never mix with this one's. On an exception the
+    temporary folder (and any parent folder this call created) is removed and ``path`` is as
+    before. ``SlimsegError`` naming ``option`` when ``path`` exists and is not a folder."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise SlimsegError(f"{option} {path} is a file, not a folder: give a folder path")
+    created = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    stage = path.with_name(f".{path.name}.{_tag()}.tmp")
+    try:
+        stage.mkdir()
+        yield stage
+        entries = sorted(stage.iterdir())
+        if entries:  # a run that wrote nothing leaves no folder behind
+            path.mkdir(exist_ok=True)
+        for entry in entries:
+            _move_replacing(entry, path / entry.name)
+        for name in set(owned) - {e.name for e in entries}:
+            if (path / name).is_dir():
+                shutil.rmtree(path / name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        for p in created:  # innermost first; only folders this call made and left empty
+            if p.is_dir() and not path.exists() and not any(p.iterdir()):
+                p.rmdir()
+
+
+def _move_replacing(src: Path, dst: Path) -> None:
+    """Rename ``src`` to ``dst``; an existing folder at ``dst`` (or anything where a folder
+    goes) is moved aside first and deleted once ``src`` is in place."""
+    if not os.path.lexists(dst) or not (dst.is_dir() or src.is_dir()):
+        os.replace(src, dst)
+        return
+    old = dst.with_name(f".{dst.name}.{_tag()}.old")
+    os.replace(dst, old)
+    os.replace(src, dst)
+    if old.is_dir() and not old.is_symlink():
+        shutil.rmtree(old)
+    else:
+        old.unlink()
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:
