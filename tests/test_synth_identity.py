@@ -9,8 +9,18 @@ without its ``#`` comment lines: they spell out the command line that regenerate
 whose wording is not an output of the renderer. Beside the files, the patch that ``draw``
 paints for sampled styles of every category (and walking poses of the person) is pinned too.
 
-The digests hold for one environment's OpenCV/zlib and numpy; re-pin only for an intended
-output change: ``python tests/test_synth_identity.py`` rewrites the JSON.
+The digests hold for one OpenCV/zlib and numpy and any x86-64 CPU with AVX2, with or without
+AVX-512: the renderer avoids float32 transcendentals, whose numpy result depends on the CPU (on
+AVX-512 numpy's float32 ``**`` is SVML's, elsewhere libm's). While ``finish_rgb``'s gamma was a
+float32 power, pins made on an AVX-512 machine failed on an AVX2 one: 6 values one level off
+(12 of 372 files, one value in 12,288 pixels each, each within one float32 ulp of a .5
+rounding boundary). The float64 power is robust: moving every power result by 4 ulps changes
+no output value (the float32 power: 32 of 3.8 million values per ulp), nor does moving every
+float64 sin, cos, tan, exp, log and arctan2 by one ulp. These digests were pinned on an AVX2
+CPU (numpy 2.4, OpenCV 5.1). OpenCV's float kernels (GaussianBlur, remap, resize) have no
+AVX-512 code and run the same AVX2 code on both kinds; without AVX2 (``OPENCV_CPU_DISABLE=
+AVX2,FMA3``) 5 files change by one value. Re-pin only for an intended output change:
+``python tests/test_synth_identity.py`` rewrites the JSON.
 """
 
 from __future__ import annotations

@@ -153,12 +153,23 @@ def sample_noise(rng: np.random.Generator, sensor: Sensor, h: int, w: int) -> Se
     )
 
 
-def finish_rgb(rgb: np.ndarray, sensor: Sensor, noise: SensorNoise) -> np.ndarray:
-    """Apply colour cast, gamma, blur and noise: ``uint8 [H, W, 3]`` -> ``uint8 [H, W, 3]``."""
-    x = rgb.astype(np.float32) * np.asarray(sensor.gain, np.float32) + sensor.bias
-    x = np.clip(x, 0, 255)
+def _tone(x: np.ndarray, sensor: Sensor) -> np.ndarray:
+    """Colour cast and gamma of ``float32 [..., 3]`` values in 0-255 (same shape out)."""
+    x = np.clip(x * np.asarray(sensor.gain, np.float32) + sensor.bias, 0, 255)
     if abs(sensor.gamma - 1.0) > 1e-3:
-        x = 255.0 * (x / 255.0) ** sensor.gamma
+        # float64: numpy's float32 power is libm's powf, but SVML's on AVX-512 CPUs; the two
+        # differ by an ulp, enough to flip a value at a .5 rounding boundary by one level.
+        x = (255.0 * (x.astype(np.float64) / 255.0) ** sensor.gamma).astype(np.float32)
+    return x
+
+
+def finish_rgb(rgb: np.ndarray, sensor: Sensor, noise: SensorNoise) -> np.ndarray:
+    """Apply colour cast, gamma, blur and noise: ``uint8 [H, W, 3]`` (or ``float32``, 0-255,
+    as motion blur gives) -> ``uint8 [H, W, 3]``."""
+    if rgb.dtype == np.uint8:  # 256 levels per channel: tone each once, then look them up
+        x = _tone(np.arange(256, dtype=np.float32)[:, None], sensor)[rgb, np.arange(3)]
+    else:
+        x = _tone(rgb.astype(np.float32), sensor)
     if sensor.blur > 0.3:
         x = cv2.GaussianBlur(x, (0, 0), sensor.blur)
     if sensor.noise > 0:
