@@ -22,6 +22,7 @@ from slimseg.eval.semantic_metrics import ConfusionMatrix
 from slimseg.eval.validation import detect_batch, iou_types_for, is_semantic, semantic_batch
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
+from slimseg.utils.full_precision import full_precision
 from slimseg.utils.strict_dataclass import dataclass_from_mapping
 
 
@@ -148,6 +149,12 @@ class ZooModule(L.LightningModule):
             self.evaluator = CocoEvaluator.from_dataset(base, iou_types_for(self.model))
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
+        # Lightning runs this step under the training autocast (16-mixed, bf16-mixed): score in
+        # float32, as `slimseg val` does, so the in-training mAP (and best.pt) is that number
+        with full_precision(self.device):
+            self._validate_batch(batch)
+
+    def _validate_batch(self, batch: dict) -> None:
         model = self.eval_model
         model.eval()
         if self.semantic:
