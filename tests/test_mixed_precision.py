@@ -6,14 +6,13 @@ from __future__ import annotations
 
 import pytest
 import torch
+from conftest import batchnorm_from, open_class_bias
 
 from slimseg.engine.module import ZooModule
 from slimseg.eval.validation import detect_batch
 from slimseg.models.registry import build_model, get_spec
 from slimseg.ops.letterbox import letterbox_params
 from slimseg.ops.masks import assemble_masks
-
-from conftest import batchnorm_from, open_class_bias
 
 LOW = (torch.bfloat16, torch.float16)
 
