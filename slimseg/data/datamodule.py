@@ -19,8 +19,9 @@ class EpochSampler(Sampler[EpochIndex]):
     """Shuffles with ``seed + epoch``; each index carries the epoch and its mosaic switch.
 
     Lightning calls ``set_epoch`` before each training epoch; the dataset re-seeds its
-    augmentation from ``(seed, epoch, loader worker, DDP rank)`` when the first index of an epoch reaches
-    it (:class:`~slimseg.data.dataset.EpochIndex`), in whichever process loads it. So the
+    augmentation from ``(seed, epoch, loader worker, DDP rank)`` when the first index of an
+    epoch reaches it (:class:`~slimseg.data.dataset.EpochIndex`), in whichever process loads
+    it. So the
     order and the augmentation of epoch ``e`` depend only on ``(seed, e)`` and the worker
     count, a resumed run sees the same batches as an uninterrupted one, and persistent loader
     workers (which never see the main process' dataset again) follow the epoch and the
