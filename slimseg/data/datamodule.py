@@ -19,8 +19,9 @@ class EpochSampler(Sampler[EpochIndex]):
     """Shuffles with ``seed + epoch``; each index carries the epoch and its mosaic switch.
 
     Lightning calls ``set_epoch`` before each training epoch; the dataset re-seeds its
-    augmentation from ``(seed, epoch, loader worker)`` when the first index of an epoch reaches
-    it (:class:`~slimseg.data.dataset.EpochIndex`), in whichever process loads it. So the
+    augmentation from ``(seed, epoch, loader worker, DDP rank)`` when the first index of an
+    epoch reaches it (:class:`~slimseg.data.dataset.EpochIndex`), in whichever process loads
+    it. So the
     order and the augmentation of epoch ``e`` depend only on ``(seed, e)`` and the worker
     count, a resumed run sees the same batches as an uninterrupted one, and persistent loader
     workers (which never see the main process' dataset again) follow the epoch and the
@@ -99,6 +100,7 @@ class SegDataModule(L.LightningDataModule):
                 self.seed,
                 TRAIN_CACHE_MIB,
                 mosaic_buffer_size(self.batch_size),
+                rank=0 if self.trainer is None else self.trainer.global_rank,
             )
         if self.val_set is None:
             self.val_set = ZooDataset(self._base("val"), self.imgsz)
@@ -129,7 +131,11 @@ class SegDataModule(L.LightningDataModule):
 
     def transfer_batch_to_device(self, batch: dict, device: torch.device, idx: int) -> dict:
         """Move the tensors; ``meta`` (letterbox geometry, paths) stays on the host."""
-        return {k: v.to(device) if torch.is_tensor(v) else v for k, v in batch.items()}
+        # non_blocking: with pinned host memory (pin_memory on CUDA) the copy overlaps compute
+        return {
+            k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v
+            for k, v in batch.items()
+        }
 
     def train_dataloader(self) -> DataLoader:
         assert self.train_set is not None, "call setup('fit') first"

@@ -69,8 +69,12 @@ class ZooDataset(Dataset):
 
     Indices may be :class:`EpochIndex` (what the training sampler yields): the first one of a
     new epoch re-seeds the process that loads it with :meth:`epoch_seed` (seed, epoch, loader
-    worker), and each says whether its epoch uses mosaic (``mosaic_enabled`` and it must both
-    be true), so persistent workers follow both.
+    worker, ``rank``), and each says whether its epoch uses mosaic (``mosaic_enabled`` and it
+    must both be true), so persistent workers follow both.
+
+    ``rank``: the global rank of the training process (DDP): each rank draws its own
+    augmentation stream (flips, affines, HSV gains, mosaic partners); rank 0's is the stream
+    of a single-process run.
     """
 
     def __init__(
@@ -81,8 +85,10 @@ class ZooDataset(Dataset):
         seed: int = 0,
         cache_mib: int = 0,
         mosaic_buffer: int = MOSAIC_BUFFER_BATCHES * 8,
+        rank: int = 0,
     ) -> None:
         self.base = base
+        self.rank = rank
         self.cache_bytes = cache_mib * 2**20
         self._cache: dict[int, Sample] = {}
         self._cached_bytes = 0
@@ -101,8 +107,11 @@ class ZooDataset(Dataset):
             self.transform.set_random_seed(seed)
 
     def epoch_seed(self, epoch: int, worker: int) -> int:
-        """The augmentation seed of ``epoch`` in loader worker ``worker`` (0: main process)."""
-        return int(np.random.SeedSequence([self.seed, epoch, worker]).generate_state(1)[0])
+        """The augmentation seed of ``epoch`` in loader worker ``worker`` (0: main process) of
+        this dataset's ``rank``. Rank 0 keeps the seed a single-process run has always had, so
+        a one-device run draws the same stream as before ranks were part of it."""
+        entropy = [self.seed, epoch, worker] + ([self.rank] if self.rank else [])
+        return int(np.random.SeedSequence(entropy).generate_state(1)[0])
 
     def reseed(self, seed: int) -> None:
         """Re-seed augmentation (called per worker and per epoch for reproducibility)."""

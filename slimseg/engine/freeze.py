@@ -37,7 +37,11 @@ class FreezeModules(L.Callback):
     def __init__(self, names: Sequence[str]) -> None:
         self.names = tuple(names)
 
-    def on_fit_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+    def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        # before the strategy wraps the module (DDP registers the parameters that need
+        # gradients when it wraps; on_fit_start is too late: the frozen ones would be waited
+        # for, "parameters that were not used in producing the loss") and before the
+        # optimizer is built (it then holds only the trained parameters)
         for part in frozen_children(pl_module.model, self.names):
             part.requires_grad_(False)
 

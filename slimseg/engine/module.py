@@ -22,6 +22,7 @@ from slimseg.eval.semantic_metrics import ConfusionMatrix
 from slimseg.eval.validation import detect_batch, iou_types_for, is_semantic, semantic_batch
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec, spec_from_mapping
+from slimseg.utils.full_precision import full_precision
 from slimseg.utils.strict_dataclass import dataclass_from_mapping
 
 
@@ -47,6 +48,22 @@ def parameter_groups(model: nn.Module, weight_decay: float) -> list[dict]:
         {"params": norm, "weight_decay": 0.0, "group": "norm"},
         {"params": bias, "weight_decay": 0.0, "group": "bias"},
     ]
+
+
+def _distributed() -> bool:
+    return dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1
+
+
+def nonfinite_ranks(loss: torch.Tensor) -> list[int]:
+    """The ranks whose ``loss`` (scalar) is NaN/inf, the same list on every rank (one
+    all-reduce under DDP, collective: every rank must call it at the same step), so all ranks
+    take the same decision; ``[0]`` or ``[]`` in a single process."""
+    if not _distributed():
+        return [] if bool(torch.isfinite(loss)) else [0]
+    flags = torch.zeros(dist.get_world_size(), device=loss.device)
+    flags[dist.get_rank()] = (~torch.isfinite(loss.detach())).float()
+    dist.all_reduce(flags)
+    return flags.nonzero().flatten().tolist()
 
 
 class ZooModule(L.LightningModule):
@@ -113,18 +130,34 @@ class ZooModule(L.LightningModule):
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         loss, terms = self.criterion(self.model(network_input(batch["images"])), batch)
-        if not torch.isfinite(loss):
-            raise NonFiniteLossError(
-                f"loss became {loss.item()} at epoch {self.current_epoch} step {self.global_step} "
-                f"({', '.join(f'{k}={v.item():.4g}' for k, v in terms.items())}); the last good "
-                "checkpoint is kept: lower lr0, raise warmup_epochs, or run 'slimseg data check'"
-            )
+        bad = nonfinite_ranks(loss)
+        if bad:  # every rank got the same list: all stop here, none waits in a collective
+            raise NonFiniteLossError(self._nonfinite_message(loss, terms, bad))
         bs = batch["images"].shape[0]
         self.log("loss", loss / bs, prog_bar=True, on_epoch=False, logger=False, batch_size=bs)
-        for k, v in terms.items():
-            self.log(f"train/{k}", v, on_step=False, on_epoch=True, batch_size=bs)
+        for k, v in terms.items():  # averaged over ranks, not rank 0's shard alone
+            self.log(f"train/{k}", v, on_step=False, on_epoch=True, batch_size=bs, sync_dist=True)
         self.log("lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=bs)
         return loss
+
+    def _nonfinite_message(
+        self, loss: torch.Tensor, terms: dict[str, torch.Tensor], bad: list[int]
+    ) -> str:
+        """One line: the loss (with this rank's terms when it is the bad one), where, what to do."""
+        if torch.isfinite(loss):
+            what = "non-finite"
+        else:
+            what = f"{loss.item()} ({', '.join(f'{k}={v.item():.4g}' for k, v in terms.items())})"
+        where = (
+            f" on rank {', '.join(map(str, bad))} of {dist.get_world_size()}"
+            if (_distributed())
+            else ""
+        )
+        return (
+            f"loss became {what}{where} at epoch {self.current_epoch} step {self.global_step}; "
+            "the last good checkpoint is kept: lower lr0, raise warmup_epochs, or run "
+            "'slimseg data check'"
+        )
 
     def on_train_batch_end(self, outputs: Any, batch: dict, batch_idx: int) -> None:
         if self.ema is not None:
@@ -148,6 +181,12 @@ class ZooModule(L.LightningModule):
             self.evaluator = CocoEvaluator.from_dataset(base, iou_types_for(self.model))
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
+        # Lightning runs this step under the training autocast (16-mixed, bf16-mixed): score in
+        # float32, as `slimseg val` does, so the in-training mAP (and best.pt) is that number
+        with full_precision(self.device):
+            self._validate_batch(batch)
+
+    def _validate_batch(self, batch: dict) -> None:
         model = self.eval_model
         model.eval()
         if self.semantic:
@@ -166,9 +205,13 @@ class ZooModule(L.LightningModule):
 
     def on_validation_epoch_end(self) -> None:
         results = self._val_results
-        if dist.is_available() and dist.is_initialized() and dist.get_world_size() > 1:
-            gathered: list[Any] = [None] * dist.get_world_size()
-            dist.all_gather_object(gathered, results)
+        if _distributed():  # rank 0 scores the whole val set; the others send theirs to it
+            rank0 = dist.get_rank() == 0
+            gathered: list[Any] | None = [None] * dist.get_world_size() if rank0 else None
+            dist.gather_object(results, gathered, dst=0)
+            if not rank0:
+                self.validated_epoch = self.current_epoch
+                return
             results = [r for part in gathered for r in part]
         if self.semantic:
             self._semantic_epoch_end(results)

@@ -26,6 +26,7 @@ from slimseg.models.base import ZooModel
 from slimseg.models.heads.decode import YOLO_STRIDES as STRIDES
 from slimseg.models.specs import ModelSpec
 from slimseg.ops.nms import yolov3_to_rows
+from slimseg.utils.full_precision import full_precision
 
 # (w, h) in input pixels, one tuple per level, ordered stride 8, 16, 32 (yolov3.cfg masks
 # 0,1,2 | 3,4,5 | 6,7,8).
@@ -234,7 +235,8 @@ class Darknet19YOLOv3(ZooModel):
         ]
         if self.training:
             return preds
-        return torch.cat([self._decode(p, i) for i, p in enumerate(preds)], 2)
+        with full_precision(x.device):  # float32 boxes and scores under autocast too
+            return torch.cat([self._decode(p.float(), i) for i, p in enumerate(preds)], 2)
 
     def _decode(self, p: torch.Tensor, level: int) -> torch.Tensor:
         """Raw ``[B, na, 5+nc, h, w]`` → decoded ``[B, 5+nc, na·h·w]`` (anchor-major)."""

@@ -20,6 +20,7 @@ from slimseg.models.heads.masks import MaskCoefficients, Proto
 from slimseg.models.heads.shared_rep import SharedRepDetect
 from slimseg.models.necks.pan import PAN
 from slimseg.models.specs import ModelSpec
+from slimseg.utils.full_precision import full_precision
 
 
 class RawOutputs(NamedTuple):
@@ -39,7 +40,8 @@ class RawOutputs(NamedTuple):
 class YOLO(ZooModel):
     """YOLOv8 family network built from a ``ModelSpec``.
 
-    Eval forward on ``[B, 3, H, W]`` (H, W multiples of 32) returns the deployment layout:
+    Eval forward on ``[B, 3, H, W]`` (H, W multiples of 32) returns the deployment layout, in
+    float32 whatever the ambient autocast:
     segment → ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/s, W/s])`` (``s`` =
     ``spec.head.proto_stride``, 4 unless the finer prototype path is on); detect →
     ``pred [B, 4 + nc, A]``. ``pred`` rows: cx, cy, w, h in input pixels, nc sigmoid class
@@ -98,17 +100,20 @@ class YOLO(ZooModel):
         return RawOutputs(self.detect(feats), None, None)
 
     def decode(self, raw: RawOutputs) -> torch.Tensor:
-        """Per-level logits → ``[B, 4 + nc (+ nm), A]`` deployment rows (see class doc)."""
+        """Per-level logits → ``[B, 4 + nc (+ nm), A]`` float32 deployment rows (see class
+        doc), under autocast too: anchors, the DFL expectation and the boxes in float16 would
+        be off by up to a few pixels at 640 px."""
         b = raw.feats[0].shape[0]
         sizes = [(f.shape[2], f.shape[3]) for f in raw.feats]
-        flat = torch.cat([f.reshape(b, f.shape[1], -1) for f in raw.feats], dim=2)
-        box_logits, cls_logits = flat.split((4 * self.reg_max, self.num_classes), dim=1)
-        points, stride = anchor_points(sizes, self.strides, flat)
-        xywh = distances_to_xywh(self.dfl(box_logits), points) * stride.transpose(0, 1)
-        rows = [xywh, cls_logits.sigmoid()]
-        if raw.mask_coeffs is not None:
-            rows.append(raw.mask_coeffs)
-        return torch.cat(rows, dim=1)
+        with full_precision(raw.feats[0].device):
+            flat = torch.cat([f.reshape(b, f.shape[1], -1).float() for f in raw.feats], dim=2)
+            box_logits, cls_logits = flat.split((4 * self.reg_max, self.num_classes), dim=1)
+            points, stride = anchor_points(sizes, self.strides, flat)
+            xywh = distances_to_xywh(self.dfl(box_logits), points) * stride.transpose(0, 1)
+            rows = [xywh, cls_logits.sigmoid()]
+            if raw.mask_coeffs is not None:
+                rows.append(raw.mask_coeffs.float())
+            return torch.cat(rows, dim=1)
 
     def forward(
         self, images: torch.Tensor
@@ -117,7 +122,7 @@ class YOLO(ZooModel):
         if self.training:
             return raw
         pred = self.decode(raw)
-        return (pred, raw.proto) if self.segment else pred
+        return (pred, raw.proto.float()) if self.segment else pred
 
     def dead_conv_params(self) -> int:
         """Parameters the original code defines but never uses (the slim-neck's ``res`` conv)."""

@@ -6,7 +6,7 @@ The exact rule, which a C++ runtime follows step by step to get the same pixels
 
 :func:`assemble_masks` (per detection, boxes xyxy in input pixels):
 
-1. ``prob = sigmoid(coeffs · proto)``: a ``[Hp, Wp]`` map, float32;
+1. ``prob = sigmoid(coeffs · proto)``: a ``[Hp, Wp]`` map, float32 (also under autocast);
 2. bilinear upsampling to ``H × W`` with half-pixel centres: ``src = (dst + 0.5) · Hp / H −
    0.5``, clamped at the borders (``torch`` ``align_corners=False``; ``cv2.resize`` with
    ``INTER_LINEAR`` on float32 does the same);
@@ -44,6 +44,7 @@ import torch
 import torch.nn.functional as F
 
 from slimseg.ops.letterbox import LetterboxParams
+from slimseg.utils.full_precision import full_precision
 
 
 def _proto_window(boxes: torch.Tensor, h: int, w: int) -> torch.Tensor:
@@ -240,14 +241,15 @@ def mask_windows(
     for s in range(0, n, chunk):
         k = order[s : s + chunk]
         m = k.numel()
-        prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
-        if proto_crop:
-            prob = prob * _proto_window(b[k] * to_proto, hp, wp)
-        spans = (x0[k], nx[k]), (y0[k], ny[k])
-        if ratio is None:
-            values, top, left = _resize_window(prob, *spans, (h, w), threshold)
-        else:
-            values, top, left = _upsample_window(prob, *spans, ratio, threshold)
+        with full_precision(proto.device):  # float32 under autocast too (module docstring)
+            prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
+            if proto_crop:
+                prob = prob * _proto_window(b[k] * to_proto, hp, wp)
+            spans = (x0[k], nx[k]), (y0[k], ny[k])
+            if ratio is None:
+                values, top, left = _resize_window(prob, *spans, (h, w), threshold)
+            else:
+                values, top, left = _upsample_window(prob, *spans, ratio, threshold)
         yield k, values, top, left
 
 
