@@ -90,8 +90,28 @@ def main() -> None:
     ap.add_argument("--speed", type=float, default=1.0)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument(
+        "--mode", default=None, help="mask mode of every rung (default: each rung's, fusion)"
+    )
+    ap.add_argument(
+        "--set",
+        default="",
+        metavar="KEY=V,...",
+        help="masking settings over the shipped defaults, e.g. min_static=0,t_o=0.6",
+    )
+    ap.add_argument(
+        "--no-baselines", action="store_true", help="skip the raw and gt rows (already measured)"
+    )
     args = ap.parse_args()
+    args.masking = DEFAULT.with_values(
+        **{k: float(v) if "." in v else int(v)
+           for k, v in (kv.split("=") for kv in args.set.split(",") if kv)}
+    )  # fmt: skip
+    if args.mode:
+        rungs_mode = args.mode
     rungs = ladder(args.ladder)
+    if args.mode:
+        rungs = [Rung(r.name, rungs_mode, r.track, r.dropout) for r in rungs]
     if args.only:
         want = {s.strip() for s in args.only.split(",")}
         rungs = [r for r in rungs if r.name in want]
@@ -131,6 +151,8 @@ def _sequence(args: argparse.Namespace, seq_dir: Path, rungs: list[Rung]) -> lis
         (Condition("raw", "raw"), {}),
         (Condition("gt", "masked", masks=seq.root / "dynamic", dilation_px=d), {}),
     ]
+    if args.no_baselines:
+        conds = []
     predictor = None
     for rung in rungs:
         inst = None
@@ -143,13 +165,14 @@ def _sequence(args: argparse.Namespace, seq_dir: Path, rungs: list[Rung]) -> lis
         out = folder / "masks" / "".join(c if c.isalnum() else "_" for c in rung.name)
         t0 = time.perf_counter()
         rep = run_sequence(
-            inst or predictor, seq, out, rung.mode, DEFAULT, progress=False, track=rung.track
+            inst or predictor, seq, out, rung.mode, args.masking, progress=False, track=rung.track
         )
         sc = rep.scores.get(rung.mode)
         loss = rep.recall_loss.summary() if rep.recall_loss else {}
         ms = rep.ms_per_frame
         info = {
             "mode": rung.mode,
+            "masking": args.masking.describe(),
             "recall_pct": 100 * sc.recall if sc else None,
             "precision_pct": 100 * sc.precision if sc else None,
             "missed_on_dropouts_pct": loss.get("missed_on_dropouts_pct"),
