@@ -8,9 +8,10 @@
 // masking score threshold (slam_masking.conf unless --conf), then the SLAM rules with the
 // dump's keypoints; writes OUT/<stem>.pgm (uint8 dynamic mask, 255 = dynamic). The frame size
 // comes from FRAMES/<stem>.ppm (binary PPM) when --frames is given, else from the dump; with a
-// frame, the letterbox is recomputed and compared with the dump's network input. --results
+// frame, the letterbox is recomputed and compared with the dump's network input (largest
+// difference in grey levels). --results
 // also writes OUT/<stem>.ssres (the same container: boxes, scores, classes, masks, class_map,
-// dynamic, keypoint_dynamic, m_th) for comparisons. Exit 2 with one line on bad input.
+// dynamic, keypoint_dynamic, used_seg, m_th) for comparisons. Exit 2 with one line on bad input.
 #include <slimseg/consumer.hpp>
 
 #include <algorithm>
@@ -152,6 +153,8 @@ void write_results(const std::string& path, const FramePrediction& p, const Dyna
     out.add("dynamic", RawType::UInt8, {p.h, p.w}, r.mask.data());
     out.add("keypoint_dynamic", RawType::UInt8, {static_cast<std::int64_t>(r.dynamic.size())},
             r.dynamic.data());
+    out.add("used_seg", RawType::UInt8, {static_cast<std::int64_t>(r.used_seg.size())},
+            r.used_seg.data());
     float m_th = r.gave_up ? -1.0f : static_cast<float>(r.m_th);
     out.add("m_th", RawType::Float32, {1}, &m_th);
     out.add("letterbox_max_diff", RawType::Float32, {1}, &letterbox_diff);
@@ -201,7 +204,8 @@ int run(const Args& a) {
                     throw Error(stem + ": images tensor is not [1, 3, H, W] of the metadata's imgsz");
                 diff = 0;
                 for (size_t i = 0; i < mine.size(); ++i)
-                    diff = std::max(diff, std::fabs(mine[i] - theirs[i]) * 255.0f);
+                    diff = std::max(diff, std::fabs(std::nearbyint(mine[i] * 255.0f) -
+                                                    std::nearbyint(theirs[i] * 255.0f)));
                 worst_letterbox = std::max(worst_letterbox, diff);
             }
         }

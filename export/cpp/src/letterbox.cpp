@@ -99,6 +99,30 @@ float half_to_float(std::uint16_t h) {
     return f;
 }
 
+std::uint16_t float_to_half(float f) {
+    std::uint32_t x;
+    std::memcpy(&x, &f, sizeof x);
+    const std::uint16_t sign = static_cast<std::uint16_t>((x >> 16) & 0x8000u);
+    const std::uint32_t abs = x & 0x7FFFFFFFu;
+    if (abs >= 0x7F800000u)  // inf / nan
+        return sign | 0x7C00u | (abs > 0x7F800000u ? 0x200u : 0u);
+    if (abs >= 0x477FF000u) return sign | 0x7C00u;  // rounds past 65504: infinity
+    if (abs < 0x38800000u) {  // below the smallest normal half: subnormal (or zero)
+        if (abs < 0x33000000u) return sign;  // below half the smallest subnormal
+        const std::uint32_t man = (abs & 0x7FFFFFu) | 0x800000u;
+        const int shift = 126 - static_cast<int>(abs >> 23);  // 14 .. 24
+        std::uint32_t v = man >> shift;
+        const std::uint32_t rest = man & ((1u << shift) - 1), half = 1u << (shift - 1);
+        if (rest > half || (rest == half && (v & 1u))) ++v;
+        return sign | static_cast<std::uint16_t>(v);
+    }
+    std::uint32_t v = abs - 0x38000000u;  // rebias the exponent (127 -> 15)
+    const std::uint32_t rest = v & 0x1FFFu;
+    v >>= 13;
+    if (rest > 0x1000u || (rest == 0x1000u && (v & 1u))) ++v;
+    return sign | static_cast<std::uint16_t>(v);
+}
+
 std::vector<float> to_float(const TensorView& t) {
     std::int64_t n = t.numel();
     if (t.data == nullptr && n > 0) throw Error("tensor: no data");

@@ -166,7 +166,7 @@ Taps interpolate_taps(int size_out, int size_in) {
             t.w1.push_back(0.0f);
             continue;
         }
-        float src = std::max(s * (static_cast<float>(o) + 0.5f) - 0.5f, 0.0f);
+        float src = std::max(std::fma(s, static_cast<float>(o) + 0.5f, -0.5f), 0.0f);
         int a = std::min(static_cast<int>(std::floor(src)), size_in - 1);
         t.i0.push_back(a);
         t.i1.push_back(a + (a < size_in - 1 ? 1 : 0));
@@ -175,6 +175,15 @@ Taps interpolate_taps(int size_out, int size_in) {
     return t;
 }
 
+// torch's CPU bilinear kernel (F.interpolate; its AVX2/AVX-512 builds contract a*b + c*d into
+// fma(a, b, c*d)): x first, then y. Bit-identical on the prototype upsampling (ratio 2 or 4).
+inline float interp_torch(float v00, float v01, float v10, float v11, float wx, float wy) {
+    float r0 = std::fma(v00, 1.0f - wx, v01 * wx);
+    float r1 = std::fma(v10, 1.0f - wx, v11 * wx);
+    return std::fma(r0, 1.0f - wy, r1 * wy);
+}
+
+// slimseg.ops.masks._resize_window: separate torch element-wise ops, each rounded.
 inline float interp(float v00, float v01, float v10, float v11, float wx, float wy) {
     float r0 = v00 * (1.0f - wx);
     r0 = r0 + v01 * wx;
@@ -322,7 +331,7 @@ FramePrediction Postprocessor::instances(const RawOutputs& raw, const Letterbox&
                 for (int x = 0; x < nx; ++x) {
                     int xx = x0 + x;
                     up[static_cast<size_t>(y) * nx + x] =
-                        interp(P(uy.i0[yy], ux.i0[xx]), P(uy.i0[yy], ux.i1[xx]),
+                        interp_torch(P(uy.i0[yy], ux.i0[xx]), P(uy.i0[yy], ux.i1[xx]),
                                P(uy.i1[yy], ux.i0[xx]), P(uy.i1[yy], ux.i1[xx]), ux.w1[xx],
                                uy.w1[yy]);
                 }
@@ -410,7 +419,7 @@ FramePrediction Postprocessor::semantic(const TensorView& logits, const Letterbo
             int arg = 0;
             for (int c = 0; c < k1; ++c) {
                 const float* p = v.data() + c * plane;
-                float val = interp(p[r0 + tx.i0[x]], p[r0 + tx.i1[x]], p[r1 + tx.i0[x]],
+                float val = interp_torch(p[r0 + tx.i0[x]], p[r0 + tx.i1[x]], p[r1 + tx.i0[x]],
                                    p[r1 + tx.i1[x]], tx.w1[x], ty.w1[y]);
                 if (c == 0 || val > best) best = val, arg = c;
             }

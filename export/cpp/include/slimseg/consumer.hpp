@@ -127,6 +127,8 @@ struct TensorView {
 };
 
 float half_to_float(std::uint16_t h);
+// Round to the nearest float16 (ties to even; overflow to infinity): FP16 exports' input.
+std::uint16_t float_to_half(float f);
 // The tensor's elements as float32 (float16 widened exactly).
 std::vector<float> to_float(const TensorView& t);
 
