@@ -23,6 +23,8 @@ import pytest
 import torch
 from conftest import batchnorm_from, open_class_bias
 
+from slimseg.cli.main import main
+from slimseg.data.synth import generate
 from slimseg.deploy.metadata import build_metadata, masking_from_metadata
 from slimseg.deploy.onnx_export import output_names, to_fp16
 from slimseg.deploy.onnx_io import publish, stage, staging_dir
@@ -33,6 +35,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.pipeline import FrameInputs, FrameResult, FrameRules, process_frame
 from slimseg.dynamic.semantic import instances_of
+from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,9 +109,9 @@ def _sparse_scores(model: torch.nn.Module, batch: torch.Tensor, top: float = 0.9
 
 
 def _export(out: Path, name: str, imgsz: tuple[int, int], half: bool) -> Path:
-    """A randomly initialised ``name`` with BatchNorm statistics of letterboxed scene-like
-    frames (and sparse class scores, :func:`_sparse_scores`), fused and exported as ``out`` + sidecar, FP16 on request (no parity gate: the
-    comparisons here run on the very outputs onnxruntime gives)."""
+    """A randomly initialised ``name`` with BatchNorm statistics of the letterboxed test frames
+    and sparse class scores (:func:`_sparse_scores`), fused and exported as ``out`` + sidecar,
+    FP16 on request; no parity gate: the comparisons run on what onnxruntime gives."""
     torch.manual_seed(0)
     model = build_model(name, num_classes=len(NAMES))
     frames = [preprocess_frame(image, imgsz)[0] for image in _frames()]
@@ -148,7 +151,11 @@ def _dump(root: Path, name: str, imgsz: tuple[int, int], half: bool, sizes=SIZES
     dumps = root / f"dumps-{model.stem}"
     meta = dict(predictor.metadata)
     entry = meta["slam_masking"]
-    meta["slam_masking"] = {**entry, **TEST_MASKING, "presets": {**entry["presets"], **TEST_PRESETS}}
+    meta["slam_masking"] = {
+        **entry,
+        **TEST_MASKING,
+        "presets": {**entry["presets"], **TEST_PRESETS},
+    }
     dumps.mkdir()
     (dumps / "metadata.json").write_text(json.dumps(meta))
     rng = np.random.default_rng(2)
@@ -291,3 +298,99 @@ def test_parity_with_the_python_reference(example, cases, tmp_path, key, mode, c
         assert stats["eq1"] == {"no detections", "gave up", "start", "raised"}, stats["eq1"]
         assert stats["borders"] == set("ltrb"), f"boxes touched only {stats['borders']}"
         assert stats["fused"] == {False, True}, "Eq. 4 chose only one of seg mask / box"
+
+
+def _broken(case: Case, tmp: Path, meta=None, tensors=None, truncate: bool = False) -> Path:
+    """A copy of one frame of ``case``'s dumps with its metadata / tensors changed."""
+    out = tmp / "dumps"
+    out.mkdir()
+    stem = next(iter(case.frames))
+    shutil.copy(case.dumps / f"{stem}.ppm", out)
+    raw = read_raw(case.dumps / f"{stem}.ssraw")
+    write_raw(out / f"{stem}.ssraw", {**raw, **(tensors or {})})
+    if truncate:
+        data = (out / f"{stem}.ssraw").read_bytes()
+        (out / f"{stem}.ssraw").write_bytes(data[: len(data) // 2])
+    text = (case.dumps / "metadata.json").read_text()
+    (out / "metadata.json").write_text(text if meta is None else meta(json.loads(text)))
+    return out
+
+
+def _drop(key):
+    return lambda m: json.dumps({k: v for k, v in m.items() if k != key})
+
+
+def _set(key, value):
+    return lambda m: json.dumps({**m, key: value})
+
+
+BROKEN = {  # what is broken -> the words the one-line error must contain
+    "no names": ({"meta": _drop("names")}, "metadata names: missing"),
+    "names not a list": ({"meta": _set("names", "person")}, "metadata names: expected an array"),
+    "bad t_o": (
+        {"meta": lambda m: json.dumps({**m, "slam_masking": {**m["slam_masking"], "t_o": 2}})},
+        "metadata slam_masking.t_o: value 2",
+    ),
+    "unknown family": ({"meta": _set("family", "yolov9")}, "metadata family: 'yolov9'"),
+    "bad JSON": ({"meta": lambda m: json.dumps(m)[:-5]}, "JSON (metadata sidecar)"),
+    "other imgsz": ({"meta": _set("imgsz", [160, 192])}, "output0: 525 anchors"),
+    "output0 rows": (
+        {"tensors": {"output0": np.zeros((1, 38, 525), np.float32)}},
+        "output0: shape [1, 38, 525], expected [1, 39, A]",
+    ),
+    "output0 batch": (
+        {"tensors": {"output0": np.zeros((2, 39, 525), np.float32)}},
+        "output0: shape [2, 39, 525] has batch 2",
+    ),
+    "output1 size": (
+        {"tensors": {"output1": np.zeros((1, 32, 20, 20), np.float32)}},
+        "output1: shape [1, 32, 20, 20], expected [1, 32, 40, 40]",
+    ),
+    "truncated dump": ({"truncate": True}, "truncated raw dump"),
+}
+
+
+@pytest.mark.parametrize("what", list(BROKEN))
+def test_malformed_input_gets_a_one_line_error(example, cases, tmp_path, what) -> None:
+    change, words = BROKEN[what]
+    dumps = _broken(cases("yolov8n-seg fp32"), tmp_path, **change)
+    cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
+    done = subprocess.run([*cmd, "--out", str(tmp_path / "out")], capture_output=True, text=True)
+    assert done.returncode == 2, done.stdout
+    assert words in done.stderr and done.stderr.count("\n") == 1, done.stderr
+    assert not list(tmp_path.glob("out/*.pgm")), "nothing is written for a bad frame"
+
+
+@pytest.mark.slow
+def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_path) -> None:
+    """``slimseg predict --dump-raw`` on a sequence's frames, the example program on the
+    dumps (frames read as PPM, the model's own metadata and masking preset, ORB keypoints from
+    the dump) and ``slimseg dynamic`` on the same sequence write identical masks."""
+    generate(tmp_path / "d", 1, 1, 64, 0, sequences=1, frames=3, seq_size=(160, 120),
+             progress=False)  # fmt: skip
+    seq = tmp_path / "d" / "sequences" / "seq_000"
+    model = str(cases("yolov8n-seg fp32").predictor.path)
+    dumps, out = tmp_path / "dumps", tmp_path / "cpp"
+    argv = ["predict", "--model", model, "--source", str(seq / "rgb"), "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "pred"), "--dump-raw", str(dumps)]) == 0
+    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "dyn")]) == 0
+    cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
+    done = subprocess.run([*cmd, "--out", str(out), "--frames", str(dumps)], capture_output=True)
+    assert done.returncode == 0, done.stderr
+    stems = sorted(p.stem for p in (seq / "rgb").glob("*.png"))
+    assert stems and sorted(p.stem for p in out.glob("*.pgm")) == stems
+    for stem in stems:
+        ours = cv2.imread(str(out / f"{stem}.pgm"), cv2.IMREAD_UNCHANGED)
+        theirs = cv2.imread(str(tmp_path / "dyn" / "masks" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_array_equal(ours, theirs, err_msg=stem)
+
+
+def test_dump_raw_needs_an_onnx_model(tmp_path) -> None:
+    weights = tmp_path / "w.pt"
+    model = build_model("yolov8n-seg", num_classes=1)
+    save_weights(weights, model, WeightsInfo(model.spec, ["person"], [1.0]))
+    cv2.imwrite(str(tmp_path / "a.png"), np.zeros((32, 32, 3), np.uint8))
+    argv = ["predict", "--model", str(weights), "--source", str(tmp_path / "a.png")]
+    assert main([*argv, "--out", str(tmp_path / "o"), "--dump-raw", str(tmp_path / "d")]) == 2
+    assert not (tmp_path / "d").exists()
