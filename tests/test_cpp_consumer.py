@@ -201,7 +201,9 @@ def cases(tmp_path_factory: pytest.TempPathFactory):
 
     def get(key: str) -> Case:
         if key not in made:
-            made[key] = _dump(root, *MODELS[key])
+            folder = root / key.replace(" ", "_")
+            folder.mkdir()
+            made[key] = _dump(folder, *MODELS[key])
         return made[key]
 
     return get
@@ -232,6 +234,25 @@ def _canonical(boxes: np.ndarray, scores: np.ndarray, classes: np.ndarray) -> np
     return np.lexsort((*boxes.T[::-1], classes, -scores.astype(np.float64)))
 
 
+def _pair_ties(order, ours, theirs, key) -> np.ndarray:
+    """``order`` with the detections whose ``key`` rows (score, class, frame box) coincide
+    (FP16 outputs: two anchors whose clipped boxes coincide) paired by their masks, ``ours``
+    (reference) vs ``theirs``, both in canonical order: nothing else tells them apart."""
+    base, out = np.array(order), np.array(order)
+    i = 0
+    while i < len(key):
+        j = i + 1
+        while j < len(key) and np.array_equal(key[j], key[i]):
+            j += 1
+        free = list(range(i, j))
+        for k in range(i, j):
+            best = max(free, key=lambda f, k=k: _iou(ours[k], theirs[f]))
+            free.remove(best)
+            out[k] = base[best]
+        i = j
+    return out
+
+
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     union = np.logical_or(a, b).sum()
     return 1.0 if union == 0 else float(np.logical_and(a, b).sum() / union)
@@ -250,10 +271,16 @@ def _compare(case, cpp, conf, mode, preset="", iou=0.7, max_det=300, stats=None)
         assert np.all(np.diff(got["scores"]) <= 0), stem
         a = _canonical(pred.boxes, pred.scores, pred.classes)
         b = _canonical(got["boxes"], got["scores"], got["classes"])
+        if n == max_det:  # a cut among equal scores keeps an unspecified subset of them
+            np.testing.assert_array_equal(got["scores"][b], pred.scores[a], err_msg=stem)
+            above = pred.scores[a] > pred.scores[a][-1]
+            a, b = a[above], b[above]
         np.testing.assert_array_equal(got["classes"][b], pred.classes[a], err_msg=stem)
         np.testing.assert_array_equal(got["scores"][b], pred.scores[a], err_msg=stem)
         np.testing.assert_allclose(got["boxes"][b], pred.boxes[a], rtol=0, atol=1e-3)
         if pred.masks is not None:
+            key = np.column_stack([pred.scores, pred.classes, pred.boxes])[a]
+            b = _pair_ties(b, pred.masks[a], got["masks"][b] > 0, key)
             ious = [_iou(x, y) for x, y in zip(got["masks"][b] > 0, pred.masks[a], strict=True)]
             assert min(ious, default=1.0) >= 0.999, f"{stem}: mask IoU {min(ious)}"
             if stats is not None:
@@ -304,7 +331,7 @@ def test_parity_with_the_python_reference(example, cases, tmp_path, key, mode, c
             "--mode", mode, "--conf", str(conf))  # fmt: skip
         cpp = _run(example, case, tmp_path / (preset or "default"), *args)
         _compare(case, cpp, conf, mode, preset, stats=stats)
-    if len(presets) > 1:  # the main case
+    if (key, mode) == ("yolov8n-seg fp32", "fusion"):  # the main case: every outcome
         assert stats["eq1"] == {"no detections", "gave up", "start", "raised"}, stats["eq1"]
         assert stats["borders"] == set("ltrb"), f"boxes touched only {stats['borders']}"
         assert stats["fused"] == {False, True}, "Eq. 4 chose only one of seg mask / box"
