@@ -71,8 +71,11 @@ def frames_of(source: Path | None, count: int) -> list[np.ndarray]:
     return out
 
 
-def python_ms(predictor: Predictor, dumps: list[dict], mode: str, conf: float) -> float:
-    """Mean ms per frame of the Python post-processing + masking on the dumps."""
+def python_ms(
+    predictor: Predictor, dumps: list[dict], mode: str, conf: float, counts: list[int]
+) -> float:
+    """Mean ms per frame of the Python post-processing + masking on the dumps (appends each
+    frame's object count to ``counts``)."""
     masking = masking_from_metadata(predictor.metadata)
     rules = FrameRules.from_masking(np.asarray(predictor.mobility, np.float32), mode, masking)
     total = 0.0
@@ -93,6 +96,7 @@ def python_ms(predictor: Predictor, dumps: list[dict], mode: str, conf: float) -
                     predictor.family, conf, NMS_IOU, MAX_DET,
                 )  # fmt: skip
             boxes, classes, masks = instances_of(pred)
+            counts.append(len(boxes))
             inputs = FrameInputs(d["keypoints"], boxes, classes, masks, (h, w))
             process_frame(inputs=inputs, settings=rules)
             total += time.perf_counter() - t0
@@ -127,13 +131,14 @@ def main() -> None:
             kps = orb_features(image, 1000).keypoints
             write_raw(dump_dir / f"{i:06d}.ssraw", frame_dump(raw, image.shape[:2], kps))
         dumps = [read_raw(p) for p in sorted(dump_dir.glob("*.ssraw"))]
-        py, cc = [], []
+        py, cc, counts = [], [], []
         for _ in range(args.repeats):  # alternating, so load changes hit both
-            py.append(python_ms(predictor, dumps, args.mode, conf))
+            py.append(python_ms(predictor, dumps, args.mode, conf, counts))
             cc.append(cpp_ms(example, dump_dir, root / "out", args.mode, conf))
     h, w = dumps[0]["frame_hw"]
     p, c = statistics.median(py), statistics.median(cc)
-    print(f"{predictor}, {len(dumps)} frames of {h}x{w}, mode {args.mode}, score > {conf}")
+    print(f"{predictor}, {len(dumps)} frames of {h}x{w}, mode {args.mode}, score > {conf}, "
+          f"{statistics.mean(counts):.1f} objects per frame")  # fmt: skip
     print(f"post-processing + masking per frame (median of {args.repeats}): Python {p:.2f} ms, "
           f"C++ {c:.2f} ms; Python / C++ = {p / c:.1f}x")  # fmt: skip
 

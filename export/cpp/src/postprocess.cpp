@@ -303,6 +303,7 @@ FramePrediction Postprocessor::instances(const RawOutputs& raw, const Letterbox&
         fy = window_taps(h, lb.new_h);
     }
     std::vector<float> prob, up;
+    std::vector<double> acc;
     for (int k : keep) {
         const Candidate& c = cand[k];
         auto [x0, nx] = pixel_span(c.box[0], c.box[2], lb.out_w);
@@ -314,15 +315,19 @@ FramePrediction Postprocessor::instances(const RawOutputs& raw, const Letterbox&
                 py1 = uy.i1[y0 + ny - 1];
             int pw = px1 - px0 + 1, ph = py1 - py0 + 1;
             prob.assign(static_cast<size_t>(pw) * ph, 0.0f);
-            for (int iy = 0; iy < ph; ++iy)
-                for (int ix = 0; ix < pw; ++ix) {
-                    double acc = 0.0;
-                    size_t off = static_cast<size_t>(py0 + iy) * wp + (px0 + ix);
-                    for (int j = 0; j < nm; ++j)
-                        acc += static_cast<double>(at(4 + nc + j, c.anchor)) * proto[j * plane + off];
-                    float logit = static_cast<float>(acc);
-                    prob[static_cast<size_t>(iy) * pw + ix] = 1.0f / (1.0f + std::exp(-logit));
+            acc.assign(static_cast<size_t>(pw), 0.0);
+            for (int iy = 0; iy < ph; ++iy) {  // coefficients . prototypes, in double
+                std::fill(acc.begin(), acc.end(), 0.0);
+                const size_t off = static_cast<size_t>(py0 + iy) * wp + px0;
+                for (int j = 0; j < nm; ++j) {
+                    const double cj = at(4 + nc + j, c.anchor);
+                    const float* row = proto.data() + j * plane + off;
+                    for (int ix = 0; ix < pw; ++ix) acc[ix] += cj * row[ix];
                 }
+                float* out = prob.data() + static_cast<size_t>(iy) * pw;
+                for (int ix = 0; ix < pw; ++ix)
+                    out[ix] = 1.0f / (1.0f + std::exp(-static_cast<float>(acc[ix])));
+            }
             auto P = [&](int iy, int ix) { return prob[static_cast<size_t>(iy - py0) * pw + ix - px0]; };
             // upsampled probabilities on the span (input pixels), 0 elsewhere
             up.assign(static_cast<size_t>(nx) * ny, 0.0f);

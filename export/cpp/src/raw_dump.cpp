@@ -5,7 +5,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
-#include <iterator>
+#include <algorithm>
 
 namespace slimseg {
 namespace {
@@ -100,8 +100,11 @@ RawDump RawDump::load(const std::string& path) {
     if (!little_endian()) throw Error("raw dumps are little-endian; this machine is not");
     std::ifstream f(path, std::ios::binary);
     if (!f) throw Error(path + ": cannot open the raw dump");
-    std::vector<std::uint8_t> data((std::istreambuf_iterator<char>(f)),
-                                   std::istreambuf_iterator<char>());
+    f.seekg(0, std::ios::end);
+    std::vector<std::uint8_t> data(static_cast<size_t>(std::max<std::streamoff>(f.tellg(), 0)));
+    f.seekg(0, std::ios::beg);
+    f.read(reinterpret_cast<char*>(data.data()), static_cast<std::streamsize>(data.size()));
+    if (!f) throw Error(path + ": cannot read the raw dump");
     Reader r(data, path);
     char magic[8];
     r.bytes(magic, 8, "the magic");

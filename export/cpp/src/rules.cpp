@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 
 namespace slimseg {
 namespace {
@@ -128,28 +129,38 @@ WindowMask dilate(const WindowMask& m, int radius, int h, int w) {
     out.w = x1 - out.x0;
     out.h = y1 - out.y0;
     out.pixels.assign(static_cast<size_t>(out.w) * out.h, 0);
-    // prefix counts of each source row, in the output window's columns
-    std::vector<int> pre(static_cast<size_t>(m.h) * (out.w + 1), 0);
+    // runs of each source row, in output-window columns
+    std::vector<std::vector<std::pair<int, int>>> runs(m.h);
     for (int y = 0; y < m.h; ++y) {
-        int* p = &pre[static_cast<size_t>(y) * (out.w + 1)];
-        for (int x = 0; x < out.w; ++x) {
-            int sx = out.x0 + x - m.x0;
-            bool on = sx >= 0 && sx < m.w && m.pixels[static_cast<size_t>(y) * m.w + sx];
-            p[x + 1] = p[x] + (on ? 1 : 0);
+        const std::uint8_t* row = &m.pixels[static_cast<size_t>(y) * m.w];
+        for (int x = 0; x < m.w;) {
+            if (!row[x]) {
+                ++x;
+                continue;
+            }
+            int b = x;
+            while (b < m.w && row[b]) ++b;
+            runs[y].emplace_back(m.x0 + x - out.x0, m.x0 + b - out.x0);
+            x = b;
         }
     }
+    // each output row: the union of its kernel rows' runs widened by their half-widths
+    std::vector<std::pair<int, int>> spans;
     for (int y = 0; y < out.h; ++y) {
+        spans.clear();
         for (int i = 0; i < k; ++i) {
-            if (half[i] < 0) continue;
             int sy = out.y0 + y + i - radius - m.y0;  // source row of this kernel row
-            if (sy < 0 || sy >= m.h) continue;
-            const int* p = &pre[static_cast<size_t>(sy) * (out.w + 1)];
-            std::uint8_t* row = &out.pixels[static_cast<size_t>(y) * out.w];
-            for (int x = 0; x < out.w; ++x) {
-                if (row[x]) continue;
-                int a = std::max(x - half[i], 0), b = std::min(x + half[i] + 1, out.w);
-                if (p[b] - p[a] > 0) row[x] = 1;
-            }
+            if (half[i] < 0 || sy < 0 || sy >= m.h) continue;
+            for (auto [a, b] : runs[sy])
+                spans.emplace_back(std::max(a - half[i], 0), std::min(b + half[i], out.w));
+        }
+        std::sort(spans.begin(), spans.end());
+        std::uint8_t* row = &out.pixels[static_cast<size_t>(y) * out.w];
+        int done = 0;  // columns below it are painted
+        for (auto [a, b] : spans) {
+            a = std::max(a, done);
+            if (b > a) std::memset(row + a, 1, static_cast<size_t>(b - a));
+            done = std::max(done, b);
         }
     }
     return out;
@@ -254,9 +265,14 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
         res.used_seg.assign(m, 0);
         for (size_t i = 0; i < m; ++i) {
             const WindowMask& b = boxes[i];
-            std::int64_t inter = 0;
-            for (int y = 0; y < b.h; ++y)
-                for (int x = 0; x < b.w; ++x) inter += regions[i].at(b.y0 + y, b.x0 + x);
+            const WindowMask& r = regions[i];
+            std::int64_t inter = 0;  // the box is a full rectangle: count r's pixels inside it
+            const int x0 = std::max(b.x0, r.x0), x1 = std::min(b.x0 + b.w, r.x0 + r.w);
+            const int y0 = std::max(b.y0, r.y0), y1 = std::min(b.y0 + b.h, r.y0 + r.h);
+            for (int y = y0; y < y1; ++y) {
+                const std::uint8_t* row = &r.pixels[static_cast<size_t>(y - r.y0) * r.w];
+                for (int x = x0; x < x1; ++x) inter += row[x - r.x0];
+            }
             double s_o = static_cast<double>(inter) /
                          static_cast<double>(std::max<std::int64_t>(b.area(), 1));
             res.used_seg[i] = s_o > rules.t_o;
