@@ -145,22 +145,26 @@ WindowMask dilate(const WindowMask& m, int radius, int h, int w) {
         }
     }
     // each output row: the union of its kernel rows' runs widened by their half-widths
-    std::vector<std::pair<int, int>> spans;
+    // (coverage counts: +1 where a widened run starts, -1 where it ends)
+    std::vector<int> cover(static_cast<size_t>(out.w) + 1);
     for (int y = 0; y < out.h; ++y) {
-        spans.clear();
+        std::fill(cover.begin(), cover.end(), 0);
+        bool any = false;
         for (int i = 0; i < k; ++i) {
             int sy = out.y0 + y + i - radius - m.y0;  // source row of this kernel row
             if (half[i] < 0 || sy < 0 || sy >= m.h) continue;
-            for (auto [a, b] : runs[sy])
-                spans.emplace_back(std::max(a - half[i], 0), std::min(b + half[i], out.w));
+            for (auto [a, b] : runs[sy]) {
+                ++cover[std::max(a - half[i], 0)];
+                --cover[std::min(b + half[i], out.w)];
+                any = true;
+            }
         }
-        std::sort(spans.begin(), spans.end());
+        if (!any) continue;
         std::uint8_t* row = &out.pixels[static_cast<size_t>(y) * out.w];
-        int done = 0;  // columns below it are painted
-        for (auto [a, b] : spans) {
-            a = std::max(a, done);
-            if (b > a) std::memset(row + a, 1, static_cast<size_t>(b - a));
-            done = std::max(done, b);
+        int depth = 0;
+        for (int x = 0; x < out.w; ++x) {
+            depth += cover[x];
+            row[x] = depth > 0;
         }
     }
     return out;
