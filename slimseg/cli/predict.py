@@ -10,6 +10,12 @@ the pixel count per class. Video frames are named ``frame_000000`` onwards.
 The files are written into a temporary folder beside ``--out`` and moved into it when the
 last frame is done: a run that fails midway leaves ``--out`` as it was.
 
+With ``--dump-raw DIR`` (an ``.onnx`` model) every frame's network input and raw outputs, as
+onnxruntime gave them, also go to ``DIR/<stem>.ssraw`` (:mod:`slimseg.deploy.raw_dump`), with
+the frame size and the ORB keypoints ``slimseg dynamic`` would use; the frame itself goes to
+``DIR/<stem>.ppm`` and the model's metadata to ``DIR/metadata.json``: the input of the C++
+reference consumer's example (``export/cpp``, docs/cpp_consumer.md).
+
 With ``--track [PRESET]`` (a folder of frames, taken in sorted order, or a video; a single
 image is refused) the frames go through the track stage instead and the outputs are
 ``tracks/<stem>.png`` (``uint16`` instance maps, pixel = track id), ``tracks.csv``,
@@ -34,12 +40,15 @@ from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
 from slimseg.data.visualize import draw_class_map, draw_sample
 from slimseg.deploy.predictor import BACKENDS, Predictor, combined_mask
+from slimseg.deploy.raw_dump import SUFFIX as RAW_SUFFIX
+from slimseg.deploy.raw_dump import frame_dump, write_raw
 from slimseg.deploy.track_predict import DEFAULT_FPS, track_predict
 from slimseg.detections import Prediction
+from slimseg.dynamic.epipolar import orb_features
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
-from slimseg.utils.atomic import staged_dir, write_json, write_png
+from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 STAGES = ("preprocess", "inference", "postprocess")
@@ -72,6 +81,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-det", type=int, default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--dump-raw",
+        metavar="DIR",
+        default=None,
+        help="also write each frame's raw network input/outputs (DIR/<stem>.ssraw), the frame "
+        "(DIR/<stem>.ppm) and DIR/metadata.json for the C++ consumer (docs/cpp_consumer.md); "
+        ".onnx models only",
+    )
+    p.add_argument(
+        "--keypoints",
+        type=int,
+        default=1000,
+        help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
+    )
     add_track_args(p)
     p.set_defaults(run=run)
 
@@ -186,6 +209,8 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError(f"--max-det must be >= 1, got {args.max_det}")
     plan = track_plan_from_args(args)
     if plan.on:
+        if args.dump_raw:
+            raise SlimsegError("--dump-raw writes per-frame outputs; drop --track to use it")
         return run_tracked(args, plan)
     frames, total, is_video = open_source(args.source)
     predictor = Predictor.from_path(
@@ -193,6 +218,11 @@ def run(args: argparse.Namespace) -> int:
     )
     out_dir = Path(args.out)
     print(f"{predictor} -> {out_dir}")
+    dump_dir = None if args.dump_raw is None else Path(args.dump_raw)
+    if dump_dir is not None:
+        if predictor.backend != "onnxruntime":
+            raise SlimsegError(f"--dump-raw needs an exported .onnx model, not {args.model}")
+        write_json(dump_dir / "metadata.json", predictor.metadata)
     sums = dict.fromkeys(STAGES, 0.0)
     done, detections, skipped = 0, 0, []
     start = time.perf_counter()
@@ -203,7 +233,12 @@ def run(args: argparse.Namespace) -> int:
             if image is None:
                 skipped.append(source)
                 continue
-            pred = predictor.predict(image, conf=args.conf, iou=args.iou, max_det=args.max_det)
+            raw: dict[str, np.ndarray] | None = None if dump_dir is None else {}
+            pred = predictor.predict(
+                image, conf=args.conf, iou=args.iou, max_det=args.max_det, raw=raw
+            )
+            if dump_dir is not None and raw is not None:
+                _dump_frame(dump_dir, stem, image, raw, args.keypoints)
             save_prediction(
                 stage,
                 stem,
@@ -225,6 +260,17 @@ def run(args: argparse.Namespace) -> int:
         f"end to end; mean ms per image: {stages}"
     )
     return _report_skipped(skipped)
+
+
+def _dump_frame(
+    dump_dir: Path, stem: str, image: np.ndarray, raw: dict[str, np.ndarray], keypoints: int
+) -> None:
+    """``<stem>.ssraw`` (input, outputs, frame size, ORB keypoints) and ``<stem>.ppm``."""
+    kps = orb_features(image, keypoints).keypoints
+    write_raw(dump_dir / f"{stem}{RAW_SUFFIX}", frame_dump(raw, image.shape[:2], kps))
+    with atomic_path(dump_dir / f"{stem}.ppm") as tmp:
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            raise SlimsegError(f"{dump_dir}: cannot write {stem}.ppm")
 
 
 def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:

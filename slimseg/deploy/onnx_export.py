@@ -107,7 +107,7 @@ def _trace(
     return onnx.shape_inference.infer_shapes(proto)
 
 
-def _to_fp16(model_proto: onnx.ModelProto) -> onnx.ModelProto:
+def to_fp16(model_proto: onnx.ModelProto) -> onnx.ModelProto:
     """FP16 weights, compute and IO; the converter appends Cast nodes, so re-sort the graph."""
     from onnxruntime.transformers.float16 import convert_float_to_float16
 
@@ -165,7 +165,7 @@ def export_onnx(
 
             proto = onnxslim.slim(proto)
         if half:
-            proto = _to_fp16(proto)
+            proto = to_fp16(proto)
         candidate = stage(proto, meta, tmp_dir, out.name)
         parity = verify_parity(fused, candidate, imgsz, half)
         sidecar = publish(candidate, meta, out)

@@ -176,15 +176,27 @@ class Predictor:
         conf: float = PREDICT_CONF,
         iou: float = NMS_IOU,
         max_det: int = MAX_DET,
+        raw: dict[str, np.ndarray] | None = None,
     ) -> Prediction:
         """Detect (and segment) one RGB ``uint8 [h, w, 3]`` frame; results on that frame.
 
         ``conf``: keep scores above it; ``iou``: class-aware NMS threshold; ``max_det``: cap.
+        ``raw`` (ONNX models): a dict that receives the network input ``images`` and the
+        outputs exactly as onnxruntime returned them (``output0``, ``output1`` or ``logits``;
+        float16 for FP16 exports), what a C++ runtime gets (``slimseg predict --dump-raw``).
         """
+        if raw is not None and not isinstance(self.runner, OnnxRunner):
+            raise SlimsegError(
+                f"{self.path}: raw outputs come from an exported .onnx model, not {self.backend}"
+            )
         t0 = time.perf_counter()
         x, meta = self.preprocess(image_rgb)
         t1 = time.perf_counter()
-        pred, proto = self.runner(x)
+        if raw is not None:
+            raw["images"] = x
+            pred, proto = self.runner(x, raw)
+        else:
+            pred, proto = self.runner(x)
         t2 = time.perf_counter()
         (result,) = self._postprocess(pred, proto, [meta], conf, iou, max_det)
         t3 = time.perf_counter()

@@ -60,8 +60,20 @@ class OnnxRunner:
         names = [o.name for o in session.get_outputs()]
         self.output_names = [n for n in OUTPUT_NAMES if n in names] or names
 
-    def __call__(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def raw(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """The graph's outputs as onnxruntime returns them (float16 for FP16 exports), by name."""
         outs = self.session.run(self.output_names, {self.input_name: x.astype(self.dtype)})
+        return dict(zip(self.output_names, outs, strict=True))
+
+    def __call__(
+        self, x: np.ndarray, raw: dict[str, np.ndarray] | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(pred, proto)`` as float32 tensors; ``raw``: a dict that also receives the
+        outputs as onnxruntime returned them (see :meth:`raw`)."""
+        named = self.raw(x)
+        if raw is not None:
+            raw.update(named)
+        outs = list(named.values())
         pred = torch.from_numpy(np.asarray(outs[0], np.float32))
         proto = torch.from_numpy(np.asarray(outs[1], np.float32)) if len(outs) > 1 else None
         return pred, proto

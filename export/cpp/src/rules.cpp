@@ -1,0 +1,336 @@
+// The SLAM-facing rules (export/CONTRACT.md "The SLAM mask with keypoints"): mobility per
+// class, Eq. 1's adaptive threshold over the caller's keypoints, Eq. 3's dynamic-frame test,
+// Eq. 4's seg/box choice, dilation; as slimseg.dynamic.pipeline's seg / box / fusion modes.
+#include "slimseg/consumer.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+
+namespace slimseg {
+namespace {
+
+// Frame pixels whose centre lies in an xyxy box (c + 0.5 >= x1 and c + 0.5 < x2), as a window.
+WindowMask box_window(const std::array<float, 4>& b, int h, int w) {
+    auto span = [](float lo, float hi, int size) {
+        double a = std::ceil(static_cast<double>(lo) - 0.5);
+        double e = std::ceil(static_cast<double>(hi) - 0.5);
+        int first = static_cast<int>(std::min(std::max(a, 0.0), static_cast<double>(size)));
+        int end = static_cast<int>(std::min(std::max(e, 0.0), static_cast<double>(size)));
+        return std::pair<int, int>(first, std::max(end, first));
+    };
+    auto [x0, x1] = span(b[0], b[2], w);
+    auto [y0, y1] = span(b[1], b[3], h);
+    WindowMask m;
+    m.x0 = x0;
+    m.y0 = y0;
+    m.w = x1 - x0;
+    m.h = y1 - y0;
+    m.pixels.assign(static_cast<size_t>(m.w) * m.h, 1);
+    return m;
+}
+
+// slimseg.dynamic.threshold.keypoint_mobility: the highest prior among the regions under each
+// keypoint (rounded half to even, clipped to the frame), else 0.
+std::vector<float> keypoint_mobility(const std::vector<float>& kps,
+                                     const std::vector<WindowMask>& regions,
+                                     const std::vector<float>& mob, int h, int w) {
+    size_t n = kps.size() / 2;
+    std::vector<float> out(n, 0.0f);
+    if (regions.empty()) return out;
+    for (size_t i = 0; i < n; ++i) {
+        int x = static_cast<int>(std::nearbyint(kps[2 * i]));
+        int y = static_cast<int>(std::nearbyint(kps[2 * i + 1]));
+        x = std::min(std::max(x, 0), w - 1);
+        y = std::min(std::max(y, 0), h - 1);
+        float best = 0.0f;
+        bool any = false;
+        for (size_t k = 0; k < regions.size(); ++k) {
+            float v = regions[k].at(y, x) ? mob[k] : 0.0f;
+            if (!any || v > best) best = v, any = true;
+        }
+        out[i] = best;
+    }
+    return out;
+}
+
+// Python's round(x, 4): correctly rounded through the shortest decimal text.
+double round4(double x) {
+    char buf[64];
+    std::snprintf(buf, sizeof buf, "%.4f", x);
+    return std::strtod(buf, nullptr);
+}
+
+void paint(std::vector<std::uint8_t>& mask, int w, const WindowMask& m) {
+    for (int y = 0; y < m.h; ++y)
+        for (int x = 0; x < m.w; ++x)
+            if (m.pixels[static_cast<size_t>(y) * m.w + x])
+                mask[static_cast<size_t>(m.y0 + y) * w + (m.x0 + x)] = 255;
+}
+
+}  // namespace
+
+Mode parse_mode(const std::string& name) {
+    if (name == "seg") return Mode::Seg;
+    if (name == "box") return Mode::Box;
+    if (name == "fusion") return Mode::Fusion;
+    throw Error("mode '" + name + "': expected seg, box or fusion");
+}
+
+Rules Rules::from_metadata(const Metadata& meta, Mode mode, const std::string& preset) {
+    const MaskingSettings& s = meta.masking(preset);
+    Rules r;
+    r.class_mobility = meta.mobility;
+    r.mode = mode;
+    r.min_static = s.min_static;
+    r.dilation_px = s.dilation_px;
+    r.m_th_start = s.m_th_start;
+    r.m_th_step = s.m_th_step;
+    r.frame_ratio = s.frame_ratio;
+    r.t_o = s.t_o;
+    return r;
+}
+
+int scaled_dilation_px(const MaskingSettings& s, int h, int w) {
+    return static_cast<int>(
+        std::nearbyint(s.dilation_px * static_cast<double>(std::max(h, w)) /
+                       s.dilation_reference_px));
+}
+
+std::vector<std::uint8_t> disc_element(int radius) {
+    // OpenCV getStructuringElement(MORPH_ELLIPSE, (2r+1, 2r+1)): row half-widths rounded
+    // half to even
+    int k = 2 * radius + 1, r = radius, c = radius;
+    double inv_r2 = r ? 1.0 / (static_cast<double>(r) * r) : 0.0;
+    std::vector<std::uint8_t> e(static_cast<size_t>(k) * k, 0);
+    for (int i = 0; i < k; ++i) {
+        int dy = i - r;
+        int dx = static_cast<int>(std::lrint(c * std::sqrt((r * r - dy * dy) * inv_r2)));
+        int j1 = std::max(c - dx, 0), j2 = std::min(c + dx + 1, k);
+        for (int j = j1; j < j2; ++j) e[static_cast<size_t>(i) * k + j] = 1;
+    }
+    return e;
+}
+
+WindowMask dilate(const WindowMask& m, int radius, int h, int w) {
+    if (radius <= 0 || m.w == 0 || m.h == 0) return m;
+    const std::vector<std::uint8_t> e = disc_element(radius);
+    const int k = 2 * radius + 1;
+    std::vector<int> half(k, -1);  // per kernel row: half-width (-1: empty row)
+    for (int i = 0; i < k; ++i)
+        for (int j = 0; j < k; ++j)
+            if (e[static_cast<size_t>(i) * k + j]) half[i] = std::max(half[i], std::abs(j - radius));
+    WindowMask out;
+    out.x0 = std::max(m.x0 - radius, 0);
+    out.y0 = std::max(m.y0 - radius, 0);
+    int x1 = std::min(m.x0 + m.w + radius, w), y1 = std::min(m.y0 + m.h + radius, h);
+    out.w = x1 - out.x0;
+    out.h = y1 - out.y0;
+    out.pixels.assign(static_cast<size_t>(out.w) * out.h, 0);
+    // runs of each source row, in output-window columns
+    std::vector<std::vector<std::pair<int, int>>> runs(m.h);
+    for (int y = 0; y < m.h; ++y) {
+        const std::uint8_t* row = &m.pixels[static_cast<size_t>(y) * m.w];
+        for (int x = 0; x < m.w;) {
+            if (!row[x]) {
+                ++x;
+                continue;
+            }
+            int b = x;
+            while (b < m.w && row[b]) ++b;
+            runs[y].emplace_back(m.x0 + x - out.x0, m.x0 + b - out.x0);
+            x = b;
+        }
+    }
+    // each output row: the union of its kernel rows' runs widened by their half-widths
+    // (coverage counts: +1 where a widened run starts, -1 where it ends)
+    std::vector<int> cover(static_cast<size_t>(out.w) + 1);
+    for (int y = 0; y < out.h; ++y) {
+        std::fill(cover.begin(), cover.end(), 0);
+        bool any = false;
+        for (int i = 0; i < k; ++i) {
+            int sy = out.y0 + y + i - radius - m.y0;  // source row of this kernel row
+            if (half[i] < 0 || sy < 0 || sy >= m.h) continue;
+            for (auto [a, b] : runs[sy]) {
+                ++cover[std::max(a - half[i], 0)];
+                --cover[std::min(b + half[i], out.w)];
+                any = true;
+            }
+        }
+        if (!any) continue;
+        std::uint8_t* row = &out.pixels[static_cast<size_t>(y) * out.w];
+        int depth = 0;
+        for (int x = 0; x < out.w; ++x) {
+            depth += cover[x];
+            row[x] = depth > 0;
+        }
+    }
+    return out;
+}
+
+Objects objects_of(const FramePrediction& p, int min_area) {
+    Objects o;
+    if (!p.semantic) {
+        for (const auto& d : p.detections) {
+            o.boxes.push_back(d.box);
+            o.classes.push_back(d.cls);
+        }
+        o.masks = p.masks;
+        o.has_masks = p.segmenter;
+        return o;
+    }
+    // slimseg.dynamic.semantic.class_map_to_instances: 8-connected components per class
+    const int h = p.h, w = p.w;
+    std::vector<int> label(static_cast<size_t>(h) * w, -1);
+    std::vector<int> stack;
+    int maxv = 0;
+    for (auto v : p.class_map) maxv = std::max(maxv, static_cast<int>(v));
+    for (int value = 1; value <= maxv; ++value) {
+        for (int start = 0; start < h * w; ++start) {
+            if (p.class_map[start] != value || label[start] >= 0) continue;
+            int x0 = w, y0 = h, x1 = -1, y1 = -1;
+            std::vector<int> pix;
+            stack.assign(1, start);
+            label[start] = start;
+            while (!stack.empty()) {
+                int q = stack.back();
+                stack.pop_back();
+                pix.push_back(q);
+                int qy = q / w, qx = q % w;
+                x0 = std::min(x0, qx), x1 = std::max(x1, qx);
+                y0 = std::min(y0, qy), y1 = std::max(y1, qy);
+                for (int dy = -1; dy <= 1; ++dy)
+                    for (int dx = -1; dx <= 1; ++dx) {
+                        int ny = qy + dy, nx = qx + dx;
+                        if (ny < 0 || ny >= h || nx < 0 || nx >= w) continue;
+                        int r = ny * w + nx;
+                        if (p.class_map[r] == value && label[r] < 0) {
+                            label[r] = start;
+                            stack.push_back(r);
+                        }
+                    }
+            }
+            if (static_cast<int>(pix.size()) < min_area) continue;
+            WindowMask m;
+            m.x0 = x0;
+            m.y0 = y0;
+            m.w = x1 - x0 + 1;
+            m.h = y1 - y0 + 1;
+            m.pixels.assign(static_cast<size_t>(m.w) * m.h, 0);
+            for (int q : pix) m.pixels[static_cast<size_t>(q / w - y0) * m.w + (q % w - x0)] = 1;
+            o.boxes.push_back({static_cast<float>(x0), static_cast<float>(y0),
+                               static_cast<float>(x1 + 1), static_cast<float>(y1 + 1)});
+            o.classes.push_back(value - 1);
+            o.masks.push_back(std::move(m));
+        }
+    }
+    o.has_masks = true;
+    return o;
+}
+
+DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& keypoints_xy,
+                           const Rules& rules) {
+    return dynamic_mask(objects_of(p), p.h, p.w, keypoints_xy, rules);
+}
+
+DynamicResult dynamic_mask(const Objects& objects, int h, int w,
+                           const std::vector<float>& keypoints_xy, const Rules& rules) {
+    if (keypoints_xy.size() % 2) throw Error("keypoints: expected (x, y) pairs, got an odd count");
+    const size_t m = objects.boxes.size(), n = keypoints_xy.size() / 2;
+    if (objects.classes.size() != m || (objects.has_masks && objects.masks.size() != m))
+        throw Error("objects: boxes, classes and masks differ in count");
+    std::vector<float> mob(m);
+    for (size_t i = 0; i < m; ++i) {
+        int c = objects.classes[i];
+        if (c < 0 || c >= static_cast<int>(rules.class_mobility.size()))
+            throw Error("objects: class " + std::to_string(c) + " has no mobility prior (" +
+                        std::to_string(rules.class_mobility.size()) + " classes)");
+        mob[i] = rules.class_mobility[c];
+    }
+    if (rules.mode != Mode::Box && !objects.has_masks)
+        throw Error("mode seg/fusion needs instance masks (a segmentation model); use box");
+    std::vector<WindowMask> boxes, regions;
+    for (const auto& b : objects.boxes) boxes.push_back(box_window(b, h, w));
+    regions = rules.mode == Mode::Box ? boxes : objects.masks;
+    if (rules.dilation_px > 0)  // points near a mask edge belong to the object (ORB patches)
+        for (auto& r : regions) r = dilate(r, rules.dilation_px, h, w);
+    DynamicResult res;
+    std::vector<float> point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
+    // Eq. 3 counts the points inside the detection boxes
+    std::vector<float> box_mob = keypoint_mobility(keypoints_xy, boxes, mob, h, w);
+    if (n > 0) {
+        size_t movers = 0;
+        for (float v : box_mob) movers += v > 0.5f;
+        res.dynamic_frame = static_cast<double>(movers) / static_cast<double>(n) > rules.frame_ratio;
+    }
+    if (rules.mode == Mode::Fusion && res.dynamic_frame && m > 0) {  // Eq. 4
+        res.used_seg.assign(m, 0);
+        for (size_t i = 0; i < m; ++i) {
+            const WindowMask& b = boxes[i];
+            const WindowMask& r = regions[i];
+            std::int64_t inter = 0;  // the box is a full rectangle: count r's pixels inside it
+            const int x0 = std::max(b.x0, r.x0), x1 = std::min(b.x0 + b.w, r.x0 + r.w);
+            const int y0 = std::max(b.y0, r.y0), y1 = std::min(b.y0 + b.h, r.y0 + r.h);
+            for (int y = y0; y < y1; ++y) {
+                const std::uint8_t* row = &r.pixels[static_cast<size_t>(y - r.y0) * r.w];
+                for (int x = x0; x < x1; ++x) inter += row[x - r.x0];
+            }
+            double s_o = static_cast<double>(inter) /
+                         static_cast<double>(std::max<std::int64_t>(b.area(), 1));
+            res.used_seg[i] = s_o > rules.t_o;
+            if (!res.used_seg[i]) regions[i] = b;
+        }
+        point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
+    }
+    // Eq. 1: raise m_th until at least min_static points stay static (compared in float32,
+    // as NumPy compares a float32 array with a Python float)
+    res.mask.assign(static_cast<size_t>(h) * w, 0);
+    res.dynamic.assign(n, 0);
+    double m_th = rules.m_th_start;
+    while (m_th <= 1.0 + 1e-9) {
+        const float thr = static_cast<float>(m_th + 1e-9);
+        size_t stat = 0;
+        for (size_t i = 0; i < n; ++i) stat += !(point_mob[i] > thr);
+        if (static_cast<std::int64_t>(stat) >= rules.min_static) {
+            for (size_t i = 0; i < n; ++i) res.dynamic[i] = point_mob[i] > thr;
+            res.m_th = round4(m_th);
+            const float sel = static_cast<float>(res.m_th);
+            for (size_t i = 0; i < m; ++i)
+                if (mob[i] > sel) paint(res.mask, w, regions[i]);
+            return res;
+        }
+        m_th += rules.m_th_step;
+    }
+    res.gave_up = true;
+    return res;
+}
+
+std::vector<std::uint8_t> class_mask(const FramePrediction& p, const std::vector<int>& classes,
+                                     int radius) {
+    WindowMask full;
+    full.w = p.w;
+    full.h = p.h;
+    full.pixels.assign(static_cast<size_t>(p.w) * p.h, 0);
+    auto wanted = [&](int c) { return std::find(classes.begin(), classes.end(), c) != classes.end(); };
+    if (p.semantic) {
+        for (size_t i = 0; i < p.class_map.size(); ++i)
+            full.pixels[i] = p.class_map[i] > 0 && wanted(p.class_map[i] - 1);
+    } else {
+        for (size_t k = 0; k < p.detections.size(); ++k) {
+            if (!wanted(p.detections[k].cls)) continue;
+            WindowMask m = p.segmenter ? p.masks[k] : box_window(p.detections[k].box, p.h, p.w);
+            for (int y = 0; y < m.h; ++y)
+                for (int x = 0; x < m.w; ++x)
+                    if (m.pixels[static_cast<size_t>(y) * m.w + x])
+                        full.pixels[static_cast<size_t>(m.y0 + y) * p.w + (m.x0 + x)] = 1;
+        }
+    }
+    WindowMask d = dilate(full, radius, p.h, p.w);
+    std::vector<std::uint8_t> out(d.pixels.size());
+    for (size_t i = 0; i < out.size(); ++i) out[i] = d.pixels[i] ? 255 : 0;
+    return out;
+}
+
+}  // namespace slimseg
