@@ -80,7 +80,7 @@ def merge_split(parts: list[SplitPart], where: str) -> tuple[Path, dict]:
                 "every part of a split needs the same category ids and names"
             )
         listed = sorted(data["images"], key=_frame_key)
-        kept, dropped = listed[:: part.stride], listed
+        kept = listed[:: part.stride]
         new_ids: dict[int, int] = {}
         for im in kept:
             if not isinstance(im, dict) or not isinstance(im.get("file_name"), str):
@@ -101,7 +101,8 @@ def merge_split(parts: list[SplitPart], where: str) -> tuple[Path, dict]:
                     source=str(part.images),
                 )
             )
-        by_old = {im.get("id"): new_ids.get(id(im)) for im in dropped if isinstance(im, dict)}
+        # old id -> new id, None for a frame the stride skipped
+        by_old = {im.get("id"): new_ids.get(id(im)) for im in listed if isinstance(im, dict)}
         for ann in data["annotations"]:
             if not isinstance(ann, dict):
                 annotations.append(ann)
