@@ -2,11 +2,23 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
 
 from slimseg.models.registry import build_model
+
+
+def disc_scene(rng: np.random.Generator, h: int, w: int, discs: int) -> np.ndarray:
+    """Float32 RGB ``[h, w, 3]`` in [0, 1]: a gradient with ``discs`` flat discs (a test
+    frame that gives a random-weight model something to respond to)."""
+    yy, xx = np.mgrid[:h, :w].astype(np.float32)
+    img = np.stack([xx / w, yy / h, np.full_like(xx, 0.5)], -1)
+    for _ in range(discs):
+        cx, cy, r = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(6, min(h, w) / 3)
+        img[(xx - cx) ** 2 + (yy - cy) ** 2 < r**2] = rng.random(3, dtype=np.float32)
+    return img
 
 
 def randomize_batchnorm(model: nn.Module, seed: int = 0) -> nn.Module:

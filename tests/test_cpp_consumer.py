@@ -21,7 +21,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import batchnorm_from, open_class_bias
+from conftest import batchnorm_from, disc_scene, open_class_bias
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
@@ -76,11 +76,7 @@ def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _scene(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     """RGB uint8 ``[h, w, 3]``: a gradient, discs and a rectangle on each border."""
-    yy, xx = np.mgrid[:h, :w].astype(np.float32)
-    img = np.stack([xx / w, yy / h, np.full_like(xx, 0.5)], -1)
-    for _ in range(5):
-        cx, cy, r = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(6, min(h, w) / 3)
-        img[(xx - cx) ** 2 + (yy - cy) ** 2 < r**2] = rng.random(3, dtype=np.float32)
+    img = disc_scene(rng, h, w, 5)
     t = max(min(h, w) // 5, 4)
     for sl in ((slice(0, t), slice(None)), (slice(h - t, h), slice(None))):
         img[sl] = rng.random(3, dtype=np.float32)

@@ -18,7 +18,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import batchnorm_from, open_class_bias
+from conftest import batchnorm_from, disc_scene, open_class_bias
 from onnx import numpy_helper
 
 import slimseg
@@ -40,12 +40,7 @@ FRAMES = 6
 
 def _scene(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     """RGB ``uint8 [h, w, 3]``: a gradient with a few flat discs."""
-    yy, xx = np.mgrid[:h, :w].astype(np.float32)
-    img = np.stack([xx / w, yy / h, np.full_like(xx, 0.5)], -1)
-    for _ in range(6):
-        cx, cy, r = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(6, min(h, w) / 3)
-        img[(xx - cx) ** 2 + (yy - cy) ** 2 < r**2] = rng.random(3, dtype=np.float32)
-    return (img * 255).astype(np.uint8)
+    return (disc_scene(rng, h, w, 6) * 255).astype(np.uint8)
 
 
 @pytest.fixture(scope="module")
