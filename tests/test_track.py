@@ -4,6 +4,7 @@ whose ground-truth instances go missing in bursts."""
 from __future__ import annotations
 
 import hashlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -156,6 +157,23 @@ def test_coasting_stops_after_k_and_tentative_tracks_never_coast() -> None:
     assert [len(f.boxes) for f in out] == [1, 0, 0]
 
 
+def test_tentative_tracks_are_carried_until_the_next_model_frame_misses_them() -> None:
+    tr = Tracker(COAST, np.array([1.0]))
+    weak = _dets([_disc(40, 60)], [0.15])  # emitted (> 0.1), below high/new/confirm
+    out = [tr.step(weak, CameraMotion.identity(), 0.1)]
+    out += [tr.step(None, CameraMotion.identity(), 0.1) for _ in range(2)]  # model skipped
+    assert [f.source for f in out] == [["det"], ["carried"], ["carried"]]
+    assert not tr.tracks[0].confirmed
+    out.append(tr.step(_dets([], []), CameraMotion.identity(), 0.1))  # the model misses it
+    assert len(out[-1].boxes) == 0 and not tr.tracks
+    again = [weak, None, weak]  # found again on the next model frame: confirmed (2 hits)
+    tr = Tracker(COAST, np.array([1.0]))
+    for d in again:
+        f = tr.step(d, CameraMotion.identity(), 0.1)
+    assert tr.tracks[0].confirmed and f.track_ids.tolist() == [1]
+    assert set(tr.parts) >= {"predict", "associate", "warp", "coast"}
+
+
 def test_depth_gate_ends_a_track_whose_walker_left() -> None:
     depth = np.full(HW, 4.0, np.float32)
     here = _disc(60, 60)
@@ -233,6 +251,30 @@ def test_segment_every_runs_the_model_on_every_nth_frame(sequence: Path, tmp_pat
                           track=TrackPlan(COAST, 3))  # fmt: skip
     assert every3.model_frames == 15 and rep.model_frames == 45
     assert every3.scores["seg"].recall > 0.8 * rep.scores["seg"].recall
+
+
+class _WeakInstances(AnnotationInstances):
+    """Ground-truth instances scored like the demo model's walkers: above the masking
+    threshold (0.1) but below BYTE's ``high`` and the old ``new`` (0.25)."""
+
+    def for_stamp(self, stamp: float):
+        pred = super().for_stamp(stamp)
+        return replace(pred, scores=np.full_like(pred.scores, 0.15))
+
+
+@pytest.mark.parametrize(("every", "kept"), [(2, 0.95), (3, 0.95), (5, 0.85)])
+def test_carried_frames_keep_what_the_model_frames_found(
+    sequence: Path, tmp_path: Path, every: int, kept: float
+) -> None:
+    """Every emitted detection opens a track, so the frames the model skips keep the weak
+    walkers (before: they opened no track and vanished, recall fell to about 1/N)."""
+    weak = _WeakInstances(sequence)
+    per = run_sequence(weak, sequence, tmp_path / "p", "seg", progress=False)
+    carried = run_sequence(weak, sequence, tmp_path / f"e{every}", "seg", progress=False,
+                           track=TrackPlan(COAST, every))  # fmt: skip
+    r_per, r_car = per.scores["seg"].recall, carried.scores["seg"].recall
+    assert r_per > 0.9 and r_car >= kept * r_per, (r_per, r_car)
+    assert carried.scores["seg"].precision >= per.scores["seg"].precision - 0.05
 
 
 def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) -> None:

@@ -15,9 +15,8 @@ from slimseg.dynamic.camera_motion import CameraMotion, local_scale
 STD_POSITION = 1.0 / 20  # measurement and process noise of position, × box height
 STD_VELOCITY = 1.0 / 160  # process noise of velocity, × box height
 
-_F = np.eye(8)
-_F[:4, 4:] = np.eye(4)  # x_{t+1} = x_t + v_t
 _H = np.eye(4, 8)
+_Q_UNIT = np.r_[[STD_POSITION**2] * 4, [STD_VELOCITY**2] * 4]  # process noise / height^2
 
 
 def xyxy_to_cxcywh(box: np.ndarray) -> np.ndarray:
@@ -53,19 +52,27 @@ class BoxKalman:
         """Centre velocity ``[2]`` px/frame (the object's own, after camera compensation)."""
         return self.x[4:6].copy()
 
-    def predict(self, motion: CameraMotion) -> None:
-        """Move the state through the camera's motion, then one constant-velocity step."""
+    def predict(self, motion: CameraMotion, scale: float | None = None) -> None:
+        """Move the state through the camera's motion, then one constant-velocity step.
+        ``scale``: the motion's local scale when the caller knows it is the same everywhere
+        (a similarity), else computed at the box centre."""
+        x = self.x
         if motion.ok:
-            c = motion.points(self.x[None, :2])[0]
-            s = local_scale(motion.H, (self.x[0], self.x[1]))
-            self.x[:2] = c
-            self.x[2:4] *= s
-            self.x[6:8] *= s
-        h = max(self.x[3], 1.0)
-        q = np.r_[[STD_POSITION * h] * 4, [STD_VELOCITY * h] * 4] ** 2
-        self.x = _F @ self.x
-        self.P = _F @ self.P @ _F.T + np.diag(q)
-        self.x[2:4] = np.maximum(self.x[2:4], 1.0)
+            hm = motion.H
+            cx, cy = x[0], x[1]
+            w = hm[2, 0] * cx + hm[2, 1] * cy + hm[2, 2]
+            s = local_scale(hm, (cx, cy)) if scale is None else scale
+            x[0] = (hm[0, 0] * cx + hm[0, 1] * cy + hm[0, 2]) / w
+            x[1] = (hm[1, 0] * cx + hm[1, 1] * cy + hm[1, 2]) / w
+            x[2:4] *= s
+            x[6:8] *= s
+        h = max(x[3], 1.0)
+        x[:4] += x[4:]  # x <- F x
+        p = self.P  # P <- F P F^T + Q, F = [[I, I], [0, I]], in place
+        p[:4] += p[4:]
+        p[:, :4] += p[:, 4:]
+        p.flat[::9] += _Q_UNIT * (h * h)
+        x[2:4] = np.maximum(x[2:4], 1.0)
 
     def update(self, box_xyxy: np.ndarray) -> None:
         """Correct the state with a measured box ``[4]`` xyxy."""

@@ -6,11 +6,14 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
    every track's box filter (:class:`~slimseg.dynamic.kalman.BoxKalman`) before its
    constant-velocity step; the track's last observed mask follows through the accumulated
    transform (camera motions, then the object's own velocity).
-2. **Associate (BYTE).** Detections scoring ``>= high`` against every track, then those in
-   ``[low, high)`` against the confirmed tracks left; cost 1 - mask IoU (box IoU without
-   masks), objects of other classes never match; Hungarian assignment (scipy), gated.
-3. **Update.** A match takes the detection's mask and box; an unmatched detection scoring
-   ``>= new`` opens a tentative track.
+2. **Associate (BYTE).** Detections scoring ``>= high`` or emitted (above the masking
+   threshold) against every track, then the rest down to ``low`` against the confirmed
+   tracks left; cost 1 - mask IoU (box IoU without masks), objects of other classes never
+   match; Hungarian assignment (scipy), gated. A track's predicted mask is warped only when
+   a detection's box overlaps its predicted box (box IoU >= 0.05) or when it is emitted.
+3. **Update.** A match takes the detection's mask and box; an unmatched detection that is
+   emitted (or scores ``>= new``) opens a tentative track; a tentative track that finds no
+   detection on a model frame ends (ByteTrack's rule), so tentative tracks stay few.
 4. **Coast.** A confirmed track without a match emits its predicted mask for up to
    ``max_coast`` frames, dilated per missed frame and cut to the track's depth band; its
    mobility is ``p · coast_decay^misses``, so Eq. 1 gives coasted masks up first.
@@ -19,8 +22,10 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
 
 Every detection the per-frame logic would use (score above the masking threshold) is emitted
 whether or not it matched, so recall can only go up; low-score detections matched to a
-confirmed track (BYTE's second pass) and coasted masks are added. With ``model=False``
-(``--segment-every N``, the frames the model skips) every confirmed track is carried.
+confirmed track (BYTE's second pass) and coasted masks are added. On the frames the model
+skips (``dets`` None: ``--segment-every N``, a model on its own thread) every track the last
+model frame saw (tentative ones too) and every confirmed track still coasting is carried, so
+what the model found stays masked between its frames.
 """
 
 from __future__ import annotations
@@ -46,6 +51,12 @@ from slimseg.dynamic.mask_patch import (
 from slimseg.dynamic.track_settings import TrackSettings
 
 SOURCE_DETECTION, SOURCE_COAST, SOURCE_CARRIED = "det", "coast", "carried"
+STAGE_PARTS = ("motion", "predict", "associate", "warp", "update", "coast", "paste")
+"""The stage's parts as timed (``Tracker.parts``): ORB matching + similarity fit (timed by
+the caller), box filters and transforms, association (IoU + Hungarian), mask warps, track
+updates (filter, median depth), coasting (dilation, depth gate), the output masks."""
+NEAR_IOU = 0.05  # mask IoU is computed only for a detection and a track whose boxes overlap this much
+DEPTH_SAMPLES = 400  # pixels sampled for a mask's median depth
 
 
 @dataclass
@@ -99,6 +110,9 @@ class Track:
     transform: np.ndarray = field(default_factory=lambda: np.eye(3))
     """last-observed frame pixels → current frame pixels"""
     depth_m: float = 0.0
+    """median depth under the last observed mask with valid depth (0: unknown)"""
+    depth_frame: np.ndarray | None = None
+    """depth image of the last observation, until :meth:`Tracker._depth` takes its median"""
     hits: int = 1
     misses: int = 0
     since_seen: int = 0
@@ -106,6 +120,8 @@ class Track:
     dead: bool = False
     """a guard fired: the track is removed at the end of the frame"""
     predicted: Patch | None = None
+    predicted_at: int = -1
+    """the tracker's frame number ``predicted`` was computed for"""
 
     def mobility(self, decay: float) -> float:
         return self.p * decay**self.misses
@@ -133,6 +149,9 @@ class Tracker:
         self._box_only = False
         self.coasted = 0
         """predicted masks emitted so far (coasted or carried)"""
+        self.frame_no = -1
+        self.parts: dict[str, float] = dict.fromkeys(STAGE_PARTS, 0.0)
+        """seconds spent per part of the stage (see :data:`STAGE_PARTS`), summed over frames"""
 
     @property
     def hw(self) -> tuple[int, int] | None:
@@ -153,20 +172,28 @@ class Tracker:
         t0 = time.perf_counter()
         if dets is None and self._hw is None:
             raise ValueError("the first frame of a sequence needs detections (the model runs)")
+        self.frame_no += 1
         relax = 0.0 if self.s.p_relax_s <= 0 else math.exp(-self.dt / self.s.p_relax_s)
+        scale = motion_scale(motion)
         for t in self.tracks:
-            t.kf.predict(motion)
-            t.transform = motion.H @ t.transform if motion.ok else t.transform
+            t.kf.predict(motion, scale)
+            if motion.ok:
+                t.transform = motion.H @ t.transform
             v = t.kf.velocity
-            t.transform = np.array([[1, 0, v[0]], [0, 1, v[1]], [0, 0, 1.0]]) @ t.transform
+            t.transform[:2] += np.outer(v, t.transform[2])  # then the object's own velocity
             t.since_seen += 1
             t.p = float(t.prior + relax * (t.p - t.prior))
+        t1 = time.perf_counter()
+        self.parts["predict"] += t1 - t0
         # objs: (box, cls, patch, mobility, id, source, misses, score, detection index)
         if dets is None:
             objs = self._carry(depth_m, emit_conf)
         else:
             objs = self._associate(dets, emit_conf, depth_m)
-        return self._frame(objs, self._hw, t0, None if dets is None else dets.masks)
+        t2 = time.perf_counter()
+        frame = self._frame(objs, self._hw, t0, None if dets is None else dets.masks)
+        self.parts["paste"] += time.perf_counter() - t2
+        return frame
 
     # -- model frames ------------------------------------------------------------------------
 
@@ -180,11 +207,11 @@ class Tracker:
             patches = [patch_from_box(b, hw) for b in boxes]
         else:
             patches = [patch_from_mask(m, b) for m, b in zip(dets.masks, boxes, strict=True)]
-        for t in self.tracks:
-            t.predicted = self._predict_patch(t, hw)
         movers = self.priors[classes] > self.mover_prior
-        high = np.flatnonzero((scores >= s.high) & movers)
-        low = np.flatnonzero((scores >= s.low) & (scores < s.high) & movers)
+        emitted = scores > emit_conf
+        first = (scores >= s.high) | emitted
+        high = np.flatnonzero(first & movers)
+        low = np.flatnonzero((scores >= s.low) & ~first & movers)
         matched: dict[int, Track] = {}
         free = list(self.tracks)
         for idx, pool, gate in ((high, free, s.iou_high), (low, None, s.iou_low)):
@@ -199,7 +226,7 @@ class Tracker:
             t = matched.get(d)
             if t is not None:
                 self._observe(t, patches[d], boxes[d], depth_m)
-            elif scores[d] >= s.new and movers[d]:
+            elif (emitted[d] or scores[d] >= s.new) and movers[d]:
                 t = self._open(classes[d], scores[d], patches[d], boxes[d], depth_m)
             if t is None and scores[d] <= emit_conf:
                 continue  # below the masking threshold and no track backs it
@@ -211,6 +238,7 @@ class Tracker:
                          scores[d], d))  # fmt: skip
         for t in free:
             t.misses += 1
+            t.dead = t.dead or not t.confirmed  # a tentative track ends at its first miss
         objs += self._coast([t for t in free if t.confirmed], depth_m, SOURCE_COAST)
         self.tracks = [t for t in self.tracks if t.misses <= s.keep_frames and not t.dead]
         return objs
@@ -218,56 +246,77 @@ class Tracker:
     def _match(self, idx, pool, patches, boxes, classes, gate) -> list[tuple[int, Track]]:
         if len(idx) == 0 or not pool:
             return []
+        t0 = time.perf_counter()
         iou = np.zeros((len(idx), len(pool)))
-        for i, d in enumerate(idx):
-            for j, t in enumerate(pool):
-                if t.cls != classes[d]:
-                    continue
-                if t.predicted is not None and t.patch is not None:
-                    iou[i, j] = patch_iou(patches[d], t.predicted)
-                else:
-                    iou[i, j] = _box_iou(boxes[d], t.kf.box)
+        near = _box_iou_matrix(boxes[idx], np.array([t.kf.box for t in pool]))
+        near &= classes[idx][:, None] == np.array([t.cls for t in pool])[None]
+        for i, j in zip(*np.nonzero(near), strict=True):
+            d, t = idx[i], pool[j]
+            predicted = self._predicted(t)
+            if predicted is not None:
+                iou[i, j] = patch_iou(patches[d], predicted)
+            else:
+                iou[i, j] = _box_iou(boxes[d], t.kf.box)
         rows, cols = linear_sum_assignment(1.0 - iou)
+        self.parts["associate"] += time.perf_counter() - t0
         return [(int(idx[r]), pool[c]) for r, c in zip(rows, cols, strict=True)
                 if iou[r, c] >= gate]  # fmt: skip
 
     def _observe(self, t: Track, patch: Patch, box: np.ndarray, depth_m) -> None:
+        t0 = time.perf_counter()
         t.kf.update(box)
-        t.patch, t.transform, t.predicted = patch, np.eye(3), None
+        t.patch, t.transform, t.predicted, t.predicted_at = patch, np.eye(3), None, -1
         t.hits += 1
         t.misses = t.since_seen = 0
         t.confirmed = t.confirmed or t.hits >= self.s.min_hits
-        t.depth_m = _median_depth(patch, depth_m, t.depth_m)
+        t.depth_frame = depth_m  # its median is taken only if the track coasts
+        self.parts["update"] += time.perf_counter() - t0
 
     def _open(self, cls, score, patch, box, depth_m) -> Track:
+        t0 = time.perf_counter()
         prior = float(self.priors[cls])
         t = Track(self._next_id, int(cls), prior, prior, BoxKalman(box), patch)
         t.confirmed = score >= self.s.confirm or self.s.min_hits <= 1
-        t.depth_m = _median_depth(patch, depth_m, 0.0)
+        t.depth_frame = depth_m
         self._next_id += 1
         self.tracks.append(t)
+        self.parts["update"] += time.perf_counter() - t0
         return t
 
     # -- predictions -------------------------------------------------------------------------
 
-    def _predict_patch(self, t: Track, hw) -> Patch | None:
+    def _predicted(self, t: Track) -> Patch | None:
+        """The track's last observed mask moved into this frame (computed once per frame, and
+        only for the tracks that need it); None for box-only tracks."""
         if t.patch is None:
             return None
-        if t.since_seen == 0:
-            return t.patch
-        return warp_patch(t.patch, t.transform, hw)
+        if t.predicted_at != self.frame_no:
+            t0 = time.perf_counter()
+            t.predicted = t.patch if t.since_seen == 0 else warp_patch(t.patch, t.transform,
+                                                                        self._hw)  # fmt: skip
+            t.predicted_at = self.frame_no
+            self.parts["warp"] += time.perf_counter() - t0
+        return t.predicted
+
+    @staticmethod
+    def _depth(t: Track) -> float:
+        """The track's depth (median under its last observed mask), taken when first needed."""
+        if t.depth_frame is not None and t.patch is not None:
+            t.depth_m = _median_depth(t.patch, t.depth_frame, t.depth_m)
+        t.depth_frame = None
+        return t.depth_m
 
     def _carry(self, depth_m, emit_conf) -> list[tuple]:
-        hw = self._hw
-        for t in self.tracks:
-            t.predicted = self._predict_patch(t, hw)
-        objs = self._coast([t for t in self.tracks if t.confirmed], depth_m, SOURCE_CARRIED)
+        """A frame the model skipped: every live track is carried (tentative tracks are only
+        alive until the next model frame misses them; confirmed ones coast up to K misses)."""
+        objs = self._coast(list(self.tracks), depth_m, SOURCE_CARRIED)
         self.tracks = [t for t in self.tracks if not t.dead]
         return objs
 
     def _coast(self, tracks: list[Track], depth_m, source: str) -> list[tuple]:
         """Emit the predicted masks of ``tracks`` that pass the guards (the rest are ended)."""
         s, hw, objs = self.s, self._hw, []
+        t0 = time.perf_counter()
         for t in tracks:
             if t.misses > s.max_coast:  # carried frames keep the misses of the last model frame
                 continue
@@ -278,8 +327,8 @@ class Tracker:
             if t.patch is None:
                 patch = patch_from_box(box, hw)
             else:
-                patch = dilate_patch(t.predicted, s.coast_dilate_px * t.since_seen, hw)
-            if depth_m is not None and s.depth_band_m > 0 and t.depth_m > 0 and patch.area:
+                patch = dilate_patch(self._predicted(t), s.coast_dilate_px * t.since_seen, hw)
+            if depth_m is not None and s.depth_band_m > 0 and patch.area and self._depth(t) > 0:
                 d = patch_depth(patch, depth_m)
                 known = patch.mask & (d > 0)
                 near = known & (np.abs(d - t.depth_m) <= s.depth_band_m)
@@ -292,6 +341,7 @@ class Tracker:
             self.coasted += 1
             objs.append((patch.box if t.patch is not None else box, t.cls, patch,
                          t.mobility(s.coast_decay), t.id, source, t.misses, 0.0, -1))  # fmt: skip
+        self.parts["coast"] += time.perf_counter() - t0
         return objs
 
     # -- moving probability ------------------------------------------------------------------
@@ -338,6 +388,27 @@ class Tracker:
         )
 
 
+def motion_scale(motion: CameraMotion) -> float:
+    """The isotropic scale of a similarity ``motion`` (1 for the identity): the same at every
+    point, so each box filter need not compute it."""
+    if not motion.ok:
+        return 1.0
+    return float(np.sqrt(abs(np.linalg.det(motion.H[:2, :2]))))
+
+
+def _box_iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``bool [A, B]``: pairs of ``a [A, 4]`` and ``b [B, 4]`` xyxy boxes whose IoU reaches
+    :data:`NEAR_IOU` (a mask IoU at the association gates needs far more box overlap)."""
+    a, b = a.reshape(-1, 4).astype(np.float64), b.reshape(-1, 4).astype(np.float64)
+    iw = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
+    ih = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
+    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None] - inter
+    return (inter > 0) & (inter >= NEAR_IOU * union)
+
+
 def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
     iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
     ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
@@ -357,10 +428,11 @@ def _outside_share(box: np.ndarray, hw: tuple[int, int]) -> float:
 
 
 def _median_depth(patch: Patch, depth_m: np.ndarray | None, fallback: float) -> float:
-    """Median valid depth under the mask, on every other row and column (a quarter of the
-    pixels: the median of a person's thousands of pixels does not need them all)."""
+    """Median valid depth under the mask on a regular grid of about :data:`DEPTH_SAMPLES` of
+    its pixels (the median of a person's thousands of pixels does not need them all)."""
     if depth_m is None or patch.area == 0:
         return fallback
-    d = patch_depth(patch, depth_m)[::2, ::2][patch.mask[::2, ::2]]
+    k = max(1, int(math.sqrt(patch.area / DEPTH_SAMPLES)))
+    d = patch_depth(patch, depth_m)[::k, ::k][patch.mask[::k, ::k]]
     d = d[d > 0]
     return float(np.median(d)) if len(d) else fallback
