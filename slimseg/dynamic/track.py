@@ -55,7 +55,7 @@ STAGE_PARTS = ("motion", "predict", "associate", "warp", "update", "coast", "pas
 """The stage's parts as timed (``Tracker.parts``): ORB matching + similarity fit (timed by
 the caller), box filters and transforms, association (IoU + Hungarian), mask warps, track
 updates (filter, median depth), coasting (dilation, depth gate), the output masks."""
-NEAR_IOU = 0.05  # mask IoU is computed only for a detection and a track whose boxes overlap this much
+NEAR_IOU = 0.05  # mask IoU only for a detection and a track whose boxes overlap this much
 DEPTH_SAMPLES = 400  # pixels sampled for a mask's median depth
 
 
