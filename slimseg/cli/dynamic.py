@@ -14,6 +14,7 @@ import numpy as np
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
     add_dropout_arg,
+    add_rate_args,
     add_track_args,
     dropout_from_args,
     track_plan_from_args,
@@ -57,6 +58,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
     add_masking_args(p)
     add_track_args(p)
+    add_rate_args(p)
     p.add_argument(
         "--epipolar-depth",
         action="store_true",
@@ -88,6 +90,10 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
     masking = masking_from_args(args)
     track = track_plan_from_args(args)
+    if args.fps is not None and not track.model_thread:
+        raise SlimsegError("--fps sets the real-time replay of --model-thread: add --model-thread")
+    if args.fps is not None and not (args.fps >= 0 and math.isfinite(args.fps)):
+        raise SlimsegError(f"--fps {args.fps}: expected frames per second >= 0")
     dropout = dropout_from_args(args)
     sequence = Path(args.sequence)
     seq = TumSequence(sequence)  # a bad folder fails before the model loads
@@ -121,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
             progress=not args.quiet,
             epipolar_depth=args.epipolar_depth,
             track=track,
+            fps=args.fps,
         )
         restored = _restore(args, sequence, stage, restore_mask) if args.restore else None
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
@@ -131,6 +138,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"track stage: {track.describe()}; model on {report.model_frames} of "
               f"{report.frames} frames, {report.coasted} predicted masks emitted; {total:.1f} "
               f"ms per frame in all (model + masking logic); {out / 'tracks.csv'}")  # fmt: skip
+        parts = ", ".join(f"{k} {v:.2f}" for k, v in report.stage_parts_ms.items())
+        print(f"track stage per frame by part (ms): {parts}")
+    _print_latency(report, track.model_thread)
     _print_scores(report)
     _print_recall_loss(report)
     if report.skipped:
@@ -138,6 +148,21 @@ def run(args: argparse.Namespace) -> int:
     if restored is not None:
         _print_restored(restored, out, restore_mask)
     return 0
+
+
+def _print_latency(report: SequenceReport, live: bool) -> None:
+    """Per-frame latency as a SLAM front end sees it, and the model results' lag."""
+    lat = np.asarray(report.latency_ms)
+    if not len(lat):
+        return
+    where = "replayed in real time, model on its own thread" if live else "frames back to back"
+    print(f"latency per frame ({where}): median {np.median(lat):.1f} ms, p95 "
+          f"{np.percentile(lat, 95):.1f}, max {lat.max():.1f}; model {report.model_ms_per_run:.1f} "
+          f"ms per run")  # fmt: skip
+    if live and report.model_lags:
+        lags = np.asarray(report.model_lags)
+        print(f"model results used: {len(lags)} for {report.frames} frames, lag median "
+              f"{np.median(lags):g} frames (max {lags.max()})")  # fmt: skip
 
 
 def _print_scores(report: SequenceReport) -> None:

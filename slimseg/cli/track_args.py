@@ -58,6 +58,34 @@ def add_track_args(p: argparse.ArgumentParser, segment_every: bool = True) -> No
         )
 
 
+def add_rate_args(p: argparse.ArgumentParser) -> None:
+    """``--budget-ms`` and ``--model-thread`` (with ``--fps``): the model's rate set by a time
+    budget, or by the model itself on its own thread."""
+    g = p.add_argument_group("model rate (with --track; docs/tracking.md section 6)")
+    g.add_argument(
+        "--budget-ms",
+        type=float,
+        default=0.0,
+        metavar="MS",
+        help="mean milliseconds per frame to stay within: the model runs on every N-th frame "
+        "with N chosen from the measured model and masking times (instead of --segment-every)",
+    )
+    g.add_argument(
+        "--model-thread",
+        action="store_true",
+        help="run the model on its own thread, as a runtime would: frames are replayed in real "
+        "time and masked as they arrive with the newest finished model result, moved by the "
+        "camera motion; the report gives the per-frame latency (only the chosen mode is scored)",
+    )
+    g.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        help="--model-thread: replay rate in frames per second (default: the sequence's "
+        "timestamps; 0: as fast as the masking goes)",
+    )
+
+
 def add_dropout_arg(p: argparse.ArgumentParser) -> None:
     """``--gt-dropout RATE:BURST[:SEED]`` (with ``--gt-instances``)."""
     p.add_argument(
@@ -94,7 +122,12 @@ def track_settings_from_args(args: argparse.Namespace) -> TrackSettings | None:
 
 def track_plan_from_args(args: argparse.Namespace) -> TrackPlan:
     """The validated stage (``SlimsegError`` names a bad option)."""
-    return TrackPlan(track_settings_from_args(args), getattr(args, "segment_every", 1))
+    return TrackPlan(
+        track_settings_from_args(args),
+        getattr(args, "segment_every", 1),
+        getattr(args, "budget_ms", 0.0),
+        getattr(args, "model_thread", False),
+    )
 
 
 def dropout_from_args(args: argparse.Namespace) -> Dropout | None:

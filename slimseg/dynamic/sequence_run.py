@@ -30,6 +30,7 @@ from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
+from slimseg.dynamic.model_feed import ModelFeed
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
     MODES,
@@ -88,6 +89,18 @@ class SequenceReport:
     """frames the model ran on (``--segment-every``: about frames / N)"""
     coasted: int = 0
     """predicted masks the track stage emitted (coasted or carried)"""
+    latency_ms: list[float] = field(default_factory=list)
+    """per frame: from its arrival (replayed in real time with the model on its own thread,
+    else when the loop takes it up) to its mask being ready (the chosen mode; before the
+    scoring of the others and the writing)"""
+    model_lags: list[int] = field(default_factory=list)
+    """per model result used: frames between the frame it was computed on and the one it fed"""
+    model_ms_per_run: float = 0.0
+    """mean wall time of one model run (on whichever thread)"""
+    stage_parts_ms: dict[str, float] = field(default_factory=dict)
+    """the track stage's time per frame by part (``slimseg.dynamic.track.STAGE_PARTS``)"""
+    rate: str = ""
+    """how the model's rate was set (``ModelFeed.describe``)"""
 
 
 def run_sequence(
@@ -100,6 +113,7 @@ def run_sequence(
     progress: bool = True,
     epipolar_depth: bool = False,
     track: TrackPlan = TRACK_OFF,
+    fps: float | None = None,
 ) -> SequenceReport:
     """Process every associated frame of ``sequence`` with ``predictor`` (a slimseg
     ``Predictor`` or ``AnnotationInstances``) under the ``masking`` settings (score threshold,
@@ -107,7 +121,10 @@ def run_sequence(
     ``epipolar_depth``: give the epipolar check the previous depth and the intrinsics
     (depth-aided residual, see ``epipolar``). ``sequence``: the folder, or it opened.
     ``track``: the track stage (off by default: every frame judged alone); with it on,
-    ``tracks.csv`` lists every emitted object with its track id and source."""
+    ``tracks.csv`` lists every emitted object with its track id and source. With the model on
+    its own thread (``track.model_thread``) the frames are replayed in real time at ``fps``
+    (None: the sequence's own timestamps; 0: as fast as the loop goes) and only the chosen
+    mode is scored (the others would delay the next frame)."""
     seq = sequence if isinstance(sequence, TumSequence) else TumSequence(sequence)
     gt_dir = seq.root / "dynamic"
     mobility = np.asarray(predictor.mobility, np.float32)
@@ -127,77 +144,95 @@ def run_sequence(
     losses = RecallLoss() if gt_dir.is_dir() and (seq.root / "annotations.json").is_file() else None
     instances = _instances(predictor, seq.root) if losses is not None else None
     track_rows: list[dict] = []
-    for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
-        rgb, depth, stamp = seq.load(i)
-        t0 = time.perf_counter()
-        pred = None
-        if track.runs_model(i):
-            pred = (predictor.for_stamp(stamp) if gt_instances
-                    else predictor.predict(rgb, conf=track.floor(conf)))  # fmt: skip
-            report.model_frames += 1
-        t1 = time.perf_counter()
-        feats = orb_features(rgb, keypoints)  # same keypoints as orb_keypoints, + descriptors
-        kps = feats.keypoints
-        hw = rgb.shape[:2]
-        tracked = None
-        if stage is None:
-            boxes, classes, masks = instances_of(pred)  # semantic maps: one object per component
-            inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors,
-                                 previous)  # fmt: skip
-        else:
-            dets = None if pred is None else frame_dets(pred, hw)
-            inputs, tracked = stage.inputs(feats, dets, conf, depth, previous)
-            boxes, classes, masks = inputs.boxes, inputs.classes, inputs.masks
-            report.coasted += int(tracked.coasted.sum())
-            track_rows += _track_rows(stamp, tracked)
-        t_prep = time.perf_counter() - t1
-        modes = [mode]
-        if report.scores:  # every mode on the same detections and keypoints
-            modes += [m for m in MODES if m != mode and (masks is not None or m in BOX_MODES)]
-        count_epi = gt_instances and previous is not None and masks is not None
-        if count_epi and mode not in EPIPOLAR_MODES and "semantic+epipolar" not in modes:
-            modes.append("semantic+epipolar")
-        results = process_modes(inputs=inputs, settings=settings, modes=modes, rng=rng)
-        result = results[mode]
-        t_logic += t_prep + result.seconds  # the chosen mode only, not the scoring of the rest
-        t_model += t1 - t0
-        name = mask_name(stamp)
-        write_png(out / "masks" / name, result.mask)
-        rows.append(
-            {
-                "timestamp": f"{stamp:.6f}",
-                **result.counts,
-                "m_th": result.m_th,
-                "dynamic_frame": result.dynamic_frame,
-                "used_seg": result.used_seg,
-                "detections": len(boxes),
-                "model_ms": round(1000 * (t1 - t0), 2),
-                **({} if tracked is None else {"coasted": int(tracked.coasted.sum())}),
-            }
-        )
-        if report.scores:
-            gt = cv2.imread(str(gt_dir / name), cv2.IMREAD_GRAYSCALE)
-            if gt is None:
-                report.skipped.append(str(gt_dir / name))
+    floor = track.floor(conf)
+
+    def segment(rgb: np.ndarray, stamp: float):
+        return predictor.for_stamp(stamp) if gt_instances else predictor.predict(rgb, conf=floor)
+
+    feed = ModelFeed(segment, track.segment_every, track.budget_ms, track.model_thread)
+    report.rate = feed.describe()
+    live = track.model_thread  # frames replayed in real time, only the chosen mode scored
+    clock = _Replay(fps if live else 0.0)
+    try:
+        for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
+            rgb, depth, stamp = seq.load(i)
+            arrival = clock.arrive(i, stamp)
+            t0 = time.perf_counter()
+            got = feed.frame(i, rgb, stamp)
+            pred = got.pred
+            report.model_frames += pred is not None
+            t1 = time.perf_counter()
+            feats = orb_features(rgb, keypoints)  # same keypoints as orb_keypoints, + descriptors
+            kps = feats.keypoints
+            hw = rgb.shape[:2]
+            tracked = None
+            if stage is None:
+                boxes, classes, masks = instances_of(
+                    pred
+                )  # semantic maps: one object per component
+                inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors,
+                                     previous)  # fmt: skip
             else:
-                truth = at_keypoints(gt > 0, kps)
-                for m, res in results.items():
-                    report.scores[m].add(res.dynamic, truth)
-                if losses is not None:
-                    only = _coasted_only(tracked, masks, hw)
-                    losses.add(instances, stamp, kps, result.dynamic, truth, result.mask > 0, only)
-        if count_epi:
-            epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
-            _count_epipolar(report, predictor, stamp, results[epi_mode], tracked)
-        if epipolar_depth:
-            cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
-            previous = PreviousFrame(feats, depth, cam)
-        else:
-            previous = PreviousFrame(feats)
-        if i % step == 0 and len(panels) < 6:
-            ghost = None if tracked is None else _coasted_only(tracked, masks, hw)
-            panels.append(_overlay(rgb, result.mask, kps, result.dynamic, ghost))
-        report.frames += 1
+                dets = None if pred is None else frame_dets(pred, hw)
+                inputs, tracked = stage.inputs(feats, dets, conf, depth, previous, got.lag)
+                boxes, classes, masks = inputs.boxes, inputs.classes, inputs.masks
+                report.coasted += int(tracked.coasted.sum())
+                track_rows += _track_rows(stamp, tracked)
+            t_prep = time.perf_counter() - t1
+            modes = [mode]
+            if report.scores and not live:  # every mode on the same detections and keypoints
+                modes += [m for m in MODES if m != mode and (masks is not None or m in BOX_MODES)]
+            count_epi = gt_instances and previous is not None and masks is not None and not live
+            if count_epi and mode not in EPIPOLAR_MODES and "semantic+epipolar" not in modes:
+                modes.append("semantic+epipolar")
+            results = process_modes(inputs=inputs, settings=settings, modes=modes, rng=rng)
+            result = results[mode]
+            ready = time.perf_counter()
+            report.latency_ms.append(1000 * (ready - arrival))
+            feed.other_time(ready - t1)
+            t_logic += t_prep + result.seconds  # the chosen mode only, not the scoring of the rest
+            t_model += t1 - t0  # the loop's time in the model (inline), or waiting for it
+            name = mask_name(stamp)
+            write_png(out / "masks" / name, result.mask)
+            rows.append(
+                {
+                    "timestamp": f"{stamp:.6f}",
+                    **result.counts,
+                    "m_th": result.m_th,
+                    "dynamic_frame": result.dynamic_frame,
+                    "used_seg": result.used_seg,
+                    "detections": len(boxes),
+                    "model_ms": round(1000 * (t1 - t0), 2),
+                    **({} if tracked is None else {"coasted": int(tracked.coasted.sum())}),
+                }
+            )
+            if report.scores:
+                gt = cv2.imread(str(gt_dir / name), cv2.IMREAD_GRAYSCALE)
+                if gt is None:
+                    report.skipped.append(str(gt_dir / name))
+                else:
+                    truth = at_keypoints(gt > 0, kps)
+                    for m, res in results.items():
+                        report.scores[m].add(res.dynamic, truth)
+                    if losses is not None:
+                        only = _coasted_only(tracked, masks, hw)
+                        losses.add(
+                            instances, stamp, kps, result.dynamic, truth, result.mask > 0, only
+                        )
+            if count_epi:
+                epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
+                _count_epipolar(report, predictor, stamp, results[epi_mode], tracked)
+            if epipolar_depth:
+                cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
+                previous = PreviousFrame(feats, depth, cam)
+            else:
+                previous = PreviousFrame(feats)
+            if i % step == 0 and len(panels) < 6:
+                ghost = None if tracked is None else _coasted_only(tracked, masks, hw)
+                panels.append(_overlay(rgb, result.mask, kps, result.dynamic, ghost))
+            report.frames += 1
+    finally:
+        feed.close()
     _write_csv(out / "frames.csv", rows)
     if stage is not None:
         _write_csv(out / "tracks.csv", track_rows)
@@ -209,7 +244,35 @@ def run_sequence(
     report.ms_per_frame = {"model": 1000 * t_model / n, "masking_logic": 1000 * t_logic / n}
     if stage is not None:  # its time is inside masking_logic (preparation); shown apart too
         report.ms_per_frame["track_stage"] = stage.ms_per_frame
+        report.stage_parts_ms = {k: 1000 * v / n for k, v in stage.tracker.parts.items()}
+    report.model_lags = list(feed.lags)
+    report.model_ms_per_run = 1000 * feed.model_s / max(feed.model_runs, 1)
+    if live:  # the loop waited for the model only on the first frame: count its runs' time
+        report.ms_per_frame["model_thread"] = 1000 * feed.model_s / n
     return report
+
+
+class _Replay:
+    """Frame arrival times: the sequence's timestamps (``fps`` None) or ``i / fps`` from the
+    first frame, in real time; ``fps`` 0: each frame arrives when the loop asks for it."""
+
+    def __init__(self, fps: float | None) -> None:
+        self.fps = fps
+        self.first: tuple[float, float] | None = None  # (clock, stamp) of frame 0
+
+    def arrive(self, i: int, stamp: float) -> float:
+        """Wait until frame ``i`` arrives; return its arrival time (``perf_counter`` s)."""
+        now = time.perf_counter()
+        if self.fps == 0:
+            return now
+        if self.first is None:
+            self.first = (now, stamp)
+            return now
+        c0, s0 = self.first
+        due = c0 + (stamp - s0 if self.fps is None else i / self.fps)
+        if due > now:
+            time.sleep(due - now)
+        return due
 
 
 def _instances(predictor: object, root: Path) -> AnnotationInstances:

@@ -13,7 +13,9 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
    a detection's box overlaps its predicted box (box IoU >= 0.05) or when it is emitted.
 3. **Update.** A match takes the detection's mask and box; an unmatched detection that is
    emitted (or scores ``>= new``) opens a tentative track; a tentative track that finds no
-   detection on a model frame ends (ByteTrack's rule), so tentative tracks stay few.
+   detection on a model frame ends (ByteTrack's rule), so tentative tracks stay few. Only a
+   track backed by a detection scoring ``>= new`` is confirmed (``min_hits`` matches, or one
+   ``>= confirm``): a weak one is carried, never coasted.
 4. **Coast.** A confirmed track without a match emits its predicted mask for up to
    ``max_coast`` frames, dilated per missed frame and cut to the track's depth band; its
    mobility is ``p · coast_decay^misses``, so Eq. 1 gives coasted masks up first.
@@ -51,10 +53,11 @@ from slimseg.dynamic.mask_patch import (
 from slimseg.dynamic.track_settings import TrackSettings
 
 SOURCE_DETECTION, SOURCE_COAST, SOURCE_CARRIED = "det", "coast", "carried"
-STAGE_PARTS = ("motion", "predict", "associate", "warp", "update", "coast", "paste")
-"""The stage's parts as timed (``Tracker.parts``): ORB matching + similarity fit (timed by
-the caller), box filters and transforms, association (IoU + Hungarian), mask warps, track
-updates (filter, median depth), coasting (dilation, depth gate), the output masks."""
+STAGE_PARTS = ("motion", "lag", "predict", "associate", "warp", "update", "coast", "paste")
+"""The stage's parts as timed (``Tracker.parts``): ORB matching + similarity fit and moving a
+late model result into the frame (both timed by the caller), box filters and transforms,
+association (IoU + Hungarian, without the warps), mask warps, track updates (filter), coasting
+(dilation, depth gate, without the warps), the output masks."""
 NEAR_IOU = 0.05  # mask IoU only for a detection and a track whose boxes overlap this much
 DEPTH_SAMPLES = 400  # pixels sampled for a mask's median depth
 
@@ -117,6 +120,9 @@ class Track:
     misses: int = 0
     since_seen: int = 0
     confirmed: bool = False
+    strong: bool = False
+    """a detection scoring ``>= new`` backed it: only such tracks are confirmed (and coast);
+    a weak track is carried over the frames the model skips and ends at its first miss"""
     dead: bool = False
     """a guard fired: the track is removed at the end of the frame"""
     predicted: Patch | None = None
@@ -225,7 +231,7 @@ class Tracker:
         for d in range(len(boxes)):
             t = matched.get(d)
             if t is not None:
-                self._observe(t, patches[d], boxes[d], depth_m)
+                self._observe(t, patches[d], boxes[d], depth_m, scores[d])
             elif (emitted[d] or scores[d] >= s.new) and movers[d]:
                 t = self._open(classes[d], scores[d], patches[d], boxes[d], depth_m)
             if t is None and scores[d] <= emit_conf:
@@ -246,7 +252,7 @@ class Tracker:
     def _match(self, idx, pool, patches, boxes, classes, gate) -> list[tuple[int, Track]]:
         if len(idx) == 0 or not pool:
             return []
-        t0 = time.perf_counter()
+        t0, w0 = time.perf_counter(), self.parts["warp"]
         iou = np.zeros((len(idx), len(pool)))
         near = _box_iou_matrix(boxes[idx], np.array([t.kf.box for t in pool]))
         near &= classes[idx][:, None] == np.array([t.cls for t in pool])[None]
@@ -258,17 +264,18 @@ class Tracker:
             else:
                 iou[i, j] = _box_iou(boxes[d], t.kf.box)
         rows, cols = linear_sum_assignment(1.0 - iou)
-        self.parts["associate"] += time.perf_counter() - t0
+        self.parts["associate"] += time.perf_counter() - t0 - (self.parts["warp"] - w0)
         return [(int(idx[r]), pool[c]) for r, c in zip(rows, cols, strict=True)
                 if iou[r, c] >= gate]  # fmt: skip
 
-    def _observe(self, t: Track, patch: Patch, box: np.ndarray, depth_m) -> None:
+    def _observe(self, t: Track, patch: Patch, box: np.ndarray, depth_m, score: float) -> None:
         t0 = time.perf_counter()
         t.kf.update(box)
         t.patch, t.transform, t.predicted, t.predicted_at = patch, np.eye(3), None, -1
         t.hits += 1
         t.misses = t.since_seen = 0
-        t.confirmed = t.confirmed or t.hits >= self.s.min_hits
+        t.strong = t.strong or score >= self.s.new
+        t.confirmed = t.confirmed or (t.strong and t.hits >= self.s.min_hits)
         t.depth_frame = depth_m  # its median is taken only if the track coasts
         self.parts["update"] += time.perf_counter() - t0
 
@@ -276,7 +283,8 @@ class Tracker:
         t0 = time.perf_counter()
         prior = float(self.priors[cls])
         t = Track(self._next_id, int(cls), prior, prior, BoxKalman(box), patch)
-        t.confirmed = score >= self.s.confirm or self.s.min_hits <= 1
+        t.strong = score >= self.s.new
+        t.confirmed = t.strong and (score >= self.s.confirm or self.s.min_hits <= 1)
         t.depth_frame = depth_m
         self._next_id += 1
         self.tracks.append(t)
@@ -316,7 +324,7 @@ class Tracker:
     def _coast(self, tracks: list[Track], depth_m, source: str) -> list[tuple]:
         """Emit the predicted masks of ``tracks`` that pass the guards (the rest are ended)."""
         s, hw, objs = self.s, self._hw, []
-        t0 = time.perf_counter()
+        t0, w0 = time.perf_counter(), self.parts["warp"]
         for t in tracks:
             if t.misses > s.max_coast:  # carried frames keep the misses of the last model frame
                 continue
@@ -341,7 +349,7 @@ class Tracker:
             self.coasted += 1
             objs.append((patch.box if t.patch is not None else box, t.cls, patch,
                          t.mobility(s.coast_decay), t.id, source, t.misses, 0.0, -1))  # fmt: skip
-        self.parts["coast"] += time.perf_counter() - t0
+        self.parts["coast"] += time.perf_counter() - t0 - (self.parts["warp"] - w0)
         return objs
 
     # -- moving probability ------------------------------------------------------------------

@@ -10,7 +10,9 @@ gives the same masks in either.
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -18,6 +20,7 @@ import numpy as np
 from slimseg.detections import Prediction
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
+from slimseg.dynamic.mask_patch import patch_from_mask, warp_patch
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track import FrameDets, TrackedFrame, Tracker
@@ -27,21 +30,37 @@ from slimseg.errors import SlimsegError
 
 @dataclass(frozen=True)
 class TrackPlan:
-    """The track stage of a run: ``settings`` (None: off, the per-frame output) and
-    ``segment_every`` N (the model runs on frames 0, N, 2N, ...; tracks carry the masks
-    between; needs ``settings``)."""
+    """The track stage of a run: ``settings`` (None: off, the per-frame output) and the
+    model's rate (:mod:`~slimseg.dynamic.model_feed`): ``segment_every`` N (frames 0, N, 2N,
+    ...), or ``budget_ms`` (N chosen to keep the mean ms per frame within it), or
+    ``model_thread`` (the model on its own thread, the newest result used). Any of them needs
+    ``settings``: the tracks carry the masks over the frames without a result."""
 
     settings: TrackSettings | None = None
     segment_every: int = 1
+    budget_ms: float = 0.0
+    model_thread: bool = False
 
     def __post_init__(self) -> None:
         if self.segment_every < 1:
             raise SlimsegError(f"--segment-every {self.segment_every}: expected 1 or more")
-        if self.segment_every > 1 and self.settings is None:
+        if not (self.budget_ms >= 0 and math.isfinite(self.budget_ms)):
+            raise SlimsegError(f"--budget-ms {self.budget_ms}: expected a positive number")
+        chosen = [f for f, on in (("--segment-every", self.segment_every > 1),
+                                  ("--budget-ms", self.budget_ms > 0),
+                                  ("--model-thread", self.model_thread)) if on]  # fmt: skip
+        if len(chosen) > 1:
+            raise SlimsegError(f"{' and '.join(chosen)}: give one way to set the model's rate")
+        if chosen and self.settings is None:
             raise SlimsegError(
-                f"--segment-every {self.segment_every} needs --track (the tracks carry the "
-                "masks over the frames the model skips)"
+                f"{chosen[0]} needs --track (the tracks carry the masks over the frames the "
+                "model skips)"
             )
+
+    @property
+    def fixed(self) -> bool:
+        """Is the model's schedule known in advance (every N frames)?"""
+        return self.budget_ms <= 0 and not self.model_thread
 
     @property
     def on(self) -> bool:
@@ -58,8 +77,14 @@ class TrackPlan:
     def describe(self) -> str:
         if self.settings is None:
             return "off (per-frame)"
-        every = f", model on every {self.segment_every} frames" if self.segment_every > 1 else ""
-        return f"{self.settings.describe()}{every}"
+        rate = ""
+        if self.segment_every > 1:
+            rate = f", model on every {self.segment_every} frames"
+        elif self.budget_ms > 0:
+            rate = f", model rate from a budget of {self.budget_ms:g} ms per frame"
+        elif self.model_thread:
+            rate = ", model on its own thread"
+        return f"{self.settings.describe()}{rate}"
 
 
 def frame_dets(pred: Prediction, hw: tuple[int, int]) -> FrameDets:
@@ -68,6 +93,28 @@ def frame_dets(pred: Prediction, hw: tuple[int, int]) -> FrameDets:
     boxes, classes, masks = instances_of(pred)
     scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
     return FrameDets(boxes, scores, classes, masks, hw)
+
+
+def move_dets(dets: FrameDets, h: np.ndarray) -> FrameDets:
+    """``dets`` of an older frame moved by ``h float [3, 3]`` (older → current pixels): each
+    box to the bounds of its moved corners, each mask warped on its crop (nearest neighbour);
+    what leaves the frame is cut."""
+    hw = dets.hw
+    boxes = np.asarray(dets.boxes, np.float32).reshape(-1, 4)
+    if np.allclose(h, np.eye(3)) or len(boxes) == 0:
+        return dets
+    corners = boxes[:, [0, 1, 2, 1, 2, 3, 0, 3]].reshape(-1, 4, 2).astype(np.float64)
+    moved = corners @ h[:2, :2].T + h[:2, 2]
+    out = np.concatenate([moved.min(1), moved.max(1)], 1)
+    out[:, [0, 2]] = out[:, [0, 2]].clip(0, hw[1])
+    out[:, [1, 3]] = out[:, [1, 3]].clip(0, hw[0])
+    masks = None
+    if dets.masks is not None:
+        masks = np.zeros((len(boxes), *hw), bool)
+        for k, (m, b) in enumerate(zip(dets.masks, boxes, strict=True)):
+            p = warp_patch(patch_from_mask(m, b), h, hw)
+            masks[k, p.y0 : p.y0 + p.mask.shape[0], p.x0 : p.x0 + p.mask.shape[1]] = p.mask
+    return FrameDets(out.astype(np.float32), dets.scores, dets.classes, masks, hw)
 
 
 class TrackedSequence:
@@ -83,6 +130,8 @@ class TrackedSequence:
         self.seconds = 0.0
         self.frames = 0
         self.motion_ok = 0
+        self._motions: deque[np.ndarray] = deque(maxlen=MAX_LAG)
+        """the last frames' camera motions (previous → current pixels), newest last"""
 
     def inputs(
         self,
@@ -91,9 +140,12 @@ class TrackedSequence:
         emit_conf: float,
         depth_m: np.ndarray | None,
         previous: PreviousFrame | None,
+        lag: int = 0,
     ) -> tuple[FrameInputs, TrackedFrame]:
         """Track one frame (``dets`` None: the model skipped it) and return the masking
-        logic's inputs with the tracked objects, and the tracker's output."""
+        logic's inputs with the tracked objects, and the tracker's output. ``lag``: ``dets``
+        were computed ``lag`` frames ago (a model on its own thread); they are moved into
+        this frame by the camera motions in between first."""
         t0 = time.perf_counter()
         pairs = None  # the epipolar check needs every match; camera motion alone a subset
         if previous is not None and self.mode in EPIPOLAR_MODES:
@@ -105,6 +157,15 @@ class TrackedSequence:
             objects = np.concatenate(boxes) if boxes else None
             motion = estimate_motion(previous.features, features, objects, pairs)
         self.motion_ok += motion.ok
+        self._motions.append(motion.H if motion.ok else np.eye(3))
+        self.tracker.parts["motion"] += time.perf_counter() - t0
+        if dets is not None and lag > 0:
+            t1 = time.perf_counter()
+            h = np.eye(3)
+            for m in list(self._motions)[-lag:]:
+                h = m @ h
+            dets = move_dets(dets, h)
+            self.tracker.parts["lag"] += time.perf_counter() - t1
         frame = self.tracker.step(dets, motion, emit_conf, depth_m)
         hw = frame.masks.shape[1:] if frame.masks is not None else self.tracker.hw
         inputs = FrameInputs(
@@ -128,4 +189,5 @@ class TrackedSequence:
         return 1000 * self.seconds / max(self.frames, 1)
 
 
+MAX_LAG = 30  # frames of camera motion kept for a late model result (older ones: not moved)
 TRACK_OFF = TrackPlan()  # every frame judged alone: the output of earlier versions, exactly
