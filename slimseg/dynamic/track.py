@@ -156,6 +156,7 @@ class Tracker:
         self.coasted = 0
         """predicted masks emitted so far (coasted or carried)"""
         self.frame_no = -1
+        self._moved: set[int] = set()  # this frame's detections moved on by their track's velocity
         self.parts: dict[str, float] = dict.fromkeys(STAGE_PARTS, 0.0)
         """seconds spent per part of the stage (see :data:`STAGE_PARTS`), summed over frames"""
 
@@ -170,11 +171,14 @@ class Tracker:
         motion: CameraMotion,
         emit_conf: float,
         depth_m: np.ndarray | None = None,
+        lag: int = 0,
     ) -> TrackedFrame:
         """Advance one frame. ``dets``: this frame's detections at a threshold at or below
         ``low`` (None: the model did not run on this frame); ``emit_conf``: the masking score
         threshold (detections above it are always emitted); ``depth_m [H, W]`` metres (0 =
-        invalid) for the coasting depth gate (None: no gate)."""
+        invalid) for the coasting depth gate (None: no gate); ``lag``: ``dets`` were computed
+        that many frames ago (already moved by the camera motion since): a detection matched
+        to a track is moved on by the track's own velocity times ``lag``."""
         t0 = time.perf_counter()
         if dets is None and self._hw is None:
             raise ValueError("the first frame of a sequence needs detections (the model runs)")
@@ -192,10 +196,11 @@ class Tracker:
         t1 = time.perf_counter()
         self.parts["predict"] += t1 - t0
         # objs: (box, cls, patch, mobility, id, source, misses, score, detection index)
+        self._moved = set()
         if dets is None:
             objs = self._carry(depth_m, emit_conf)
         else:
-            objs = self._associate(dets, emit_conf, depth_m)
+            objs = self._associate(dets, emit_conf, depth_m, lag)
         t2 = time.perf_counter()
         frame = self._frame(objs, self._hw, t0, None if dets is None else dets.masks)
         self.parts["paste"] += time.perf_counter() - t2
@@ -203,10 +208,10 @@ class Tracker:
 
     # -- model frames ------------------------------------------------------------------------
 
-    def _associate(self, dets: FrameDets, emit_conf: float, depth_m) -> list[tuple]:
+    def _associate(self, dets: FrameDets, emit_conf: float, depth_m, lag: int) -> list[tuple]:
         s, hw = self.s, dets.hw
         self._hw, self._box_only = hw, dets.masks is None
-        boxes = np.asarray(dets.boxes, np.float64).reshape(-1, 4)
+        boxes = np.array(dets.boxes, np.float64).reshape(-1, 4)  # a copy: moved below
         scores = np.asarray(dets.scores, np.float64).reshape(-1)
         classes = np.asarray(dets.classes, int).reshape(-1)
         if dets.masks is None:  # a box-only model: the filled box is the object
@@ -228,8 +233,16 @@ class Tracker:
             used = {id(t) for _, t in pairs}
             free = [t for t in free if id(t) not in used]
         objs = []
+        self._moved = set()
         for d in range(len(boxes)):
             t = matched.get(d)
+            if t is not None and lag > 0 and t.hits > 1:  # a late result: the object moved on
+                dx, dy = np.round(t.kf.velocity * lag).astype(int)
+                if dx or dy:
+                    p = patches[d]
+                    patches[d] = Patch(p.y0 + int(dy), p.x0 + int(dx), p.mask)
+                    boxes[d] = boxes[d] + [dx, dy, dx, dy]
+                    self._moved.add(d)
             if t is not None:
                 self._observe(t, patches[d], boxes[d], depth_m, scores[d])
             elif (emitted[d] or scores[d] >= s.new) and movers[d]:
@@ -381,7 +394,8 @@ class Tracker:
         if not self._box_only:
             masks = np.zeros((n, *hw), bool)
             for k, o in enumerate(objs):  # a detection's own full mask needs no pasting
-                masks[k] = det_masks[o[8]] if o[8] >= 0 else o[2].paste(hw)
+                own = o[8] >= 0 and o[8] not in self._moved
+                masks[k] = det_masks[o[8]] if own else o[2].paste(hw)
         return TrackedFrame(
             boxes=boxes,
             classes=np.array([o[1] for o in objs], np.int64),

@@ -166,7 +166,7 @@ class TrackedSequence:
                 h = m @ h
             dets = move_dets(dets, h)
             self.tracker.parts["lag"] += time.perf_counter() - t1
-        frame = self.tracker.step(dets, motion, emit_conf, depth_m)
+        frame = self.tracker.step(dets, motion, emit_conf, depth_m, lag)
         hw = frame.masks.shape[1:] if frame.masks is not None else self.tracker.hw
         inputs = FrameInputs(
             features.keypoints, frame.boxes, frame.classes, frame.masks, tuple(hw), depth_m,

@@ -1,0 +1,151 @@
+"""The model's rate in a sequence loop: a time budget, and the model on its own thread with
+late results moved into the current frame (docs/tracking.md section 6)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slimseg.cli.main import main
+from slimseg.data.synth.sequence import write_sequence
+from slimseg.detections import Prediction
+from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.camera_motion import CameraMotion
+from slimseg.dynamic.model_feed import MAX_EVERY, ModelFeed
+from slimseg.dynamic.sequence_run import run_sequence
+from slimseg.dynamic.track import FrameDets, Tracker
+from slimseg.dynamic.track_run import TrackPlan, move_dets
+from slimseg.dynamic.track_settings import COAST
+from slimseg.errors import SlimsegError
+
+HW = (120, 160)
+
+
+def _pred(tag: float) -> Prediction:
+    return Prediction(np.zeros((0, 4), np.float32), np.array([tag], np.float32),
+                      np.zeros(0, np.int64), [], [], None, HW)  # fmt: skip
+
+
+class _Slow:
+    """A segmenter taking ``seconds`` per frame; its prediction carries the frame's stamp."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+
+    def __call__(self, rgb: np.ndarray, stamp: float) -> Prediction:
+        time.sleep(self.seconds)
+        return _pred(stamp)
+
+
+def test_thread_feeds_the_newest_result_with_its_lag() -> None:
+    feed = ModelFeed(_Slow(0.03), thread=True)
+    rgb = np.zeros((*HW, 3), np.uint8)
+    got = []
+    try:
+        for i in range(12):
+            got.append(feed.frame(i, rgb, float(i)))
+            time.sleep(0.01)  # the loop's own work per frame
+    finally:
+        feed.close()
+    assert got[0].pred is not None and got[0].lag == 0  # the first frame waits for its own
+    used = [g for g in got[1:] if g.pred is not None]
+    assert 2 <= len(used) <= 8, len(used)  # ~ one result per 3-4 frames, never every frame
+    for k, g in enumerate(got):
+        if g.pred is not None:  # the result is the frame it says it is, `lag` frames back
+            assert g.pred.scores[0] == g.index and g.lag == k - g.index >= 0
+    assert all(g.lag >= 1 for g in used) and feed.model_runs == len(used) + 1
+
+
+def test_budget_picks_the_model_rate() -> None:
+    feed = ModelFeed(_Slow(0.03), budget_ms=12.5)
+    rgb = np.zeros((*HW, 3), np.uint8)
+    ran = []
+    for i in range(20):
+        ran.append(feed.frame(i, rgb, float(i)).pred is not None)
+        feed.other_time(0.005)
+    gaps = np.diff(np.flatnonzero(ran))
+    # model 30 ms, the rest 5 ms: (30 / N + 5) <= 12.5 needs N >= 4 (sleep overshoot: 5)
+    assert gaps[0] == 1 and set(gaps[2:].tolist()) <= {4, 5}, gaps
+    assert ModelFeed(_Slow(0.0), budget_ms=1.0).gap() == 1  # nothing measured yet
+    tight = ModelFeed(_Slow(0.0), budget_ms=1.0)
+    tight.model_runs, tight.model_s = 5, 0.1
+    tight.other_time(0.002)  # the rest alone is over budget: the slowest rate
+    assert tight.gap() == MAX_EVERY
+
+
+def test_plan_refuses_two_rates_and_rates_without_track() -> None:
+    with pytest.raises(SlimsegError, match="give one way"):
+        TrackPlan(COAST, 2, budget_ms=10)
+    with pytest.raises(SlimsegError, match="needs --track"):
+        TrackPlan(None, model_thread=True)
+    with pytest.raises(SlimsegError, match="--budget-ms"):
+        TrackPlan(COAST, budget_ms=float("nan"))
+
+
+def _disc(cx: float, cy: float, r: float = 12) -> np.ndarray:
+    yy, xx = np.mgrid[: HW[0], : HW[1]]
+    return (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
+
+
+def _dets(cx: float, score: float = 0.9) -> FrameDets:
+    m = _disc(cx, 60)
+    return FrameDets(np.array([[cx - 12, 48, cx + 13, 73]], np.float32),
+                     np.array([score], np.float32), np.zeros(1, np.int64), m[None], HW)  # fmt: skip
+
+
+def test_late_detections_are_moved_by_the_camera_then_by_the_object() -> None:
+    h = np.array([[1, 0, 7.0], [0, 1, -3.0], [0, 0, 1]])
+    moved = move_dets(_dets(40), h)
+    assert np.array_equal(moved.masks[0], _disc(47, 57))
+    assert moved.boxes[0].tolist() == [35, 45, 60, 70]
+    tr = Tracker(COAST, np.array([1.0]))
+    for k in range(10):  # a disc moving 4 px per frame, seen every frame
+        tr.step(_dets(20 + 4 * k), CameraMotion.identity(), 0.1)
+    tr.step(None, CameraMotion.identity(), 0.1)
+    # frame 11 gets frame 9's result (lag 2): the disc is now 8 px further on
+    f = tr.step(_dets(56), CameraMotion.identity(), 0.1, lag=2)
+    xs = np.nonzero(f.masks[0])[1]
+    assert f.source == ["det"] and xs.mean() == pytest.approx(64, abs=1.5)
+    assert tr.step(_dets(60), CameraMotion.identity(), 0.1).masks[0].sum() > 0
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("feed") / "seq"
+    write_sequence(root, seed=7, index=0, frames=30, size=(320, 240), preset="walking_xyz")
+    return root
+
+
+def test_run_sequence_with_the_model_on_its_own_thread(sequence: Path, tmp_path: Path) -> None:
+    inst = AnnotationInstances(sequence)
+    per = run_sequence(inst, sequence, tmp_path / "p", "seg", progress=False)
+    live = run_sequence(inst, sequence, tmp_path / "t", "seg", progress=False,
+                        track=TrackPlan(COAST, model_thread=True), fps=60.0)  # fmt: skip
+    assert live.frames == 30 and len(live.latency_ms) == 30 and live.model_lags[0] == 0
+    assert len(list((tmp_path / "t" / "masks").glob("*.png"))) == 30
+    assert list(live.scores) == ["seg"] or live.scores["fusion"].tp == 0  # only the chosen mode
+    assert live.scores["seg"].recall >= 0.8 * per.scores["seg"].recall
+    assert "model_thread" in live.ms_per_frame and live.stage_parts_ms["motion"] > 0
+
+
+def test_cli_rates_and_their_errors(sequence: Path, tmp_path: Path, capsys) -> None:
+    base = ["dynamic", "--gt-instances", "--sequence", str(sequence), "--mode", "seg",
+            "--quiet", "--out", str(tmp_path / "o")]  # fmt: skip
+    assert main([*base, "--track", "--model-thread", "--fps", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "model on its own thread" in text and "latency per frame (replayed" in text
+    assert "track stage per frame by part (ms): motion" in text
+    assert main([*base, "--track", "--budget-ms", "50"]) == 0
+    assert "budget of 50 ms" in capsys.readouterr().out
+    for bad, msg in (
+        (["--fps", "5"], "add --model-thread"),
+        (["--track", "--model-thread", "--fps", "-1"], "--fps -1"),
+        (["--track", "--budget-ms", "10", "--segment-every", "2"], "give one way"),
+        (["--model-thread"], "needs --track"),
+    ):
+        assert main([*base, *bad]) == 2
+        err = capsys.readouterr().err
+        assert msg in err and len(err.strip().splitlines()) == 1, err
