@@ -46,6 +46,8 @@ import torch.nn.functional as F
 from slimseg.ops.letterbox import LetterboxParams
 from slimseg.utils.full_precision import full_precision
 
+CHUNK_AREA_RATIO = 0.5  # a window under this share of its chunk's first starts a new chunk
+
 
 def _proto_window(boxes: torch.Tensor, h: int, w: int) -> torch.Tensor:
     """``bool [N, h, w]``: proto pixels whose unit square overlaps xyxy ``boxes [N, 4]``
@@ -186,6 +188,22 @@ def _upsample_window(
     return values.view(torch.bool), top, left
 
 
+def _size_chunks(
+    order: torch.Tensor, nx: torch.Tensor, ny: torch.Tensor, chunk: int
+) -> Iterator[torch.Tensor]:
+    """Detections ``order [N]`` (by decreasing window area ``nx · ny``) in chunks of at most
+    ``chunk`` whose windows are alike: a chunk ends before a detection whose area is under
+    :data:`CHUNK_AREA_RATIO` of the chunk's first, since every detection of a chunk is computed
+    on the chunk's largest window (one large person beside twenty small false positives would
+    otherwise cost twenty large windows). Each pixel's value does not depend on the chunking."""
+    area = (nx * ny)[order].tolist()
+    start = 0
+    for i in range(1, len(area) + 1):
+        if i == len(area) or i - start >= chunk or area[i] < CHUNK_AREA_RATIO * area[start]:
+            yield order[start:i]
+            start = i
+
+
 def _scatter_windows(
     out: torch.Tensor,
     k: torch.Tensor,
@@ -238,11 +256,12 @@ def mask_windows(
     ratio = _integer_ratio(h, hp)
     if ratio != _integer_ratio(w, wp):
         ratio = None
-    for s in range(0, n, chunk):
-        k = order[s : s + chunk]
-        m = k.numel()
-        with full_precision(proto.device):  # float32 under autocast too (module docstring)
-            prob = (coeffs[k].float() @ flat).sigmoid().view(m, hp, wp)
+    with full_precision(proto.device):  # float32 under autocast too (module docstring)
+        # one product for all (a BLAS result may depend on the row count; chunks vary)
+        probs = (coeffs.float() @ flat).sigmoid().view(n, hp, wp)
+    for k in _size_chunks(order, nx, ny, chunk):
+        with full_precision(proto.device):
+            prob = probs[k]
             if proto_crop:
                 prob = prob * _proto_window(b[k] * to_proto, hp, wp)
             spans = (x0[k], nx[k]), (y0[k], ny[k])
@@ -391,8 +410,7 @@ def frame_windows(
     content = masks[:, p.top : p.top + p.new_h, p.left : p.left + p.new_w]
     (fx, nx), (fy, ny) = _frame_spans(boxes, p, orig_hw)
     order = (nx * ny).argsort(descending=True)
-    for s in range(0, n, chunk):
-        k = order[s : s + chunk]
+    for k in _size_chunks(order, nx, ny, chunk):
         values, top, left = _resize_window(
             content[k].float(), (fx[k], nx[k]), (fy[k], ny[k]), (h, w), threshold
         )
