@@ -27,7 +27,7 @@ RANSAC_PX = 3.0  # reprojection threshold of the similarity fit (px)
 MIN_INLIER_SHARE = 0.3  # below this share of inliers the fit is not trusted
 # Features matched when no matches are shared (a 4-DOF fit needs tens, not a thousand):
 # every k-th keypoint of each frame, so brute-force matching costs ~(1/k)^2 of the full set.
-MOTION_FEATURES = 400
+MOTION_FEATURES = 300
 
 
 @dataclass(frozen=True)

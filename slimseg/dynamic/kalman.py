@@ -15,7 +15,6 @@ from slimseg.dynamic.camera_motion import CameraMotion, local_scale
 STD_POSITION = 1.0 / 20  # measurement and process noise of position, × box height
 STD_VELOCITY = 1.0 / 160  # process noise of velocity, × box height
 
-_H = np.eye(4, 8)
 _Q_UNIT = np.r_[[STD_POSITION**2] * 4, [STD_VELOCITY**2] * 4]  # process noise / height^2
 
 
@@ -78,8 +77,8 @@ class BoxKalman:
         """Correct the state with a measured box ``[4]`` xyxy."""
         z = xyxy_to_cxcywh(box_xyxy)
         h = max(self.x[3], 1.0)
-        r = np.diag(np.full(4, (STD_POSITION * h) ** 2))
-        s = _H @ self.P @ _H.T + r
-        k = np.linalg.solve(s, _H @ self.P).T  # P H^T S^-1 (S symmetric)
-        self.x = self.x + k @ (z - _H @ self.x)
-        self.P = (np.eye(8) - k @ _H) @ self.P
+        hp = self.P[:4]  # H P: the measurement picks the first four state rows
+        s = hp[:, :4] + np.eye(4) * (STD_POSITION * h) ** 2  # H P H^T + R
+        k = np.linalg.solve(s, hp).T  # P H^T S^-1 (S symmetric)
+        self.x = self.x + k @ (z - self.x[:4])
+        self.P = self.P - k @ hp  # (I - K H) P

@@ -9,8 +9,9 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
 2. **Associate (BYTE).** Detections scoring ``>= high`` or emitted (above the masking
    threshold) against every track, then the rest down to ``low`` against the confirmed
    tracks left; cost 1 - mask IoU (box IoU without masks), objects of other classes never
-   match; Hungarian assignment (scipy), gated. A track's predicted mask is warped only when
-   a detection's box overlaps its predicted box (box IoU >= 0.05) or when it is emitted.
+   match; Hungarian assignment (scipy), gated. A detection is compared only with tracks whose
+   predicted box it overlaps (box IoU >= 0.05), with the track's last mask shifted by its
+   predicted centre motion (no warp); masks are warped only for emission (coast, carry).
 3. **Update.** A match takes the detection's mask and box; an unmatched detection that is
    emitted (or scores ``>= new``) opens a tentative track; a tentative track that finds no
    detection on a model frame ends (ByteTrack's rule), so tentative tracks stay few. Only a
@@ -43,12 +44,14 @@ from slimseg.dynamic.camera_motion import CameraMotion
 from slimseg.dynamic.kalman import BoxKalman
 from slimseg.dynamic.mask_patch import (
     Patch,
+    clip_patch,
     dilate_patch,
     patch_depth,
     patch_from_box,
     patch_from_mask,
     patch_iou,
     warp_patch,
+    whole_pixel_shift,
 )
 from slimseg.dynamic.track_settings import TrackSettings
 
@@ -59,6 +62,8 @@ late model result into the frame (both timed by the caller), box filters and tra
 association (IoU + Hungarian, without the warps), mask warps, track updates (filter), coasting
 (dilation, depth gate, without the warps), the output masks."""
 NEAR_IOU = 0.05  # mask IoU only for a detection and a track whose boxes overlap this much
+IOU_STRIDE = 2  # association counts mask overlaps on every 2nd row and column
+SHIFT_TOLERANCE_PX = 1.0  # a predicted mask is shifted, not warped, when no corner moves more
 DEPTH_SAMPLES = 400  # pixels sampled for a mask's median depth
 
 
@@ -240,7 +245,7 @@ class Tracker:
                 dx, dy = np.round(t.kf.velocity * lag).astype(int)
                 if dx or dy:
                     p = patches[d]
-                    patches[d] = Patch(p.y0 + int(dy), p.x0 + int(dx), p.mask)
+                    patches[d] = p.moved(int(dy), int(dx))
                     boxes[d] = boxes[d] + [dx, dy, dx, dy]
                     self._moved.add(d)
             if t is not None:
@@ -271,9 +276,8 @@ class Tracker:
         near &= classes[idx][:, None] == np.array([t.cls for t in pool])[None]
         for i, j in zip(*np.nonzero(near), strict=True):
             d, t = idx[i], pool[j]
-            predicted = self._predicted(t)
-            if predicted is not None:
-                iou[i, j] = patch_iou(patches[d], predicted)
+            if t.patch is not None:
+                iou[i, j] = patch_iou(patches[d], self._shifted(t), IOU_STRIDE)
             else:
                 iou[i, j] = _box_iou(boxes[d], t.kf.box)
         rows, cols = linear_sum_assignment(1.0 - iou)
@@ -306,6 +310,22 @@ class Tracker:
 
     # -- predictions -------------------------------------------------------------------------
 
+    @staticmethod
+    def _shifted(t: Track) -> Patch:
+        """For association: the track's last observed mask moved by the whole-pixel shift of
+        its centre under the accumulated transform (no warp: between model frames rotation
+        and scale change a mask far less than the association gates tolerate)."""
+        p = t.patch
+        if t.since_seen == 0:
+            return p
+        h, w = p.mask.shape
+        cx, cy = p.x0 + w / 2, p.y0 + h / 2
+        m = t.transform
+        z = m[2, 0] * cx + m[2, 1] * cy + m[2, 2]
+        dx = (m[0, 0] * cx + m[0, 1] * cy + m[0, 2]) / z - cx
+        dy = (m[1, 0] * cx + m[1, 1] * cy + m[1, 2]) / z - cy
+        return p.moved(round(dy), round(dx))
+
     def _predicted(self, t: Track) -> Patch | None:
         """The track's last observed mask moved into this frame (computed once per frame, and
         only for the tracks that need it); None for box-only tracks."""
@@ -313,8 +333,15 @@ class Tracker:
             return None
         if t.predicted_at != self.frame_no:
             t0 = time.perf_counter()
-            t.predicted = t.patch if t.since_seen == 0 else warp_patch(t.patch, t.transform,
-                                                                        self._hw)  # fmt: skip
+            shift = None
+            if t.since_seen > 0:
+                shift = whole_pixel_shift(t.patch, t.transform, SHIFT_TOLERANCE_PX)
+            if t.since_seen == 0:
+                t.predicted = t.patch
+            elif shift is not None:  # a shift is as good as a warp here, and costs nothing
+                t.predicted = clip_patch(t.patch.moved(*shift), self._hw)
+            else:
+                t.predicted = warp_patch(t.patch, t.transform, self._hw)
             t.predicted_at = self.frame_no
             self.parts["warp"] += time.perf_counter() - t0
         return t.predicted
@@ -349,7 +376,8 @@ class Tracker:
                 patch = patch_from_box(box, hw)
             else:
                 patch = dilate_patch(self._predicted(t), s.coast_dilate_px * t.since_seen, hw)
-            if depth_m is not None and s.depth_band_m > 0 and patch.area and self._depth(t) > 0:
+            gate = t.misses > 0  # a track the last model frame saw is only carried: no gate
+            if gate and depth_m is not None and s.depth_band_m > 0 and self._depth(t) > 0:
                 d = patch_depth(patch, depth_m)
                 known = patch.mask & (d > 0)
                 near = known & (np.abs(d - t.depth_m) <= s.depth_band_m)
