@@ -13,7 +13,6 @@ from functools import cached_property
 import cv2
 import numpy as np
 
-
 IOU_FULL_AREA = 1024  # patch_iou counts overlaps below 4x this many pixels in full
 
 
