@@ -11,7 +11,9 @@ Ladders (docs/tracking.md §4):
   the moving probability (``fusion+epipolar`` per frame vs tracked, K = 3);
 - ``dropout`` (``--gt-instances``): ground-truth instances with bursts of misses injected
   (5 / 10 / 20 % of frames, bursts of 1 / 3 / 5), ``seg`` without vs with the stage;
-- ``segment-every``: the model on every 1 / 2 / 3 / 5 frames, tracks carrying the masks.
+- ``segment-every``: the model on every 1 / 2 / 3 / 5 frames, tracks carrying the masks;
+  its rate from a budget of ``BUDGET_MS`` per frame; the model on its own thread (frames
+  replayed in real time at the sequence's rate).
 
 Every sequence also gets ``raw`` and ``gt`` (ground-truth masks) rows. Writes ``ladder.csv``,
 ``ladder.md`` and ``ladder.png`` (ATE median with min-max per rung and sequence) under
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +40,8 @@ from slimseg.dynamic.track_settings import COAST, NO_COAST
 from slimseg.slam import session
 from slimseg.slam.condition_runs import evaluate_condition
 from slimseg.slam.conditions import Condition
+
+BUDGET_MS = 25.0  # the segment-every ladder's budget rung
 
 
 @dataclass(frozen=True)
@@ -71,8 +76,11 @@ def ladder(name: str) -> list[Rung]:
                 ]
         return rungs
     if name == "segment-every":
-        return [Rung("per-frame", "fusion")] + [
-            Rung(f"every {n}", "fusion", TrackPlan(COAST, n)) for n in (1, 2, 3, 5)
+        return [
+            Rung("per-frame", "fusion"),
+            *[Rung(f"every {n}", "fusion", TrackPlan(COAST, n)) for n in (1, 2, 3, 5)],
+            Rung(f"budget {BUDGET_MS:g} ms", "fusion", TrackPlan(COAST, budget_ms=BUDGET_MS)),
+            Rung("own thread", "fusion", TrackPlan(COAST, model_thread=True)),
         ]
     raise SystemExit(f"unknown ladder {name!r}: track, dropout, segment-every")
 
@@ -186,6 +194,9 @@ def _sequence(args: argparse.Namespace, seq_dir: Path, rungs: list[Rung]) -> lis
             "total_ms": ms["model"] + ms["masking_logic"],
             "model_frames": rep.model_frames,
             "coasted": rep.coasted,
+            "latency_median_ms": statistics.median(rep.latency_ms),
+            "lag_median": statistics.median(rep.model_lags) if rep.model_lags else None,
+            "model_ms_per_run": rep.model_ms_per_run,
         }
         print(
             f"{label} {rung.name}: masks in {time.perf_counter() - t0:.0f} s, "
