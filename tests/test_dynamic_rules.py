@@ -59,3 +59,31 @@ def test_dilate_grows_by_radius() -> None:
     mask[10, 10] = True
     grown = dilate(mask, 3)
     assert grown[10, 13] and grown[13, 10] and not grown[10, 14] and grown.sum() > 20
+
+
+def test_crop_based_masking_equals_the_full_frame_rules() -> None:
+    """Eq. 4, box mobility and mask dilation on each mask's crop give the very pixels of the
+    full-frame formulas (the masking logic's cost follows the objects, not M frames)."""
+    from slimseg.dynamic.seg_box import box_keypoint_mobility, dilate_masks
+
+    rng = np.random.default_rng(3)
+    hw = (60, 80)
+    boxes = np.c_[rng.uniform(-10, 70, (12, 2)), np.zeros((12, 2))].astype(np.float32)
+    boxes[:, 2:] = boxes[:, :2] + rng.uniform(0, 40, (12, 2))
+    boxes[0] = [-5, -5, 90, 70]  # beyond every border
+    boxes[1] = [10.5, 10.5, 10.5, 30]  # empty
+    seg = box_masks(boxes, hw) & (rng.random((12, *hw)) < 0.4)
+    seg[2] = False  # an empty mask
+    full_box = box_masks(boxes, hw)
+    area = full_box.sum((1, 2)).clip(min=1)
+    used_ref = (seg & full_box).sum((1, 2)) / area > 0.25
+    fused, used = fuse_seg_box(seg, boxes, 0.25)
+    assert np.array_equal(used, used_ref)
+    assert np.array_equal(fused, np.where(used_ref[:, None, None], seg, full_box))
+    pts = rng.uniform(-3, 83, (200, 2))
+    mob = rng.random(12).astype(np.float32)
+    assert np.array_equal(
+        box_keypoint_mobility(pts, boxes, hw, mob), keypoint_mobility(pts, full_box, mob)
+    )
+    for r in (1, 5):
+        assert np.array_equal(dilate_masks(seg, r), np.stack([dilate(m, r) for m in seg]))

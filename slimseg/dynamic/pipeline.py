@@ -32,7 +32,13 @@ import numpy as np
 
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
-from slimseg.dynamic.seg_box import box_masks, dilate, fuse_seg_box
+from slimseg.dynamic.seg_box import (
+    box_keypoint_mobility,
+    box_masks,
+    dilate,
+    dilate_masks,
+    fuse_seg_box,
+)
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
@@ -205,20 +211,20 @@ def _one_mode(
         region = box_masks(movers, hw).any(0) if len(movers) else np.zeros(hw, bool)
         flag = bool(dynamic.mean() > 0) if len(dynamic) else False
         return FrameResult(dynamic, _mask(region, settings.dilation_px), None, flag)
-    regions = box_masks(boxes, hw) if mode == "box" else masks.astype(bool)
-    if settings.dilation_px > 0:  # points near a mask edge belong to the object (ORB patches)
-        px = settings.dilation_px
-        regions = np.stack([dilate(r, px) for r in regions]) if len(regions) else regions
+    regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
+    # points near a mask edge belong to the object (ORB patches)
+    regions = dilate_masks(regions, settings.dilation_px)
     point_mob = keypoint_mobility(keypoints, regions, mob)
     # Eq. 3 counts points inside the detection boxes: a frame whose masks came out too thin is
     # exactly the one that needs the box fallback of Eq. 4
-    box_mob = keypoint_mobility(keypoints, box_masks(boxes, hw), mob)
+    box_mob = box_keypoint_mobility(keypoints, boxes, hw, mob)
     dynamic_frame = is_dynamic_frame(box_mob, settings.frame_ratio)
     if mode == "fusion" and dynamic_frame and len(boxes):
         fused, used = fuse_seg_box(regions, boxes, settings.t_o)
         if inputs.predicted is not None:  # Eq. 4 acts on detection masks only
             keep = np.asarray(inputs.predicted, bool)
-            fused, used = np.where(keep[:, None, None], regions, fused), used | keep
+            fused[keep] = regions[keep]
+            used = used | keep
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
     result = adaptive_threshold(
