@@ -109,6 +109,7 @@ def _row(rep) -> dict:
         "thread_model_ms": ms.get("model_thread", 0.0),
         "latency_median_ms": float(np.median(lat)),
         "latency_p95_ms": float(np.percentile(lat, 95)),
+        "late_max_ms": float(max(rep.late_ms, default=0.0)),
         "lag_median": float(np.median(lags)),
         "lag_max": int(lags.max()),
         "model_frames": rep.model_frames,

@@ -136,7 +136,7 @@ def test_cli_rates_and_their_errors(sequence: Path, tmp_path: Path, capsys) -> N
             "--quiet", "--out", str(tmp_path / "o")]  # fmt: skip
     assert main([*base, "--track", "--model-thread", "--fps", "0"]) == 0
     text = capsys.readouterr().out
-    assert "model on its own thread" in text and "latency per frame (replayed" in text
+    assert "latency per frame (model on its own thread)" in text and "replay kept up" in text
     assert "track stage per frame by part (ms): motion" in text
     assert main([*base, "--track", "--budget-ms", "50"]) == 0
     assert "budget of 50 ms" in capsys.readouterr().out

@@ -155,10 +155,15 @@ def _print_latency(report: SequenceReport, live: bool) -> None:
     lat = np.asarray(report.latency_ms)
     if not len(lat):
         return
-    where = "replayed in real time, model on its own thread" if live else "frames back to back"
+    where = "model on its own thread" if live else "model inline"
     print(f"latency per frame ({where}): median {np.median(lat):.1f} ms, p95 "
           f"{np.percentile(lat, 95):.1f}, max {lat.max():.1f}; model {report.model_ms_per_run:.1f} "
           f"ms per run")  # fmt: skip
+    if live and report.late_ms:
+        late = np.asarray(report.late_ms)
+        print(f"replay kept up with {int((late < 1).sum())} of {len(late)} frames (taken up "
+              f"late by up to {late.max():.0f} ms: reading, scoring and writing frames cost "
+              f"the replay time a runtime does not spend)")  # fmt: skip
     if live and report.model_lags:
         lags = np.asarray(report.model_lags)
         print(f"model results used: {len(lags)} for {report.frames} frames, lag median "

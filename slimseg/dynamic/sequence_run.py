@@ -90,9 +90,12 @@ class SequenceReport:
     coasted: int = 0
     """predicted masks the track stage emitted (coasted or carried)"""
     latency_ms: list[float] = field(default_factory=list)
-    """per frame: from its arrival (replayed in real time with the model on its own thread,
-    else when the loop takes it up) to its mask being ready (the chosen mode; before the
-    scoring of the others and the writing)"""
+    """per frame: from when the loop takes it up (at its arrival in a real-time replay, or
+    later when the loop is behind) to its mask being ready (the chosen mode; before the
+    scoring of the others and the writing): what a SLAM front end waits per frame"""
+    late_ms: list[float] = field(default_factory=list)
+    """real-time replay: per frame, how long after its arrival the loop took it up (the
+    replay's own reading, scoring and writing count here; a runtime has none of them)"""
     model_lags: list[int] = field(default_factory=list)
     """per model result used: frames between the frame it was computed on and the one it fed"""
     model_ms_per_run: float = 0.0
@@ -189,7 +192,9 @@ def run_sequence(
             result = results[mode]
             # the mask is ready after the chosen mode (the others run only to score them)
             ready = t1 + t_prep + result.seconds
-            report.latency_ms.append(1000 * (ready - arrival))
+            report.latency_ms.append(1000 * (ready - t0))
+            if live:
+                report.late_ms.append(1000 * max(t0 - arrival, 0.0))
             feed.other_time(ready - t1)
             t_logic += t_prep + result.seconds  # the chosen mode only, not the scoring of the rest
             t_model += t1 - t0  # the loop's time in the model (inline), or waiting for it
