@@ -58,16 +58,14 @@ class TrackPlan:
             )
 
     @property
-    def fixed(self) -> bool:
-        """Is the model's schedule known in advance (every N frames)?"""
-        return self.budget_ms <= 0 and not self.model_thread
-
-    @property
     def on(self) -> bool:
         return self.settings is not None
 
     def runs_model(self, i: int) -> bool:
-        """Does the model run on frame ``i`` (0-based)?"""
+        """Does the model run on frame ``i`` (0-based) of a fixed schedule (every N frames;
+        ``slimseg predict`` and the cached sweeps, which take no budget or thread)?"""
+        if self.budget_ms > 0 or self.model_thread:
+            raise ValueError("a budget or a model thread sets the rate while running (ModelFeed)")
         return i % self.segment_every == 0
 
     def floor(self, conf: float) -> float:
