@@ -32,8 +32,10 @@ class TrackSettings:
     Association (BYTE): detections scoring ``>= high`` are matched first against every track,
     then those in ``[low, high)`` against the confirmed tracks still unmatched; a match needs
     a mask IoU (box IoU for box-only models) of at least ``iou_high`` / ``iou_low``. An
-    unmatched detection scoring ``>= new`` opens a tentative track, confirmed after
-    ``min_hits`` matches (at once when it scores ``>= confirm``).
+    unmatched detection that is emitted (above the masking threshold) or scores ``>= new``
+    opens a tentative track; one backed by a detection scoring ``>= new`` is confirmed after
+    ``min_hits`` matches (at once when it scores ``>= confirm``); a tentative track ends at
+    its first model frame without a match.
 
     Coasting: a confirmed track without a match emits its predicted mask for up to
     ``max_coast`` frames (0: never), dilated by ``coast_dilate_px`` per missed frame; its
@@ -90,7 +92,7 @@ class TrackSettings:
 TRACK_RANGES: dict[str, Range] = {
     "high": (0.0, 1.0, False, "first-pass score threshold, 0-1"),
     "low": (0.0, 1.0, False, "second-pass score threshold, 0-1"),
-    "new": (0.0, 1.0, False, "score that opens a track, 0-1"),
+    "new": (0.0, 1.0, False, "score that opens a strong track (one that can coast), 0-1"),
     "confirm": (0.0, 1.0, False, "score that confirms a new track at once, 0-1"),
     "min_hits": (1, 100, True, "matches that confirm a track, a whole number >= 1"),
     "iou_high": (0.0, 1.0, False, "first-pass IoU gate, 0-1"),
