@@ -245,7 +245,7 @@ class Tracker:
                 dx, dy = np.round(t.kf.velocity * lag).astype(int)
                 if dx or dy:
                     p = patches[d]
-                    patches[d] = p.moved(int(dy), int(dx))
+                    patches[d] = clip_patch(p.moved(int(dy), int(dx)), hw)
                     boxes[d] = boxes[d] + [dx, dy, dx, dy]
                     self._moved.add(d)
             if t is not None:
