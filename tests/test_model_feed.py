@@ -67,8 +67,13 @@ def test_budget_picks_the_model_rate() -> None:
         ran.append(feed.frame(i, rgb, float(i)).pred is not None)
         feed.other_time(0.005)
     gaps = np.diff(np.flatnonzero(ran))
-    # model 30 ms, the rest 5 ms: (30 / N + 5) <= 12.5 needs N >= 4 (sleep overshoot: 5)
-    assert gaps[0] == 1 and set(gaps[2:].tolist()) <= {4, 5}, gaps
+    # model >= 30 ms, the rest 5 ms: (30 / N + 5) <= 12.5 needs N >= 4 (a loaded machine
+    # oversleeps: up to 7)
+    assert gaps[0] == 1 and all(4 <= g <= 7 for g in gaps[2:]), gaps
+    exact = ModelFeed(_Slow(0.0), budget_ms=12.5)
+    exact.model_runs, exact.model_s = 4, 0.12  # 30 ms per run
+    exact.other_time(0.005)
+    assert exact.gap() == 4
     assert ModelFeed(_Slow(0.0), budget_ms=1.0).gap() == 1  # nothing measured yet
     tight = ModelFeed(_Slow(0.0), budget_ms=1.0)
     tight.model_runs, tight.model_s = 5, 0.1
