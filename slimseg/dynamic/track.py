@@ -53,6 +53,13 @@ from slimseg.dynamic.mask_patch import (
     warp_patch,
     whole_pixel_shift,
 )
+from slimseg.dynamic.track_geometry import (
+    box_iou,
+    box_iou_matrix,
+    median_depth,
+    motion_scale,
+    outside_share,
+)
 from slimseg.dynamic.track_settings import TrackSettings
 
 SOURCE_DETECTION, SOURCE_COAST, SOURCE_CARRIED = "det", "coast", "carried"
@@ -61,10 +68,8 @@ STAGE_PARTS = ("motion", "lag", "predict", "associate", "warp", "update", "coast
 late model result into the frame (both timed by the caller), box filters and transforms,
 association (IoU + Hungarian, without the warps), mask warps, track updates (filter), coasting
 (dilation, depth gate, without the warps), the output masks."""
-NEAR_IOU = 0.05  # mask IoU only for a detection and a track whose boxes overlap this much
 IOU_STRIDE = 2  # association counts mask overlaps on every 2nd row and column
 SHIFT_TOLERANCE_PX = 1.0  # a predicted mask is shifted, not warped, when no corner moves more
-DEPTH_SAMPLES = 400  # pixels sampled for a mask's median depth
 
 
 @dataclass
@@ -272,14 +277,14 @@ class Tracker:
             return []
         t0, w0 = time.perf_counter(), self.parts["warp"]
         iou = np.zeros((len(idx), len(pool)))
-        near = _box_iou_matrix(boxes[idx], np.array([t.kf.box for t in pool]))
+        near = box_iou_matrix(boxes[idx], np.array([t.kf.box for t in pool]))
         near &= classes[idx][:, None] == np.array([t.cls for t in pool])[None]
         for i, j in zip(*np.nonzero(near), strict=True):
             d, t = idx[i], pool[j]
             if t.patch is not None:
                 iou[i, j] = patch_iou(patches[d], self._shifted(t), IOU_STRIDE)
             else:
-                iou[i, j] = _box_iou(boxes[d], t.kf.box)
+                iou[i, j] = box_iou(boxes[d], t.kf.box)
         rows, cols = linear_sum_assignment(1.0 - iou)
         self.parts["associate"] += time.perf_counter() - t0 - (self.parts["warp"] - w0)
         return [(int(idx[r]), pool[c]) for r, c in zip(rows, cols, strict=True)
@@ -350,7 +355,7 @@ class Tracker:
     def _depth(t: Track) -> float:
         """The track's depth (median under its last observed mask), taken when first needed."""
         if t.depth_frame is not None and t.patch is not None:
-            t.depth_m = _median_depth(t.patch, t.depth_frame, t.depth_m)
+            t.depth_m = median_depth(t.patch, t.depth_frame, t.depth_m)
         t.depth_frame = None
         return t.depth_m
 
@@ -369,7 +374,7 @@ class Tracker:
             if t.misses > s.max_coast:  # carried frames keep the misses of the last model frame
                 continue
             box = t.kf.box
-            if _outside_share(box, hw) > s.max_outside:
+            if outside_share(box, hw) > s.max_outside:
                 t.dead = True
                 continue
             if t.patch is None:
@@ -436,53 +441,3 @@ class Tracker:
             det_index=np.array([o[8] for o in objs], np.int64),
             seconds=time.perf_counter() - t0,
         )
-
-
-def motion_scale(motion: CameraMotion) -> float:
-    """The isotropic scale of a similarity ``motion`` (1 for the identity): the same at every
-    point, so each box filter need not compute it."""
-    if not motion.ok:
-        return 1.0
-    return float(np.sqrt(abs(np.linalg.det(motion.H[:2, :2]))))
-
-
-def _box_iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``bool [A, B]``: pairs of ``a [A, 4]`` and ``b [B, 4]`` xyxy boxes whose IoU reaches
-    :data:`NEAR_IOU` (a mask IoU at the association gates needs far more box overlap)."""
-    a, b = a.reshape(-1, 4).astype(np.float64), b.reshape(-1, 4).astype(np.float64)
-    iw = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
-    ih = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
-    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    union = area_a[:, None] + area_b[None] - inter
-    return (inter > 0) & (inter >= NEAR_IOU * union)
-
-
-def _box_iou(a: np.ndarray, b: np.ndarray) -> float:
-    iw = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    ih = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = iw * ih
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return float(inter / union) if union > 0 else 0.0
-
-
-def _outside_share(box: np.ndarray, hw: tuple[int, int]) -> float:
-    """Share of ``box [4]`` xyxy lying outside the ``hw`` frame."""
-    area = max(box[2] - box[0], 0) * max(box[3] - box[1], 0)
-    if area <= 0:
-        return 1.0
-    iw = max(0.0, min(box[2], hw[1]) - max(box[0], 0))
-    ih = max(0.0, min(box[3], hw[0]) - max(box[1], 0))
-    return float(1.0 - iw * ih / area)
-
-
-def _median_depth(patch: Patch, depth_m: np.ndarray | None, fallback: float) -> float:
-    """Median valid depth under the mask on a regular grid of about :data:`DEPTH_SAMPLES` of
-    its pixels (the median of a person's thousands of pixels does not need them all)."""
-    if depth_m is None or patch.area == 0:
-        return fallback
-    k = max(1, int(math.sqrt(patch.area / DEPTH_SAMPLES)))
-    d = patch_depth(patch, depth_m)[::k, ::k][patch.mask[::k, ::k]]
-    d = d[d > 0]
-    return float(np.median(d)) if len(d) else fallback
