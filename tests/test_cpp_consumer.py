@@ -45,8 +45,12 @@ MOBILITY = [1.0, 0.1, 0.3]
 # entry and extra presets, chosen so that the frames below see every outcome of Eq. 1 (the
 # start threshold, a raised one, giving up) besides frames without detections.
 TEST_MASKING = {"min_static": 60, "dilation_px": 3, "frame_ratio": 0.05, "t_o": 0.4}
+# "raise" and "wide" use Eq. 1 (papers' rule: no "rule" key); the default entry and "shed" the
+# degrading rule, "shed" short of support on some frames so that it gives masks up.
 TEST_PRESETS = {"raise": {**TEST_MASKING, "min_static": 110}, "wide": {**TEST_MASKING,
-                "dilation_px": 7, "m_th_step": 0.2, "t_o": 0.9}}  # fmt: skip
+                "dilation_px": 7, "m_th_step": 0.2, "t_o": 0.9},
+                "shed": {**TEST_MASKING, "min_static": 150, "rule": "degrade",
+                         "keep_score": 0.3}}  # fmt: skip
 # Frame sizes (h, w): the input's own, landscape, portrait, non-multiples of 32, upscaled.
 SIZES = [(160, 160), (120, 200), (200, 120), (97, 131), (50, 70)]
 KEYPOINTS = 200  # caller-given keypoints per frame (uniform, a quarter on half-pixel ties)
@@ -218,9 +222,10 @@ def _python_dynamic(
 ) -> FrameResult:
     """What ``slimseg dynamic`` does with one frame's prediction (sequence_run, no track)."""
     boxes, classes, masks = instances_of(pred)
+    scores = pred.scores if pred.class_map is None else None
     mobility = np.asarray(case.predictor.mobility, np.float32)
     rules = FrameRules.from_masking(mobility, mode, case.presets[preset])
-    inputs = FrameInputs(kps, boxes, classes, masks, pred.image_hw)
+    inputs = FrameInputs(kps, boxes, classes, masks, pred.image_hw, scores=scores)
     return process_frame(inputs=inputs, settings=rules)
 
 
@@ -289,7 +294,9 @@ def _compare(case, cpp, conf, mode, preset="", iou=0.7, max_det=300, stats=None)
         used = np.asarray(ref.used_seg, bool)
         order = (b, a) if pred.class_map is None and len(used) else (slice(None), slice(None))
         np.testing.assert_array_equal(got["used_seg"][order[0]] > 0, used[order[1]], err_msg=stem)
-        if stats is not None:
+        if stats is not None and case.presets[preset].rule == "degrade":
+            stats["degrade"].add("gave masks up" if ref.dropped else "kept all")
+        elif stats is not None:
             start = case.presets[preset].m_th_start
             stats["eq1"].add(
                 "no detections" if n == 0 else "gave up" if ref.m_th is None
@@ -304,7 +311,7 @@ def _compare(case, cpp, conf, mode, preset="", iou=0.7, max_det=300, stats=None)
 
 SLOW = pytest.mark.slow
 PARITY = [  # model, mode, score threshold, presets
-    ("yolov8n-seg fp32", "fusion", 0.25, ("", "raise", "wide", "papers")),
+    ("yolov8n-seg fp32", "fusion", 0.25, ("", "raise", "wide", "papers", "shed")),
     ("yolov8n fp16", "box", 0.25, ("",)),
     ("msnet-t fp32", "fusion", 0.25, ("",)),
     pytest.param("yolov8n-seg fp32", "seg", 0.1, ("",), marks=SLOW),
@@ -319,9 +326,11 @@ PARITY = [  # model, mode, score threshold, presets
 def test_parity_with_the_python_reference(example, cases, tmp_path, key, mode, conf, presets):
     """Boxes within 1e-3 px (they come out bit-identical), scores and classes equal, mask IoU
     >= 0.999 per instance, identical class maps, dynamic masks, dynamic keypoints and Eq. 1
-    thresholds; on the main model every Eq. 1 outcome and boxes on every frame border."""
+    thresholds; on the main model every Eq. 1 outcome, the degrading rule giving masks up and
+    not, and boxes on every frame border."""
     case = cases(key)
-    stats = {"eq1": set(), "pixels": 0, "differ": 0, "borders": set(), "fused": set()}
+    stats = {"eq1": set(), "degrade": set(), "pixels": 0, "differ": 0, "borders": set(),
+             "fused": set()}  # fmt: skip
     for preset in presets:
         args = ("--mode", mode, "--conf", str(conf), "--preset", preset) if preset else (
             "--mode", mode, "--conf", str(conf))  # fmt: skip
@@ -329,6 +338,7 @@ def test_parity_with_the_python_reference(example, cases, tmp_path, key, mode, c
         _compare(case, cpp, conf, mode, preset, stats=stats)
     if (key, mode) == ("yolov8n-seg fp32", "fusion"):  # the main case: every outcome
         assert stats["eq1"] == {"no detections", "gave up", "start", "raised"}, stats["eq1"]
+        assert stats["degrade"] == {"gave masks up", "kept all"}, stats["degrade"]
         assert stats["borders"] == set("ltrb"), f"boxes touched only {stats['borders']}"
         assert stats["fused"] == {False, True}, "Eq. 4 chose only one of seg mask / box"
 

@@ -106,7 +106,8 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys) -> None:
 
 
 def test_oneway_and_grid_points() -> None:
-    spec = parse_sweep(["conf=0.05,0.1,0.25", "dilation=0,5"])
+    spec_items = ["conf=0.05,0.1,0.25", "dilation=0,5"]
+    spec = parse_sweep(spec_items)
     one = sweep_points(SLIMSEG, spec, "oneway")
     assert one[0].label == "base (slimseg)" and one[0].settings == SLIMSEG
     labels = [p.label for p in one]
@@ -117,7 +118,11 @@ def test_oneway_and_grid_points() -> None:
     assert [p.label for p in refs] == ["preset papers"] and refs[0].settings == PAPERS
     grid = sweep_points(SLIMSEG, spec, "grid")
     assert len([p for p in grid if not p.reference]) == 3 * 2
-    assert "preset papers" not in [p.label for p in grid]  # conf 0.25 dilation 0 is a point
+    assert "preset papers" in [p.label for p in grid]  # papers' rule is not a point
+    with_rule = sweep_points(SLIMSEG, parse_sweep([*spec_items, "rule=eq1,degrade"]), "grid")
+    assert len([p for p in with_rule if not p.reference]) == 3 * 2 * 2
+    # conf 0.25, dilation 0, rule eq1 is a point: the preset is not added again
+    assert "preset papers" not in [p.label for p in with_rule]
     curve = slice_through(grid, "conf", grid[0])
     assert [p.settings.conf for p in curve] == [0.05, 0.1, 0.25]
     assert all(p.settings.dilation_px == SLIMSEG.dilation_px for p in curve)

@@ -133,6 +133,11 @@ def run(args: argparse.Namespace) -> int:
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
     print(f"masking settings: {masking.describe()}")
+    print(
+        f"masking rule ({masking.rule}): {report.dropped} candidate masks left out over "
+        f"{report.frames} frames; a mover scoring >= {masking.keep_score:g} left out in "
+        f"{report.dropped_confident_frames} frames; the frame given up in {report.gave_up}"
+    )
     if track.on:
         total = report.ms_per_frame["model"] + report.ms_per_frame["masking_logic"]
         print(f"track stage: {track.describe()}; model on {report.model_frames} of "

@@ -17,6 +17,17 @@ FLAGS: dict[str, tuple[str, type, str]] = {
     "--m-th-step": ("m_th_step", float, "Eq. 1: threshold step"),
     "--frame-ratio": ("frame_ratio", float, "Eq. 3: fraction of points on mobile objects"),
     "--t-o": ("t_o", float, "Eq. 4: seg-mask / box coverage above which the seg mask is kept"),
+    "--rule": (
+        "rule",
+        str,
+        "when static support runs short: eq1 (raise the threshold, then "
+        "give up the frame) or degrade (give up the least certain masks first)",
+    ),
+    "--keep-score": (
+        "keep_score",
+        float,
+        "degrade: a mover scoring this or more is never given up",
+    ),
 }
 
 

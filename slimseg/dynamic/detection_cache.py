@@ -151,7 +151,7 @@ def build_cache(
             pred = predictor.predict(rgb, conf=conf_floor)
         cache.calls += 1
         t1 = time.perf_counter()
-        feats = orb_features(rgb, keypoints)
+        feats = orb_features(rgb, keypoints, corners=True)  # corners: any setting's rule
         d = frame_dets(pred, rgb.shape[:2])
         dets = CachedDetections.pack(d.boxes, d.scores, d.classes, d.masks, d.hw)
         t2 = time.perf_counter()
@@ -215,9 +215,10 @@ def mask_with(
         t0 = time.perf_counter()
         kps = f.features.keypoints
         if stage is None:
-            boxes, classes, masks = f.detections.select(masking.conf)
+            boxes, classes, masks, scores = f.detections.select(masking.conf, with_scores=True)
             inputs = FrameInputs(kps, boxes, classes, masks, f.detections.hw, depth,
-                                 f.features.descriptors, previous)  # fmt: skip
+                                 f.features.descriptors, previous, scores=scores,
+                                 support=f.features.corners)  # fmt: skip
         else:
             dets = None
             if track.runs_model(i):

@@ -56,6 +56,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from slimseg.dynamic.degrade import support_points
+
 RATIO = 0.8  # Lowe ratio test on Hamming distances
 MIN_BACKGROUND = 20  # background matches wanted for F; fewer: fall back to all matches
 MIN_POINTS = 5  # matched points an object needs to be decided
@@ -67,10 +69,13 @@ H_RATIO = 0.9  # homography wins when it explains >= this fraction of F's backgr
 
 @dataclass(frozen=True)
 class OrbFeatures:
-    """ORB keypoints ``float32 [N, 2]`` (x, y) px and descriptors ``uint8 [N, 32]``."""
+    """ORB keypoints ``float32 [N, 2]`` (x, y) px and descriptors ``uint8 [N, 32]``;
+    ``corners float32 [P, 2]``: the frame's FAST corners (``orb_features(..., corners=True)``,
+    the masking rule's static support; None when not asked for)."""
 
     keypoints: np.ndarray
     descriptors: np.ndarray
+    corners: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if len(self.keypoints) != len(self.descriptors):
@@ -92,12 +97,13 @@ class PreviousFrame:
 
 
 def orb_features(
-    image: np.ndarray, count: int = 1000, mask: np.ndarray | None = None
+    image: np.ndarray, count: int = 1000, mask: np.ndarray | None = None, corners: bool = False
 ) -> OrbFeatures:
     """ORB keypoints + descriptors of an RGB ``uint8 [H, W, 3]`` or gray ``[H, W]`` frame.
 
     ``mask`` (``[H, W]``, nonzero = allowed) restricts detection. The keypoints are the same as
     ``pipeline.orb_keypoints`` returns for the same image (OpenCV computes them identically).
+    ``corners``: also the frame's FAST corners (:func:`slimseg.dynamic.degrade.support_points`).
     """
     gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     m = None if mask is None else (np.asarray(mask) > 0).astype(np.uint8)
@@ -105,7 +111,7 @@ def orb_features(
     pts = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
     if desc is None:
         desc = np.zeros((0, 32), np.uint8)
-    return OrbFeatures(pts, desc)
+    return OrbFeatures(pts, desc, support_points(gray) if corners else None)
 
 
 def match_features(a: OrbFeatures, b: OrbFeatures, ratio: float = RATIO) -> np.ndarray:

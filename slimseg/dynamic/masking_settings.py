@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
+from slimseg.dynamic.degrade import KEEP_SCORE
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
 from slimseg.errors import SlimsegError
@@ -48,7 +49,11 @@ class MaskingSettings:
     ``DILATION_REFERENCE_PX``-wide frame); ``min_static``: Eq. 1's static points needed;
     ``m_th_start`` / ``m_th_step``: Eq. 1's starting mobility threshold and its step;
     ``frame_ratio``: Eq. 3's fraction of points on mobile objects making a dynamic keyframe;
-    ``t_o``: Eq. 4's seg-mask-to-box coverage above which the seg mask is kept.
+    ``t_o``: Eq. 4's seg-mask-to-box coverage above which the seg mask is kept; ``rule``:
+    what happens when static support runs short, ``eq1`` (raise the mobility threshold, then
+    give up the frame: the paper's Eq. 1) or ``degrade`` (give up the least certain masks one
+    at a time, :mod:`slimseg.dynamic.degrade`); ``keep_score``: ``degrade`` never gives up a
+    candidate scoring at least this.
     """
 
     conf: float
@@ -58,16 +63,18 @@ class MaskingSettings:
     m_th_step: float
     frame_ratio: float
     t_o: float
+    rule: str
+    keep_score: float
 
     def __post_init__(self) -> None:
         for f in fields(self):
             check_value(f.name, getattr(self, f.name))
 
-    def with_values(self, **values: float) -> MaskingSettings:
+    def with_values(self, **values: float | str) -> MaskingSettings:
         """A copy with some fields replaced (validated)."""
         return replace(self, **values)
 
-    def as_dict(self) -> dict[str, float | int]:
+    def as_dict(self) -> dict[str, float | int | str]:
         return asdict(self)
 
     def describe(self) -> str:
@@ -84,13 +91,20 @@ RANGES: dict[str, Range] = {
     "m_th_step": (0.0, 1.0, False, "Eq. 1 step, 0 < step <= 1"),
     "frame_ratio": (0.0, 1.0, False, "Eq. 3 fraction, 0-1"),
     "t_o": (0.0, 1.0, False, "Eq. 4 coverage threshold, 0-1"),
+    "keep_score": (0.0, 1.0, False, "score from which the degrading rule keeps a mask, 0-1"),
 }
+# what to do when static support runs short (docs/slam_defaults.md §1)
+RULES = ("eq1", "degrade")
 OPEN_LOW = ("m_th_step",)  # the lower bound itself is not allowed
 OPEN_HIGH = ("conf",)
 
 
 def check_value(name: str, value: object) -> None:
     """Raise :class:`SettingsError` unless ``value`` is valid for field ``name``."""
+    if name == "rule":
+        if value not in RULES:
+            raise SettingsError(f"masking setting rule = {value!r}: expected one of {RULES}")
+        return
     if not in_range(value, RANGES[name], name in OPEN_LOW, name in OPEN_HIGH):
         raise SettingsError(f"masking setting {name} = {value!r}: expected {RANGES[name][3]}")
 
@@ -103,9 +117,11 @@ PAPERS = MaskingSettings(
     m_th_step=M_TH_STEP,
     frame_ratio=DYNAMIC_FRAME_RATIO,
     t_o=T_O,
+    rule="eq1",
+    keep_score=KEEP_SCORE,
 )
 # Chosen from the sweeps of docs/slam_defaults.md.
-SLIMSEG = PAPERS.with_values(conf=0.1, dilation_px=5)
+SLIMSEG = PAPERS.with_values(conf=0.1, dilation_px=5, rule="degrade")
 PRESETS: dict[str, MaskingSettings] = {"papers": PAPERS, "slimseg": SLIMSEG}
 DEFAULT_PRESET = "slimseg"
 DEFAULT = PRESETS[DEFAULT_PRESET]

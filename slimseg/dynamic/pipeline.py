@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from slimseg.dynamic.degrade import degrade
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.seg_box import (
@@ -60,6 +61,12 @@ class FrameResult:
     checked: list[int] = field(default_factory=list)
     seconds: float = 0.0
     """time this mode took (the shared epipolar check counts for the first mode needing it)"""
+    dropped: list[int] = field(default_factory=list)
+    """objects above Eq. 1's starting threshold left out of the mask (``eq1``: those under
+    the threshold it settled on, all of them when it gave up; ``degrade``: those it gave up)"""
+    support: int | None = None
+    """``degrade``: support points left outside the mask (None: Eq. 1, which counts
+    keypoints)"""
 
     @property
     def counts(self) -> dict[str, int]:
@@ -97,6 +104,12 @@ class FrameInputs:
     """``bool [M]``: the object's mask is a track's prediction, not a detection"""
     evidence: MotionEvidence | None = None
     """the epipolar check the track stage ran (its outcome is already in ``mobility``)"""
+    scores: np.ndarray | None = None
+    """``float32 [M]`` detection scores (None: all 1, e.g. ground-truth instances)"""
+    support: np.ndarray | None = None
+    """``float32 [P, 2]`` corners the SLAM engine can take outside a mask (the ``degrade``
+    rule's static support, :func:`slimseg.dynamic.degrade.support_points`; None: the
+    keypoints)"""
 
 
 @dataclass(frozen=True)
@@ -112,7 +125,8 @@ class MotionEvidence:
 class FrameRules:
     """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
     ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
-    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o`` (defaults: the equations as printed, the
+    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``
+    (defaults: the equations as printed, the
     ``papers`` preset of :mod:`slimseg.dynamic.masking_settings`, no dilation; sequence runs and the
     CLI pass the ``slimseg`` preset through :meth:`from_masking`), and ``dynamic_mobility``:
     the prior above which a class counts as dynamic (boxes of depth-RANSAC, epipolar
@@ -127,6 +141,8 @@ class FrameRules:
     m_th_step: float = PAPERS.m_th_step
     frame_ratio: float = PAPERS.frame_ratio
     t_o: float = PAPERS.t_o
+    rule: str = PAPERS.rule
+    keep_score: float = PAPERS.keep_score
 
     @classmethod
     def from_masking(
@@ -134,8 +150,10 @@ class FrameRules:
     ) -> FrameRules:
         """The frame settings of ``masking`` (its ``conf`` acts on the detector, not here)."""
         return cls(
-            class_mobility, mode, masking.min_static, masking.dilation_px, None,
-            masking.m_th_start, masking.m_th_step, masking.frame_ratio, masking.t_o,
+            class_mobility=class_mobility, mode=mode, min_static=masking.min_static,
+            dilation_px=masking.dilation_px, m_th_start=masking.m_th_start,
+            m_th_step=masking.m_th_step, frame_ratio=masking.frame_ratio, t_o=masking.t_o,
+            rule=masking.rule, keep_score=masking.keep_score,
         )  # fmt: skip
 
     @property
@@ -227,14 +245,29 @@ def _one_mode(
             used = used | keep
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
+    candidates = mob > settings.m_th_start + 1e-9
+    if settings.rule == "degrade":
+        scores = np.ones(len(mob), np.float32) if inputs.scores is None else inputs.scores
+        out = degrade(
+            regions=regions, mobility=mob, scores=scores, keypoints=keypoints,
+            support=keypoints if inputs.support is None else inputs.support,
+            min_static=settings.min_static, m_th_start=settings.m_th_start,
+            keep_score=settings.keep_score,
+        )  # fmt: skip
+        region = regions[out.masked].any(0) if out.masked.any() else np.zeros(hw, bool)
+        return FrameResult(out.dynamic, _mask(region, 0), round(settings.m_th_start, 4), dynamic_frame,
+                           used_seg, dropped=out.dropped, support=out.support)  # fmt: skip
     result = adaptive_threshold(
         point_mob, settings.min_static, settings.m_th_start, settings.m_th_step
     )
     if result.m_th is None:
-        region = np.zeros(hw, bool)
+        region, kept = np.zeros(hw, bool), np.zeros(len(mob), bool)
     else:
-        region = regions[mob > result.m_th].any(0) if len(regions) else np.zeros(hw, bool)
-    return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg)
+        kept = mob > result.m_th
+        region = regions[kept].any(0) if len(regions) else np.zeros(hw, bool)
+    dropped = np.flatnonzero(candidates & ~kept).tolist()
+    return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg,
+                       dropped=dropped)  # fmt: skip
 
 
 def _epipolar_priors(

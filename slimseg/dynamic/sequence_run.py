@@ -104,6 +104,13 @@ class SequenceReport:
     """the track stage's time per frame by part (``slimseg.dynamic.track.STAGE_PARTS``)"""
     rate: str = ""
     """how the model's rate was set (``ModelFeed.describe``)"""
+    gave_up: int = 0
+    """frames the chosen mode's rule masked nothing while objects were candidates (Eq. 1
+    giving up the frame)"""
+    dropped: int = 0
+    """candidate objects the rule left out of the mask, over the sequence"""
+    dropped_confident_frames: int = 0
+    """frames in which the rule left out a candidate scoring at least ``keep_score``"""
 
 
 def run_sequence(
@@ -141,6 +148,7 @@ def run_sequence(
     previous: PreviousFrame | None = None
     settings = FrameRules.from_masking(mobility, mode, masking)
     conf = masking.conf
+    support = masking.rule == "degrade"  # FAST corners: the rule's static support
     stage = None
     if track.on:
         stage = TrackedSequence(track.settings, mobility, mode, settings.mover_prior, seq.fps)
@@ -165,20 +173,22 @@ def run_sequence(
             pred = got.pred
             report.model_frames += pred is not None
             t1 = time.perf_counter()
-            feats = orb_features(rgb, keypoints)  # same keypoints as orb_keypoints, + descriptors
+            # same keypoints as orb_keypoints, + descriptors (+ the degrading rule's corners)
+            feats = orb_features(rgb, keypoints, corners=support)
             kps = feats.keypoints
             hw = rgb.shape[:2]
             tracked = None
             if stage is None:
-                boxes, classes, masks = instances_of(
-                    pred
-                )  # semantic maps: one object per component
+                # semantic maps: one object per component (no scores)
+                boxes, classes, masks = instances_of(pred)
+                scores = pred.scores if pred.class_map is None else None
                 inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors,
-                                     previous)  # fmt: skip
+                                     previous, scores=scores, support=feats.corners)  # fmt: skip
             else:
                 dets = None if pred is None else frame_dets(pred, hw)
                 inputs, tracked = stage.inputs(feats, dets, conf, depth, previous, got.lag)
                 boxes, classes, masks = inputs.boxes, inputs.classes, inputs.masks
+                scores = inputs.scores
                 report.coasted += int(tracked.coasted.sum())
                 track_rows += _track_rows(stamp, tracked)
             t_prep = time.perf_counter() - t1
@@ -200,11 +210,18 @@ def run_sequence(
             t_model += t1 - t0  # the loop's time in the model (inline), or waiting for it
             name = mask_name(stamp)
             write_png(out / "masks" / name, result.mask)
+            confident = _confident(result.dropped, scores, masking.keep_score)
+            report.gave_up += result.m_th is None and bool(result.dropped)
+            report.dropped += len(result.dropped)
+            report.dropped_confident_frames += confident > 0
             rows.append(
                 {
                     "timestamp": f"{stamp:.6f}",
                     **result.counts,
                     "m_th": result.m_th,
+                    "support": result.support,
+                    "dropped": len(result.dropped),
+                    "dropped_confident": confident,
                     "dynamic_frame": result.dynamic_frame,
                     "used_seg": result.used_seg,
                     "detections": len(boxes),
@@ -256,6 +273,13 @@ def run_sequence(
     if live:  # the loop waited for the model only on the first frame: count its runs' time
         report.ms_per_frame["model_thread"] = 1000 * feed.model_s / n
     return report
+
+
+def _confident(dropped: list[int], scores: np.ndarray | None, keep_score: float) -> int:
+    """How many of the ``dropped`` objects scored at least ``keep_score`` (no scores: all)."""
+    if scores is None:
+        return len(dropped)
+    return int((np.asarray(scores)[np.asarray(dropped, int)] >= keep_score).sum())
 
 
 class _Replay:

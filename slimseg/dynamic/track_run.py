@@ -167,8 +167,10 @@ class TrackedSequence:
         frame = self.tracker.step(dets, motion, emit_conf, depth_m, lag)
         hw = frame.masks.shape[1:] if frame.masks is not None else self.tracker.hw
         inputs = FrameInputs(
-            features.keypoints, frame.boxes, frame.classes, frame.masks, tuple(hw), depth_m,
-            features.descriptors, previous, frame.mobility, frame.coasted,
+            keypoints=features.keypoints, boxes=frame.boxes, classes=frame.classes,
+            masks=frame.masks, hw=tuple(hw), depth_m=depth_m, descriptors=features.descriptors,
+            previous=previous, mobility=frame.mobility, predicted=frame.coasted,
+            scores=frame.scores, support=features.corners,
         )  # fmt: skip
         if self.mode in EPIPOLAR_MODES and frame.masks is not None:
             ev = epipolar_evidence(inputs, frame.mobility, self.mover_prior, pairs)

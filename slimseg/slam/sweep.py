@@ -28,6 +28,8 @@ SWEEP_KEYS: dict[str, str] = {
     "m_th_step": "m_th_step",
     "ratio": "frame_ratio",
     "t_o": "t_o",
+    "rule": "rule",
+    "keep_score": "keep_score",
 }
 # sweep key -> TrackSettings field (the track stage's knobs; they need --track)
 TRACK_SWEEP_KEYS: dict[str, str] = {
@@ -40,6 +42,7 @@ TRACK_SWEEP_KEYS: dict[str, str] = {
     "p_alpha": "p_alpha",
 }
 INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate")
+WORD_KEYS = ("rule",)  # values are names, not numbers
 SWEEP_MODES = ("oneway", "grid")
 FUSION_MODES = ("fusion", "fusion+epipolar")
 # keys that change nothing in some masking modes (a sweep of them there would be flat noise)
@@ -48,6 +51,8 @@ ACTS_IN: dict[str, tuple[str, ...]] = {
     "t_o": FUSION_MODES,
     "min_static": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "m_th_step": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
+    "rule": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
+    "keep_score": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "p_alpha": ("semantic+epipolar", "fusion+epipolar"),
 }
 
@@ -56,7 +61,7 @@ class SweepError(SettingsError):
     """A malformed ``--sweep`` (one line naming the item and what to do)."""
 
 
-Value = float | int
+Value = float | int | str
 
 
 def parse_sweep(items: list[str]) -> dict[str, tuple[Value, ...]]:
@@ -86,6 +91,8 @@ def parse_sweep(items: list[str]) -> dict[str, tuple[Value, ...]]:
 
 
 def _number(key: str, text: str, item: str) -> Value:
+    if key in WORD_KEYS:
+        return text
     try:
         return int(text) if key in INT_KEYS else float(text)
     except ValueError:
@@ -189,7 +196,7 @@ def sweep_points(
         if any(same(p, s, t) for p in points):
             continue
         changed = {k: v for k, v in combo.items() if key_value(base, track, k) != v}
-        label = " ".join(f"{k}={_fmt(v)}" for k, v in changed.items())
+        label = " ".join(f"{k}={format_value(v)}" for k, v in changed.items())
         points.append(SweepPoint(label, s, values_of(s, keys, t), track=t))
     for pname, s in PRESETS.items():
         equal = [i for i, p in enumerate(points) if same(p, s, track)]
@@ -202,8 +209,9 @@ def sweep_points(
     return points
 
 
-def _fmt(v: Value) -> str:
-    return str(v) if isinstance(v, int) else f"{v:g}"
+def format_value(v: Value) -> str:
+    """A sweep value as the tables and labels print it (``0.1``, ``5``, ``degrade``)."""
+    return f"{v:g}" if isinstance(v, float) else str(v)
 
 
 def slice_through(points: list[SweepPoint], key: str, center: SweepPoint) -> list[SweepPoint]:

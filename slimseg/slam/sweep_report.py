@@ -15,7 +15,14 @@ from pathlib import Path
 
 from slimseg.slam.condition_runs import ConditionResult
 from slimseg.slam.report import csv_text
-from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS, SweepPoint, key_value, slice_through
+from slimseg.slam.sweep import (
+    SWEEP_KEYS,
+    TRACK_SWEEP_KEYS,
+    SweepPoint,
+    format_value,
+    key_value,
+    slice_through,
+)
 from slimseg.slam.sweep_run import SequenceSweep, SweepPlan
 from slimseg.utils.atomic import atomic_path, write_text
 from slimseg.utils.table import format_table
@@ -80,7 +87,7 @@ def table(rows: list[dict], keys: list[str], markdown: bool = True) -> str:
     for r in rows:
         spread = "-" if r["ate_min"] is None else f"{r['ate_min']:.4f}–{r['ate_max']:.4f}"
         cols = [f"track_{k}" if k in TRACK_SWEEP_KEYS else SWEEP_KEYS[k] for k in keys]
-        vals = ["" if r[c] is None else f"{r[c]:g}" for c in cols]
+        vals = ["" if r[c] is None else format_value(r[c]) for c in cols]
         lost = "-" if r["lost_median"] is None else f"{int(r['lost_median'])}/{r['lost_max']}"
         body.append([r["condition"], *vals, _m(r["ate_rmse"]), spread, _m(r["rpe_trans_s"]),
                      _pct(r["precision"]), _pct(r["recall"]), _m(r["masking_ms"], 1), lost,
@@ -102,7 +109,7 @@ def write_sweep(out: Path, plan: SweepPlan, sweeps: list[SequenceSweep], model: 
         f"- track stage: {plan.track.describe()}"
         + ("" if plan.dropout is None else
            f"; ground-truth dropout {plan.dropout.rate:g} in bursts of {plan.dropout.burst}"),
-        f"- sweep: {plan.how} over " + ", ".join(f"{k} = {', '.join(f'{v:g}' for v in vals)}"
+        f"- sweep: {plan.how} over " + ", ".join(f"{k} = {', '.join(format_value(v) for v in vals)}"
                                                  for k, vals in plan.spec.items()),
         f"- engine: {plan.engine}, {runs} run(s) per setting (ATE median, min–max), "
         + (f"realtime feeding at {plan.speed:g}x the frame rate (late: frames fed behind it)"

@@ -16,7 +16,7 @@ def in_range(value: object, spec: Range, open_low: bool = False, open_high: bool
     return ok and not (open_low and value == lo) and not (open_high and value == hi)
 
 
-def describe_values(preset: str | None, values: dict[str, float | int]) -> str:
+def describe_values(preset: str | None, values: dict[str, float | int | str]) -> str:
     """``slimseg preset (conf 0.1, dilation_px 5, ...)``, or ``custom (...)`` without a name."""
-    text = ", ".join(f"{k} {v:g}" for k, v in values.items())
+    text = ", ".join(f"{k} {v}" if isinstance(v, str) else f"{k} {v:g}" for k, v in values.items())
     return f"{preset + ' preset' if preset else 'custom'} ({text})"

@@ -76,6 +76,12 @@ MaskingSettings masking_entry(const Json& e, const std::string& field) {
         s.min_static = integer(*v, field + ".min_static", 0, 100000);
     if (const Json* v = e.find("dilation_reference_px"))
         s.dilation_reference_px = integer(*v, field + ".dilation_reference_px", 1, 1 << 20);
+    real("keep_score", s.keep_score, false, false);
+    if (const Json* v = e.find("rule")) {
+        s.rule = text(*v, field + ".rule");
+        if (s.rule != "eq1" && s.rule != "degrade")
+            bad(field + ".rule", "'" + s.rule + "' is not eq1 or degrade");
+    }
     return s;
 }
 

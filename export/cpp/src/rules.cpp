@@ -70,6 +70,56 @@ void paint(std::vector<std::uint8_t>& mask, int w, const WindowMask& m) {
                 mask[static_cast<size_t>(m.y0 + y) * w + (m.x0 + x)] = 255;
 }
 
+// slimseg.dynamic.degrade.degrade with the keypoints as the static support: candidates
+// (mobility > m_th_start) leave the mask least certain first (score x mobility; ties: the
+// later object) while fewer than min_static keypoints lie outside it; scores >= keep_score
+// stay.
+void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
+             const std::vector<float>& mob, const std::vector<float>& scores,
+             const std::vector<float>& kps, const Rules& rules, float start, int h, int w) {
+    const size_t m = regions.size(), n = kps.size() / 2;
+    std::vector<std::uint8_t> masked(m, 0);
+    for (size_t k = 0; k < m; ++k) masked[k] = mob[k] > start;
+    std::vector<std::vector<std::uint8_t>> hit(m, std::vector<std::uint8_t>(n, 0));
+    for (size_t i = 0; i < n; ++i) {
+        int x = static_cast<int>(std::nearbyint(kps[2 * i]));
+        int y = static_cast<int>(std::nearbyint(kps[2 * i + 1]));
+        x = std::min(std::max(x, 0), w - 1);
+        y = std::min(std::max(y, 0), h - 1);
+        for (size_t k = 0; k < m; ++k) hit[k][i] = regions[k].at(y, x);
+    }
+    auto score = [&](size_t k) { return scores.empty() ? 1.0f : scores[k]; };
+    auto left = [&]() {
+        std::int64_t out = 0;
+        for (size_t i = 0; i < n; ++i) {
+            bool covered = false;
+            for (size_t k = 0; k < m && !covered; ++k) covered = masked[k] && hit[k][i];
+            out += !covered;
+        }
+        return out;
+    };
+    std::vector<size_t> order;
+    for (size_t k = 0; k < m; ++k)
+        if (masked[k] && score(k) < static_cast<float>(rules.keep_score)) order.push_back(k);
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+        const float ca = score(a) * mob[a], cb = score(b) * mob[b];
+        return ca < cb || (ca == cb && a > b);
+    });
+    std::int64_t have = left();
+    for (size_t k : order) {
+        if (have >= rules.min_static) break;
+        masked[k] = 0;
+        res.dropped.push_back(static_cast<int>(k));
+        have = left();
+    }
+    for (size_t i = 0; i < n; ++i)
+        for (size_t k = 0; k < m; ++k)
+            if (masked[k] && hit[k][i]) res.dynamic[i] = 1;
+    for (size_t k = 0; k < m; ++k)
+        if (masked[k]) paint(res.mask, w, regions[k]);
+    res.m_th = round4(rules.m_th_start);
+}
+
 }  // namespace
 
 Mode parse_mode(const std::string& name) {
@@ -90,6 +140,8 @@ Rules Rules::from_metadata(const Metadata& meta, Mode mode, const std::string& p
     r.m_th_step = s.m_th_step;
     r.frame_ratio = s.frame_ratio;
     r.t_o = s.t_o;
+    r.degrade = s.rule == "degrade";
+    r.keep_score = s.keep_score;
     return r;
 }
 
@@ -176,6 +228,7 @@ Objects objects_of(const FramePrediction& p, int min_area) {
         for (const auto& d : p.detections) {
             o.boxes.push_back(d.box);
             o.classes.push_back(d.cls);
+            o.scores.push_back(d.score);
         }
         o.masks = p.masks;
         o.has_masks = p.segmenter;
@@ -239,8 +292,9 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                            const std::vector<float>& keypoints_xy, const Rules& rules) {
     if (keypoints_xy.size() % 2) throw Error("keypoints: expected (x, y) pairs, got an odd count");
     const size_t m = objects.boxes.size(), n = keypoints_xy.size() / 2;
-    if (objects.classes.size() != m || (objects.has_masks && objects.masks.size() != m))
-        throw Error("objects: boxes, classes and masks differ in count");
+    if (objects.classes.size() != m || (objects.has_masks && objects.masks.size() != m) ||
+        (!objects.scores.empty() && objects.scores.size() != m))
+        throw Error("objects: boxes, classes, scores and masks differ in count");
     std::vector<float> mob(m);
     for (size_t i = 0; i < m; ++i) {
         int c = objects.classes[i];
@@ -284,10 +338,15 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
         }
         point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
     }
-    // Eq. 1: raise m_th until at least min_static points stay static (compared in float32,
-    // as NumPy compares a float32 array with a Python float)
     res.mask.assign(static_cast<size_t>(h) * w, 0);
     res.dynamic.assign(n, 0);
+    const float start = static_cast<float>(rules.m_th_start + 1e-9);
+    if (rules.degrade) {
+        degrade(res, regions, mob, objects.scores, keypoints_xy, rules, start, h, w);
+        return res;
+    }
+    // Eq. 1: raise m_th until at least min_static points stay static (compared in float32,
+    // as NumPy compares a float32 array with a Python float)
     double m_th = rules.m_th_start;
     while (m_th <= 1.0 + 1e-9) {
         const float thr = static_cast<float>(m_th + 1e-9);
@@ -297,13 +356,17 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
             for (size_t i = 0; i < n; ++i) res.dynamic[i] = point_mob[i] > thr;
             res.m_th = round4(m_th);
             const float sel = static_cast<float>(res.m_th);
-            for (size_t i = 0; i < m; ++i)
+            for (size_t i = 0; i < m; ++i) {
                 if (mob[i] > sel) paint(res.mask, w, regions[i]);
+                else if (mob[i] > start) res.dropped.push_back(static_cast<int>(i));
+            }
             return res;
         }
         m_th += rules.m_th_step;
     }
     res.gave_up = true;
+    for (size_t i = 0; i < m; ++i)
+        if (mob[i] > start) res.dropped.push_back(static_cast<int>(i));
     return res;
 }
 

@@ -68,6 +68,8 @@ struct MaskingSettings {  // slam_masking: the SLAM-facing defaults
     double frame_ratio = 0.05;
     double t_o = 0.25;
     int dilation_reference_px = 640;
+    std::string rule = "eq1";  // eq1 | degrade (what happens when static support runs short)
+    double keep_score = 0.5;   // degrade: a candidate scoring this or more is never given up
 };
 
 struct Metadata {
@@ -196,6 +198,12 @@ struct Rules {
     int min_static = 100;
     int dilation_px = 0;  // frame pixels, applied as given (see scaled_dilation_px)
     double m_th_start = 0.25, m_th_step = 0.1, frame_ratio = 0.05, t_o = 0.25;
+    // eq1: Eq. 1 raises the threshold, then gives up the frame; degrade: the least certain
+    // candidates (score x mobility) go one at a time while fewer than min_static keypoints
+    // stay outside the mask, those scoring >= keep_score never (slimseg.dynamic.degrade; the
+    // caller's keypoints are the static support)
+    bool degrade = false;
+    double keep_score = 0.5;
 
     static Rules from_metadata(const Metadata& meta, Mode mode, const std::string& preset = "");
 };
@@ -208,6 +216,7 @@ int scaled_dilation_px(const MaskingSettings& s, int h, int w);
 struct Objects {
     std::vector<std::array<float, 4>> boxes;  // frame pixels, xyxy
     std::vector<int> classes;
+    std::vector<float> scores;                // empty: all 1 (class-map components)
     std::vector<WindowMask> masks;            // empty for detection-only models
     bool has_masks = false;
 };
@@ -217,6 +226,7 @@ struct DynamicResult {
     std::vector<std::uint8_t> mask;  // h*w, 255 = dynamic region
     std::vector<std::uint8_t> dynamic;  // per keypoint, 0/1
     bool gave_up = false;            // Eq. 1 found no threshold: nothing masked
+    std::vector<int> dropped;        // candidates left out of the mask (degrade: in order)
     double m_th = 0.0;
     bool dynamic_frame = false;      // Eq. 3
     std::vector<std::uint8_t> used_seg;  // Eq. 4 per object (fusion on dynamic frames)

@@ -1,0 +1,110 @@
+"""The degrading masking rule of the ``slimseg`` preset: where static support runs short, the
+least certain masks are given up first, one at a time; a confident mover never is.
+
+Eq. 1 (:mod:`slimseg.dynamic.threshold`, the ``papers`` preset) raises one mobility threshold
+over all objects: when a few low-score detections paint large regions of wall, the threshold
+climbs past the person's prior and every mask goes at once, the walkers' with them. This rule
+keeps Eq. 1's starting threshold (objects with mobility above ``m_th_start`` are the
+candidates) and, while the static support is under ``min_static``, drops the candidate with
+the lowest certainty (detection score × mobility) and counts again. Candidates scoring at
+least ``keep_score`` are never dropped: a frame may end short of support, but never with a
+confident walker handed to SLAM.
+
+Static support is what the SLAM engine can still find outside the mask. ORB-SLAM3 extracts
+its features after masking, so it is not the share of keypoints extracted on the whole frame
+before it (a mask over half the corners of a textured frame still leaves ORB-SLAM3 its 1000
+features elsewhere) but the corners left outside the mask: the caller's ``support`` points,
+FAST corners of the frame at ORB-SLAM3's threshold (:func:`support_points`), or, where none
+are given, the keypoints themselves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# ORB-SLAM3's FAST threshold (ORBextractor.iniThFAST of its example settings): the corners its
+# extractor starts from. One home: slimseg.slam.orbslam3_config imports it.
+FAST_THRESHOLD = 20
+# A candidate scoring at least this is never given up by the degrading rule (the ``keep_score``
+# masking setting's default).
+KEEP_SCORE = 0.5
+
+
+def support_points(image: np.ndarray) -> np.ndarray:
+    """FAST corners (non-maximum suppressed, threshold :data:`FAST_THRESHOLD`) of an RGB
+    ``uint8 [H, W, 3]`` or gray ``[H, W]`` frame → ``float32 [P, 2]`` (x, y) px: the corners
+    a feature extractor can take where the mask leaves the frame."""
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    fast = cv2.FastFeatureDetector_create(threshold=FAST_THRESHOLD, nonmaxSuppression=True)
+    kps = fast.detect(gray, None)
+    return np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+
+
+def inside(points: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    """``bool [M, N]``: which of ``masks bool [M, H, W]`` hold each of ``points [N, 2]`` (x, y)
+    px (rounded, clipped to the frame, as :func:`~slimseg.dynamic.threshold.keypoint_mobility`
+    samples them)."""
+    if len(masks) == 0 or len(points) == 0:
+        return np.zeros((len(masks), len(points)), bool)
+    h, w = masks.shape[1:]
+    x = np.clip(np.round(points[:, 0]).astype(int), 0, w - 1)
+    y = np.clip(np.round(points[:, 1]).astype(int), 0, h - 1)
+    return masks[:, y, x]
+
+
+@dataclass(frozen=True)
+class Degraded:
+    """The rule's outcome: ``masked bool [M]`` objects in the dynamic mask, ``dynamic bool [N]``
+    per keypoint, ``support`` points left outside the mask, ``dropped``: the candidates given
+    up, in the order they went (least certain first)."""
+
+    masked: np.ndarray
+    dynamic: np.ndarray
+    support: int
+    dropped: list[int]
+
+
+def degrade(
+    *,
+    regions: np.ndarray,
+    mobility: np.ndarray,
+    scores: np.ndarray,
+    keypoints: np.ndarray,
+    support: np.ndarray,
+    min_static: int,
+    m_th_start: float,
+    keep_score: float = KEEP_SCORE,
+) -> Degraded:
+    """Apply the rule to one frame's objects.
+
+    ``regions bool [M, H, W]`` (dilated, after Eq. 4), ``mobility [M]``, ``scores [M]``,
+    ``keypoints [N, 2]`` and ``support [P, 2]`` (x, y) px. An object is a candidate when its
+    mobility exceeds ``m_th_start`` (Eq. 1's first step); candidates are dropped in increasing
+    score × mobility (ties: the later detection first) while fewer than ``min_static`` support
+    points lie outside the masked candidates; those scoring ``>= keep_score`` stay.
+    """
+    mob = np.asarray(mobility, np.float32).reshape(-1)
+    score = np.asarray(scores, np.float32).reshape(-1)
+    masked = mob > m_th_start + 1e-9  # Eq. 1's comparison (in float32) at its first threshold
+    covers = inside(np.asarray(support, np.float32).reshape(-1, 2), regions)  # [M, P]
+    total = covers.shape[1]
+
+    def left() -> int:
+        return total - int(covers[masked].any(0).sum()) if masked.any() else total
+
+    have = left()
+    dropped: list[int] = []
+    certainty = score * mob
+    order = sorted(np.flatnonzero(masked & (score < keep_score)), key=lambda k: (certainty[k], -k))
+    for k in order:
+        if have >= min_static:
+            break
+        masked[k] = False
+        dropped.append(int(k))
+        have = left()
+    hits = inside(np.asarray(keypoints, np.float32).reshape(-1, 2), regions)  # [M, N]
+    dynamic = hits[masked].any(0) if masked.any() else np.zeros(hits.shape[1], bool)
+    return Degraded(masked, dynamic, have, dropped)
