@@ -86,13 +86,15 @@ def test_support_counts_the_corners_outside_the_mask_not_the_keypoints() -> None
     assert r.dropped == [1, 2] and r.support == 0  # no corners at all: all uncertain masks go
 
 
-def test_equal_certainty_drops_the_later_detection_first() -> None:
+def test_equal_certainty_drops_the_larger_region_then_the_later_detection_first() -> None:
     masks, _, _, _ = _scene()
-    out = degrade(
-        regions=masks, mobility=np.ones(3, np.float32), scores=np.array([0.2, 0.2, 0.2]),
-        keypoints=_grid(4), support=_grid(4), min_static=130, m_th_start=0.25,
-    )  # fmt: skip
-    assert out.dropped[0] == 2
+    masks = masks[[2, 1, 0]]  # small, blob, walker
+    same = {"mobility": np.ones(3, np.float32), "scores": np.array([0.2, 0.2, 0.2]),
+            "keypoints": _grid(4), "support": _grid(4), "m_th_start": 0.25}  # fmt: skip
+    assert degrade(regions=masks, min_static=130, **same).dropped == [1]  # the blob
+    twins = np.stack([masks[2], masks[2]])  # equal areas too: the later one
+    assert degrade(regions=twins, min_static=300, **{**same, "mobility": np.ones(2),
+                   "scores": np.array([0.2, 0.2])}).dropped == [1, 0]  # fmt: skip
 
 
 def test_support_points_find_corners_of_a_textured_frame() -> None:

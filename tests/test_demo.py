@@ -109,22 +109,29 @@ def test_demo_with_the_slam_stage_small(tmp_path: Path, capsys: pytest.CaptureFi
     last = printed.strip().splitlines()[-1]
     assert last.startswith("mask mAP50-95 ") and "ATE raw " in last, last
     assert "→ slimseg " in last and "→ ground-truth masks " in last and "2 ORB-SLAM3 runs" in last
+    assert "a camera that never moves " in last
 
 
 def test_result_line_says_when_the_masks_did_not_help() -> None:
     def row(m: tuple) -> dict:
         return {"ate_median_m": m[0], "ate_min_m": m[1], "ate_max_m": m[2]}
 
-    def table(raw: tuple, ours: tuple) -> dict:
+    def table(raw: tuple, ours: tuple, floor: float | None = 0.099) -> dict:
         conds = {"raw": row(raw), "slimseg": row(ours), "gt_masks": row((0.017,) * 3)}
         seq = {"preset": "walking_xyz", "seed": 1, "frames": 100}
-        return {"conditions": conds, "runs_per_condition": 3, "sequence": seq}
+        return {"conditions": conds, "runs_per_condition": 5, "sequence": seq,
+                "still_camera_ate_m": floor}  # fmt: skip
 
     line = demo._result(table((0.24, 0.2, 0.3), (0.03, 0.02, 0.04)))
-    assert line == ("ATE raw 0.240 m → slimseg 0.030 m → ground-truth masks 0.017 m (median of "
-                    "3 ORB-SLAM3 runs each, walking_xyz seed 1, 100 frames)")  # fmt: skip
+    assert line == ("ATE raw 0.240 m → slimseg 0.030 m → ground-truth masks 0.017 m; a camera "
+                    "that never moves 0.099 m (median of 5 ORB-SLAM3 runs each, walking_xyz "
+                    "seed 1, 100 frames)")  # fmt: skip
+    assert "never moves" not in demo._result(table((0.24, 0.2, 0.3), (0.03, 0.02, 0.04), None))
     assert "did not lower" in demo._result(table((0.1, 0.1, 0.1), (0.2, 0.1, 0.3)))
-    assert "overlap" in demo._result(table((0.2, 0.1, 0.3), (0.15, 0.1, 0.2)))
+    # the demo line: 0.295 → 0.102 with a still camera at 0.099
+    failed = demo._result(table((0.295, 0.28, 0.3), (0.102, 0.09, 0.11)))
+    assert "above 0.5× the still camera's" in failed and "overlap" not in failed
+    assert "overlap" in demo._result(table((0.2, 0.1, 0.3), (0.15, 0.1, 0.2), 0.5))
     assert "slimseg not scored" in demo._result(table((0.2, 0.1, 0.3), (None, None, None)))
 
 

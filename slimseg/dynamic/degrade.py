@@ -83,8 +83,9 @@ def degrade(
     ``regions bool [M, H, W]`` (dilated, after Eq. 4), ``mobility [M]``, ``scores [M]``,
     ``keypoints [N, 2]`` and ``support [P, 2]`` (x, y) px. An object is a candidate when its
     mobility exceeds ``m_th_start`` (Eq. 1's first step); candidates are dropped in increasing
-    score × mobility (ties: the later detection first) while fewer than ``min_static`` support
-    points lie outside the masked candidates; those scoring ``>= keep_score`` stay.
+    score × mobility while fewer than ``min_static`` support
+    points lie outside the masked candidates; those scoring ``>= keep_score`` stay. Equal
+    certainties: the larger region goes first (then the later object).
     """
     mob = np.asarray(mobility, np.float32).reshape(-1)
     score = np.asarray(scores, np.float32).reshape(-1)
@@ -98,7 +99,10 @@ def degrade(
     have = left()
     dropped: list[int] = []
     certainty = score * mob
-    order = sorted(np.flatnonzero(masked & (score < keep_score)), key=lambda k: (certainty[k], -k))
+    droppable = np.flatnonzero(masked & (score < keep_score)) if have < min_static else []
+    # ties (equal scores are common in FP16): the larger region first, then the later object
+    area = {int(k): int(regions[k].sum()) for k in droppable}
+    order = sorted(droppable, key=lambda k: (certainty[k], -area[int(k)], -k))
     for k in order:
         if have >= min_static:
             break

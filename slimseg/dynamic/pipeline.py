@@ -255,8 +255,9 @@ def _one_mode(
             keep_score=settings.keep_score,
         )  # fmt: skip
         region = regions[out.masked].any(0) if out.masked.any() else np.zeros(hw, bool)
-        return FrameResult(out.dynamic, _mask(region, 0), round(settings.m_th_start, 4), dynamic_frame,
-                           used_seg, dropped=out.dropped, support=out.support)  # fmt: skip
+        m_th = round(settings.m_th_start, 4)
+        return FrameResult(out.dynamic, _mask(region, 0), m_th, dynamic_frame, used_seg,
+                           dropped=out.dropped, support=out.support)  # fmt: skip
     result = adaptive_threshold(
         point_mob, settings.min_static, settings.m_th_start, settings.m_th_step
     )

@@ -45,6 +45,9 @@ MODE = "fusion"  # slimseg dynamic's default mode
 CONDITIONS = ("raw", MODE, "gt")  # slam-eval names, in table order
 KEYS = {"raw": "raw", MODE: "slimseg", "gt": "gt_masks"}  # metrics.json keys
 LABELS = {"raw": "raw frames", MODE: "slimseg masks", "gt": "ground-truth masks"}
+# ORB-SLAM3 runs per condition: its run-to-run spread needs at least five for a median with a
+# meaningful min-max (docs/slam_eval.md)
+DEMO_RUNS = 5
 VOCAB_K, VOCAB_LEVELS, VOCAB_IMAGES = 10, 4, 40  # slimseg slam vocab's k and L
 
 
@@ -57,7 +60,7 @@ class DemoSlamSettings:
     seed: int = 1
     frames: int = 100
     size: tuple[int, int] = (640, 480)
-    runs: int = 3
+    runs: int = DEMO_RUNS
     speed: float = 0.33
     vocab: Path | None = None
     threads: int | None = None

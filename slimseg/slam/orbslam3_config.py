@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slimseg.data.tum import Camera
+from slimseg.dynamic.degrade import FAST_THRESHOLD
 from slimseg.utils.atomic import write_text
 
 # Kinect-class sensor: virtual stereo baseline (m) and the close/far point limit in baselines
@@ -26,7 +27,7 @@ class OrbSlam3Config:
     features: int = 1000
     scale_factor: float = 1.2
     levels: int = 8
-    ini_fast: int = 20
+    ini_fast: int = FAST_THRESHOLD  # the degrading rule's static support counts at it
     min_fast: int = 7
     fps: float = 30.0
 

@@ -72,8 +72,8 @@ void paint(std::vector<std::uint8_t>& mask, int w, const WindowMask& m) {
 
 // slimseg.dynamic.degrade.degrade with the keypoints as the static support: candidates
 // (mobility > m_th_start) leave the mask least certain first (score x mobility; ties: the
-// later object) while fewer than min_static keypoints lie outside it; scores >= keep_score
-// stay.
+// larger region, then the later object) while fewer than min_static keypoints lie outside
+// it; scores >= keep_score stay.
 void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
              const std::vector<float>& mob, const std::vector<float>& scores,
              const std::vector<float>& kps, const Rules& rules, float start, int h, int w) {
@@ -101,11 +101,17 @@ void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
     std::vector<size_t> order;
     for (size_t k = 0; k < m; ++k)
         if (masked[k] && score(k) < static_cast<float>(rules.keep_score)) order.push_back(k);
+    std::int64_t have = left();
+    if (have >= rules.min_static) order.clear();
+    std::vector<std::int64_t> area(m, 0);  // ties: the larger region first, then the later one
+    for (size_t k : order)
+        for (std::uint8_t v : regions[k].pixels) area[k] += v;
     std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
         const float ca = score(a) * mob[a], cb = score(b) * mob[b];
-        return ca < cb || (ca == cb && a > b);
+        if (ca != cb) return ca < cb;
+        if (area[a] != area[b]) return area[a] > area[b];
+        return a > b;
     });
-    std::int64_t have = left();
     for (size_t k : order) {
         if (have >= rules.min_static) break;
         masked[k] = 0;
