@@ -23,6 +23,11 @@ FLAGS: dict[str, tuple[str, type, str]] = {
         "when static support runs short: eq1 (raise the threshold, then "
         "give up the frame) or degrade (give up the least certain masks first)",
     ),
+    "--cut-behind": (
+        "cut_behind_m",
+        float,
+        "metres behind its object's median depth from which mask pixels are cut (0: off)",
+    ),
     "--keep-score": (
         "keep_score",
         float,

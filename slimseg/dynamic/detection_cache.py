@@ -210,7 +210,7 @@ def mask_with(
     out.mkdir(parents=True, exist_ok=True)
     for i, f in enumerate(cache.frames):
         depth = None
-        if mode == "box+depth-ransac" or stage is not None:
+        if mode == "box+depth-ransac" or stage is not None or masking.cut_behind_m > 0:
             depth = cache.sequence.load(i)[1]  # reading is not the logic's time
         t0 = time.perf_counter()
         kps = f.features.keypoints

@@ -53,7 +53,9 @@ class MaskingSettings:
     what happens when static support runs short, ``eq1`` (raise the mobility threshold, then
     give up the frame: the paper's Eq. 1) or ``degrade`` (give up the least certain masks one
     at a time, :mod:`slimseg.dynamic.degrade`); ``keep_score``: ``degrade`` never gives up a
-    candidate scoring at least this.
+    candidate scoring at least this; ``cut_behind_m``: with depth, mask pixels more than this
+    many metres behind their object's median depth are cut (0: off,
+    :mod:`slimseg.dynamic.depth_cut`).
     """
 
     conf: float
@@ -65,6 +67,7 @@ class MaskingSettings:
     t_o: float
     rule: str
     keep_score: float
+    cut_behind_m: float
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -92,6 +95,7 @@ RANGES: dict[str, Range] = {
     "frame_ratio": (0.0, 1.0, False, "Eq. 3 fraction, 0-1"),
     "t_o": (0.0, 1.0, False, "Eq. 4 coverage threshold, 0-1"),
     "keep_score": (0.0, 1.0, False, "score from which the degrading rule keeps a mask, 0-1"),
+    "cut_behind_m": (0.0, 100.0, False, "metres behind its object a mask pixel is cut, 0: off"),
 }
 # what to do when static support runs short (docs/slam_defaults.md §1)
 RULES = ("eq1", "degrade")
@@ -119,6 +123,7 @@ PAPERS = MaskingSettings(
     t_o=T_O,
     rule="eq1",
     keep_score=KEEP_SCORE,
+    cut_behind_m=0.0,
 )
 # Chosen from the sweeps of docs/slam_defaults.md.
 SLIMSEG = PAPERS.with_values(conf=0.1, dilation_px=5, rule="degrade")

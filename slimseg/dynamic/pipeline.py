@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.degrade import degrade
+from slimseg.dynamic.depth_cut import cut_behind, reference_depths
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.seg_box import (
@@ -125,12 +126,12 @@ class MotionEvidence:
 class FrameRules:
     """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
     ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
-    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``
-    (defaults: the equations as printed, the
-    ``papers`` preset of :mod:`slimseg.dynamic.masking_settings`, no dilation; sequence runs and the
-    CLI pass the ``slimseg`` preset through :meth:`from_masking`), and ``dynamic_mobility``:
-    the prior above which a class counts as dynamic (boxes of depth-RANSAC, epipolar
-    candidates), ``m_th_start`` if None."""
+    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``,
+    the depth cut ``cut_behind_m`` (needs ``FrameInputs.depth_m``) (defaults: the equations
+    as printed, the ``papers`` preset of :mod:`slimseg.dynamic.masking_settings`, no
+    dilation; sequence runs and the CLI pass the ``slimseg`` preset through
+    :meth:`from_masking`), and ``dynamic_mobility``: the prior above which a class counts
+    as dynamic (boxes of depth-RANSAC, epipolar candidates), ``m_th_start`` if None."""
 
     class_mobility: np.ndarray
     mode: str = "fusion"
@@ -143,6 +144,7 @@ class FrameRules:
     t_o: float = PAPERS.t_o
     rule: str = PAPERS.rule
     keep_score: float = PAPERS.keep_score
+    cut_behind_m: float = PAPERS.cut_behind_m
 
     @classmethod
     def from_masking(
@@ -154,6 +156,7 @@ class FrameRules:
             dilation_px=masking.dilation_px, m_th_start=masking.m_th_start,
             m_th_step=masking.m_th_step, frame_ratio=masking.frame_ratio, t_o=masking.t_o,
             rule=masking.rule, keep_score=masking.keep_score,
+            cut_behind_m=masking.cut_behind_m,
         )  # fmt: skip
 
     @property
@@ -230,6 +233,10 @@ def _one_mode(
         flag = bool(dynamic.mean() > 0) if len(dynamic) else False
         return FrameResult(dynamic, _mask(region, settings.dilation_px), None, flag)
     regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
+    depth = inputs.depth_m if settings.cut_behind_m > 0 and mode != "box" else None
+    if depth is not None:  # masks that stay on their object (seg masks, before dilation)
+        reference = reference_depths(regions, depth)
+        regions = cut_behind(regions, depth, reference, settings.cut_behind_m)
     # points near a mask edge belong to the object (ORB patches)
     regions = dilate_masks(regions, settings.dilation_px)
     point_mob = keypoint_mobility(keypoints, regions, mob)
@@ -243,6 +250,8 @@ def _one_mode(
             keep = np.asarray(inputs.predicted, bool)
             fused[keep] = regions[keep]
             used = used | keep
+        if depth is not None and not used.all():  # the boxes put in place of thin masks
+            fused[~used] = cut_behind(fused[~used], depth, reference[~used], settings.cut_behind_m)
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
     candidates = mob > settings.m_th_start + 1e-9

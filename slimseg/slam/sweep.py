@@ -30,6 +30,7 @@ SWEEP_KEYS: dict[str, str] = {
     "t_o": "t_o",
     "rule": "rule",
     "keep_score": "keep_score",
+    "cut_behind": "cut_behind_m",
 }
 # sweep key -> TrackSettings field (the track stage's knobs; they need --track)
 TRACK_SWEEP_KEYS: dict[str, str] = {
@@ -53,6 +54,7 @@ ACTS_IN: dict[str, tuple[str, ...]] = {
     "m_th_step": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "rule": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "keep_score": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
+    "cut_behind": ("seg", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "p_alpha": ("semantic+epipolar", "fusion+epipolar"),
 }
 

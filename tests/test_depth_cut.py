@@ -1,0 +1,64 @@
+"""Masks that stay on their object: pixels well behind the object's depth are cut."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slimseg.dynamic.depth_cut import cut_behind, reference_depths
+from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+
+HW = (60, 80)
+
+
+def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A person at 2 m whose mask spills onto the wall at 4 m; a hole without depth; an arm
+    reaching out at 1.5 m."""
+    depth = np.full(HW, 4.0, np.float32)
+    depth[10:50, 10:30] = 2.0  # the person
+    depth[20:25, 30:36] = 1.5  # the arm, in front
+    depth[40:45, 12:16] = 0.0  # no depth
+    mask = np.zeros(HW, bool)
+    mask[10:50, 10:40] = True  # spills 4-10 px onto the wall on the right
+    return mask[None], depth, np.array([[10, 10, 40, 50]], np.float32)
+
+
+def test_cut_keeps_the_object_the_arm_and_pixels_without_depth() -> None:
+    masks, depth, _ = _scene()
+    ref = reference_depths(masks, depth)
+    assert ref.tolist() == [2.0]
+    cut = cut_behind(masks, depth, ref, 0.5)[0]
+    assert cut[10:50, 10:30].all()  # the person, its depthless hole included
+    assert cut[20:25, 30:36].all()  # the arm in front
+    assert not cut[30:50, 30:40].any() and not cut[10:20, 36:40].any()  # the wall
+    assert masks[0, 30, 35]  # the input is not changed
+
+
+def test_a_mask_without_depth_is_kept_whole() -> None:
+    masks, depth, _ = _scene()
+    depth[:] = np.nan
+    ref = reference_depths(masks, depth)
+    assert np.isnan(ref[0])
+    np.testing.assert_array_equal(cut_behind(masks, depth, ref, 0.5), masks)
+
+
+def test_the_pipeline_cuts_seg_masks_and_eq4_boxes_and_only_when_asked() -> None:
+    masks, depth, boxes = _scene()
+    ys, xs = np.mgrid[2:58:4, 2:78:4]
+    kps = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+    on_wall = (kps[:, 0] >= 31) & (kps[:, 0] < 40) & (kps[:, 1] >= 30) & (kps[:, 1] < 50)
+    inputs = FrameInputs(kps, boxes, np.zeros(1, np.int64), masks, HW, depth_m=depth)
+    mob = np.array([1.0], np.float32)
+    plain = process_frame(inputs=inputs, settings=FrameRules(mob, "seg", min_static=10))
+    assert plain.dynamic[on_wall].all()
+    rules = FrameRules(mob, "seg", min_static=10, cut_behind_m=0.5)
+    cut = process_frame(inputs=inputs, settings=rules)
+    assert not cut.dynamic[on_wall].any() and cut.dynamic.sum() < plain.dynamic.sum()
+    # Eq. 4: a mask too thin for its box becomes the box, which is cut by depth too
+    thin = np.zeros_like(masks)
+    thin[0, 20:24, 12:20] = True
+    fused = process_frame(
+        inputs=FrameInputs(kps, boxes, np.zeros(1, np.int64), thin, HW, depth_m=depth),
+        settings=FrameRules(mob, "fusion", min_static=10, cut_behind_m=0.5, frame_ratio=0.0),
+    )
+    assert fused.used_seg == [False]
+    assert fused.mask[30, 20] == 255 and fused.mask[40, 35] == 0  # person in, wall out
