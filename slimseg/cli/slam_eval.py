@@ -16,6 +16,7 @@ from slimseg.cli.track_args import (
 )
 from slimseg.dynamic.pipeline import MODES
 from slimseg.errors import SlimsegError
+from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
 from slimseg.utils.atomic import staged_dir
 
 SPECIAL = ("raw", "gt", "oracle")
@@ -81,10 +82,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--sweep",
         action="append",
         metavar="KEY=v1,v2,...",
-        help="evaluate the mask mode under each value (repeatable): keys conf, dilation, "
-        "min_static, m_th_start, m_th_step, ratio (Eq. 3), t_o (Eq. 4), and with --track the "
-        "track stage's max_coast, coast_decay, coast_dilate, track_high, track_low, "
-        "depth_band, p_alpha; --modes names one mask mode (default fusion)",
+        help=f"evaluate the mask mode under each value (repeatable): keys "
+        f"{', '.join(SWEEP_KEYS)} (ratio: Eq. 3, t_o: Eq. 4, rule: eq1 or degrade), and with "
+        f"--track the track stage's {', '.join(TRACK_SWEEP_KEYS)}; --modes names one mask "
+        "mode (default fusion)",
     )
     p.add_argument(
         "--sweep-mode",
