@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slimseg.data.tum import Camera
-from slimseg.dynamic.degrade import FAST_THRESHOLD
+from slimseg.dynamic.degrade import FAST_THRESHOLD, PYRAMID_LEVELS, PYRAMID_SCALE
 from slimseg.utils.atomic import write_text
 
 # Kinect-class sensor: virtual stereo baseline (m) and the close/far point limit in baselines
@@ -25,9 +25,10 @@ class OrbSlam3Config:
     """ORB extractor and sensor parameters written next to the intrinsics."""
 
     features: int = 1000
-    scale_factor: float = 1.2
-    levels: int = 8
-    ini_fast: int = FAST_THRESHOLD  # the degrading rule's static support counts at it
+    # the degrading rule's static support counts the corners of this pyramid at this threshold
+    scale_factor: float = PYRAMID_SCALE
+    levels: int = PYRAMID_LEVELS
+    ini_fast: int = FAST_THRESHOLD
     min_fast: int = 7
     fps: float = 30.0
 
