@@ -23,10 +23,10 @@ def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def test_cut_keeps_the_object_the_arm_and_pixels_without_depth() -> None:
-    masks, depth, _ = _scene()
-    ref = reference_depths(masks, depth)
+    masks, depth, boxes = _scene()
+    ref = reference_depths(masks, boxes, depth)
     assert ref.tolist() == [2.0]
-    cut = cut_behind(masks, depth, ref, 0.5)[0]
+    cut = cut_behind(masks.copy(), boxes, depth, ref, 0.5)[0]
     assert cut[10:50, 10:30].all()  # the person, its depthless hole included
     assert cut[20:25, 30:36].all()  # the arm in front
     assert not cut[30:50, 30:40].any() and not cut[10:20, 36:40].any()  # the wall
@@ -34,11 +34,11 @@ def test_cut_keeps_the_object_the_arm_and_pixels_without_depth() -> None:
 
 
 def test_a_mask_without_depth_is_kept_whole() -> None:
-    masks, depth, _ = _scene()
+    masks, depth, boxes = _scene()
     depth[:] = np.nan
-    ref = reference_depths(masks, depth)
+    ref = reference_depths(masks, boxes, depth)
     assert np.isnan(ref[0])
-    np.testing.assert_array_equal(cut_behind(masks, depth, ref, 0.5), masks)
+    np.testing.assert_array_equal(cut_behind(masks.copy(), boxes, depth, ref, 0.5), masks)
 
 
 def test_the_pipeline_cuts_seg_masks_and_eq4_boxes_and_only_when_asked() -> None:

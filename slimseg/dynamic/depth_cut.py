@@ -5,30 +5,32 @@ floor behind the person; the keypoints there are static, and masking them costs 
 for nothing. With depth, the object is where most of its seg mask is: its reference depth is
 the median valid depth under the (undilated) seg mask, and every pixel of the region more
 than ``band_m`` metres behind it is cut. Pixels without depth (0, NaN) and pixels in front of
-the object (an arm reaching out, a carried thing) are kept.
+the object (an arm reaching out, a carried thing) are kept. Both steps work on each object's
+box (a detection's mask is zero outside it), so their cost follows the objects, not the frame.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from slimseg.dynamic.seg_box import box_spans
+
 # pixels sampled for an object's median depth (a person's thousands of pixels are not needed)
 DEPTH_SAMPLES = 400
 
 
-def reference_depths(masks: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
-    """Median valid depth (m) under each of ``masks bool [M, H, W]`` in ``depth_m float32
-    [H, W]`` (0 or NaN: no depth) → ``float32 [M]``, NaN where a mask has no valid depth."""
+def reference_depths(masks: np.ndarray, boxes: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
+    """Median valid depth (m) under each of ``masks bool [M, H, W]`` inside its box
+    ``boxes [M, 4]`` xyxy px, in ``depth_m float32 [H, W]`` (0 or NaN: no depth) →
+    ``float32 [M]``, NaN where a mask has no valid depth."""
     out = np.full(len(masks), np.nan, np.float32)
-    for k, m in enumerate(masks):
-        rows = np.flatnonzero(m.any(1))
-        if not len(rows):
+    for k, (y0, y1, x0, x1) in enumerate(box_spans(boxes, masks.shape[1:])):
+        m = masks[k, y0:y1, x0:x1]
+        area = int(m.sum())
+        if area == 0:
             continue
-        cols = np.flatnonzero(m.any(0))
-        crop = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-        area = int(m[crop].sum())
         step = max(1, int(np.sqrt(area / DEPTH_SAMPLES)))
-        d = depth_m[crop][::step, ::step][m[crop][::step, ::step]]
+        d = depth_m[y0:y1:step, x0:x1:step][m[::step, ::step]]
         d = d[np.isfinite(d) & (d > 0)]
         if len(d):
             out[k] = np.median(d)
@@ -36,23 +38,20 @@ def reference_depths(masks: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
 
 
 def cut_behind(
-    regions: np.ndarray, depth_m: np.ndarray, reference: np.ndarray, band_m: float
+    regions: np.ndarray,
+    boxes: np.ndarray,
+    depth_m: np.ndarray,
+    reference: np.ndarray,
+    band_m: float,
 ) -> np.ndarray:
-    """``regions bool [M, H, W]`` without the pixels deeper than ``reference [M] + band_m``
-    in ``depth_m [H, W]`` (a NaN reference: the region is kept whole) → ``bool [M, H, W]``
-    (a new array; each region is cut on its own bounding crop)."""
-    out = regions.copy()
-    for k, m in enumerate(regions):
+    """Cut from each of ``regions bool [M, H, W]`` the pixels inside its box ``boxes [M, 4]``
+    that lie deeper than ``reference [M] + band_m`` in ``depth_m [H, W]`` (a NaN reference:
+    the region is kept whole), in place; returns ``regions``."""
+    for k, (y0, y1, x0, x1) in enumerate(box_spans(boxes, regions.shape[1:])):
         ref = float(reference[k])
         if not np.isfinite(ref):
             continue
-        rows = np.flatnonzero(m.any(1))
-        if not len(rows):
-            continue
-        cols = np.flatnonzero(m.any(0))
-        crop = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-        d = depth_m[crop]
         with np.errstate(invalid="ignore"):
-            behind = d > ref + band_m  # NaN compares False: kept
-        out[k][crop] &= ~behind
-    return out
+            behind = depth_m[y0:y1, x0:x1] > ref + band_m  # NaN compares False: kept
+        regions[k, y0:y1, x0:x1] &= ~behind
+    return regions

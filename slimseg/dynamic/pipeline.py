@@ -235,8 +235,8 @@ def _one_mode(
     regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
     depth = inputs.depth_m if settings.cut_behind_m > 0 and mode != "box" else None
     if depth is not None:  # masks that stay on their object (seg masks, before dilation)
-        reference = reference_depths(regions, depth)
-        regions = cut_behind(regions, depth, reference, settings.cut_behind_m)
+        reference = reference_depths(regions, boxes, depth)
+        regions = cut_behind(regions.copy(), boxes, depth, reference, settings.cut_behind_m)
     # points near a mask edge belong to the object (ORB patches)
     regions = dilate_masks(regions, settings.dilation_px)
     point_mob = keypoint_mobility(keypoints, regions, mob)
@@ -251,7 +251,9 @@ def _one_mode(
             fused[keep] = regions[keep]
             used = used | keep
         if depth is not None and not used.all():  # the boxes put in place of thin masks
-            fused[~used] = cut_behind(fused[~used], depth, reference[~used], settings.cut_behind_m)
+            box = ~used
+            fused[box] = cut_behind(fused[box], boxes[box], depth, reference[box],
+                                    settings.cut_behind_m)  # fmt: skip
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
     candidates = mob > settings.m_th_start + 1e-9
