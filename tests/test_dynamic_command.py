@@ -35,7 +35,9 @@ def test_dynamic_command_on_a_synthetic_sequence(tmp_path: Path, capsys) -> None
         _, _, stamp = frames.load(i)
         mask = cv2.imread(str(out / "masks" / mask_name(stamp)), cv2.IMREAD_GRAYSCALE)
         assert mask.shape == (128, 160)
-    assert len((out / "frames.csv").read_text().splitlines()) == len(frames) + 1
+    rows = (out / "frames.csv").read_text().splitlines()
+    assert len(rows) == len(frames) + 1
+    assert {"support", "dropped", "dropped_confident"} <= set(rows[0].split(","))
     assert (out / "overlay.png").is_file()
     printed = capsys.readouterr().out
     assert "precision %" in printed and "box+depth-ransac" in printed
@@ -110,3 +112,19 @@ def test_restore_rejects_masks_of_the_wrong_size(small_sequence: Path, tmp_path:
         restore_sequence(
             small_sequence, lambda i, t: np.zeros((64, 80), np.uint8), tmp_path, progress=False
         )
+
+
+def test_the_rules_report_what_they_gave_up(small_sequence: Path, tmp_path: Path, capsys) -> None:
+    """Support that can never suffice: Eq. 1 gives up every frame with a walker, the degrading
+    rule never drops a ground-truth instance (score 1 >= keep_score)."""
+    base = ["dynamic", "--gt-instances", "--sequence", str(small_sequence), "--quiet",
+            "--min-static", "100000", "--mode", "seg"]  # fmt: skip
+    assert main([*base, "--out", str(tmp_path / "eq1"), "--rule", "eq1"]) == 0
+    eq1 = capsys.readouterr().out
+    assert main([*base, "--out", str(tmp_path / "deg")]) == 0
+    deg = capsys.readouterr().out
+    gave_up = int(eq1.split("the frame given up in ")[1].split()[0])
+    assert gave_up > 0 and "masking rule (eq1)" in eq1
+    assert f"left out in {gave_up} frames" in eq1  # score-1 walkers among what it gave up
+    assert "masking rule (degrade): 0 candidate masks left out" in deg
+    assert "the frame given up in 0" in deg
