@@ -48,9 +48,9 @@ TEST_MASKING = {"min_static": 60, "dilation_px": 3, "frame_ratio": 0.05, "t_o": 
 # "raise" and "wide" use Eq. 1 (papers' rule: no "rule" key); the default entry and "shed" the
 # degrading rule, "shed" short of support on some frames so that it gives masks up.
 TEST_PRESETS = {"raise": {**TEST_MASKING, "min_static": 110}, "wide": {**TEST_MASKING,
-                "dilation_px": 7, "m_th_step": 0.2, "t_o": 0.9},
+                "dilation_px": 7, "m_th_step": 0.2, "t_o": 0.9, "cut_behind_m": 0.2},
                 "shed": {**TEST_MASKING, "min_static": 150, "rule": "degrade",
-                         "keep_score": 0.3}}  # fmt: skip
+                         "keep_score": 0.3, "cut_behind_m": 0.5}}  # fmt: skip
 # Frame sizes (h, w): the input's own, landscape, portrait, non-multiples of 32, upscaled.
 SIZES = [(160, 160), (120, 200), (200, 120), (97, 131), (50, 70)]
 KEYPOINTS = 200  # caller-given keypoints per frame (uniform, a quarter on half-pixel ties)
@@ -94,6 +94,20 @@ def _frames(sizes=SIZES) -> list[np.ndarray]:
     trained model is on its domain."""
     rng = np.random.default_rng(1)
     return [_scene(rng, h, w) for h, w in sizes]
+
+
+def _depth(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """A depth image (m) for the depth cut: a floor from 1 m (top) to 5 m (bottom), blocks at
+    1-3 m, holes (0, NaN)."""
+    depth = np.repeat(np.linspace(1.0, 5.0, h, dtype=np.float32)[:, None], w, 1)
+    for _ in range(4):
+        y, x = rng.integers(0, h), rng.integers(0, w)
+        dy, dx = rng.integers(h // 8, h // 2), rng.integers(w // 8, w // 2)
+        depth[y : y + dy, x : x + dx] = rng.uniform(1.0, 3.0)
+    holes = rng.random((h, w))
+    depth[holes < 0.03] = 0.0
+    depth[holes > 0.98] = np.nan
+    return depth
 
 
 def _sparse_scores(model: torch.nn.Module, batch: torch.Tensor, top: float = 0.998) -> None:
@@ -140,7 +154,8 @@ class Case:
 
     predictor: Predictor
     dumps: Path
-    frames: dict[str, tuple[np.ndarray, np.ndarray]]
+    frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+    """per stem: the RGB frame, its keypoints and its depth (m)"""
     presets: dict[str, MaskingSettings]
     """"" (the default entry), the export's presets and ``TEST_PRESETS``"""
     predictions: dict = field(default_factory=dict)
@@ -175,9 +190,10 @@ def _dump(root: Path, name: str, imgsz: tuple[int, int], half: bool, sizes=SIZES
         kps = rng.uniform((0, 0), (w, h), (KEYPOINTS, 2)).astype(np.float32)
         kps[: KEYPOINTS // 4] = np.floor(kps[: KEYPOINTS // 4]) + 0.5  # rounding ties
         stem = f"f{i}_{h}x{w}"
-        write_raw(dumps / f"{stem}.ssraw", frame_dump(raw, (h, w), kps))
+        depth = _depth(rng, h, w)
+        write_raw(dumps / f"{stem}.ssraw", frame_dump(raw, (h, w), kps, depth))
         cv2.imwrite(str(dumps / f"{stem}.ppm"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-        frames[stem] = image, kps
+        frames[stem] = image, kps, depth
     presets = {k: PAPERS.with_values(**v) for k, v in meta["slam_masking"]["presets"].items()}
     return Case(predictor, dumps, frames, {"": masking_from_metadata(meta), **presets})
 
@@ -218,14 +234,19 @@ def _run(example: Path, case: Case, out: Path, *args: str) -> dict[str, dict[str
 
 
 def _python_dynamic(
-    case: Case, pred: Prediction, kps: np.ndarray, mode: str, preset: str = ""
+    case: Case,
+    pred: Prediction,
+    kps: np.ndarray,
+    depth: np.ndarray | None,
+    mode: str,
+    preset: str = "",
 ) -> FrameResult:
     """What ``slimseg dynamic`` does with one frame's prediction (sequence_run, no track)."""
     boxes, classes, masks = instances_of(pred)
     scores = pred.scores if pred.class_map is None else None
     mobility = np.asarray(case.predictor.mobility, np.float32)
     rules = FrameRules.from_masking(mobility, mode, case.presets[preset])
-    inputs = FrameInputs(kps, boxes, classes, masks, pred.image_hw, scores=scores)
+    inputs = FrameInputs(kps, boxes, classes, masks, pred.image_hw, depth_m=depth, scores=scores)
     return process_frame(inputs=inputs, settings=rules)
 
 
@@ -261,7 +282,7 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 def _compare(case, cpp, conf, mode, preset="", iou=0.7, max_det=300, stats=None) -> None:
     """Assert the C++ results equal the Python reference frame by frame."""
-    for stem, (_, kps) in case.frames.items():
+    for stem, (_, kps, depth) in case.frames.items():
         got = cpp[stem]
         pred = case.predict(stem, conf, iou, max_det)
         assert got["letterbox_max_diff"][0] <= 1, stem  # grey levels (docs/cpp_consumer.md)
@@ -287,13 +308,16 @@ def _compare(case, cpp, conf, mode, preset="", iou=0.7, max_det=300, stats=None)
             if stats is not None:
                 stats["pixels"] += int(pred.masks.sum())
                 stats["differ"] += int(((got["masks"][b] > 0) != pred.masks[a]).sum())
-        ref = _python_dynamic(case, pred, kps, mode, preset)
+        ref = _python_dynamic(case, pred, kps, depth, mode, preset)
         np.testing.assert_array_equal(got["dynamic"], ref.mask, err_msg=f"{stem} {mode}")
         np.testing.assert_array_equal(got["keypoint_dynamic"] > 0, ref.dynamic, err_msg=stem)
         assert got["m_th"][0] == (-1.0 if ref.m_th is None else np.float32(ref.m_th)), stem
         used = np.asarray(ref.used_seg, bool)
         order = (b, a) if pred.class_map is None and len(used) else (slice(None), slice(None))
         np.testing.assert_array_equal(got["used_seg"][order[0]] > 0, used[order[1]], err_msg=stem)
+        if stats is not None and case.presets[preset].cut_behind_m > 0:
+            flat = _python_dynamic(case, pred, kps, None, mode, preset)
+            stats["cut"].add(bool((flat.mask != ref.mask).any()))
         if stats is not None and case.presets[preset].rule == "degrade":
             stats["degrade"].add("gave masks up" if ref.dropped else "kept all")
         elif stats is not None:
@@ -329,8 +353,8 @@ def test_parity_with_the_python_reference(example, cases, tmp_path, key, mode, c
     thresholds; on the main model every Eq. 1 outcome, the degrading rule giving masks up and
     not, and boxes on every frame border."""
     case = cases(key)
-    stats = {"eq1": set(), "degrade": set(), "pixels": 0, "differ": 0, "borders": set(),
-             "fused": set()}  # fmt: skip
+    stats = {"eq1": set(), "degrade": set(), "cut": set(), "pixels": 0, "differ": 0,
+             "borders": set(), "fused": set()}  # fmt: skip
     for preset in presets:
         args = ("--mode", mode, "--conf", str(conf), "--preset", preset) if preset else (
             "--mode", mode, "--conf", str(conf))  # fmt: skip
@@ -339,6 +363,7 @@ def test_parity_with_the_python_reference(example, cases, tmp_path, key, mode, c
     if (key, mode) == ("yolov8n-seg fp32", "fusion"):  # the main case: every outcome
         assert stats["eq1"] == {"no detections", "gave up", "start", "raised"}, stats["eq1"]
         assert stats["degrade"] == {"gave masks up", "kept all"}, stats["degrade"]
+        assert stats["cut"] == {True, False}, "the depth cut changed all masks or none"
         assert stats["borders"] == set("ltrb"), f"boxes touched only {stats['borders']}"
         assert stats["fused"] == {False, True}, "Eq. 4 chose only one of seg mask / box"
 

@@ -81,12 +81,19 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def frame_dump(
-    raw: dict[str, np.ndarray], frame_hw: tuple[int, int], keypoints: np.ndarray
+    raw: dict[str, np.ndarray],
+    frame_hw: tuple[int, int],
+    keypoints: np.ndarray,
+    depth_m: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """A dump's tensors: ``raw`` (``Predictor.predict(..., raw=raw)``: input and outputs), the
-    frame size and ``keypoints float32 [N, 2]``."""
-    return {
+    frame size, ``keypoints float32 [N, 2]`` and, optionally, ``depth_m float32 [H, W]``
+    (metres; the masking rules' depth cut)."""
+    out = {
         **raw,
         "frame_hw": np.asarray(frame_hw, np.int32),
         "keypoints": np.asarray(keypoints, np.float32).reshape(-1, 2),
     }
+    if depth_m is not None:
+        out["depth_m"] = np.ascontiguousarray(depth_m, np.float32)
+    return out

@@ -227,7 +227,15 @@ int run(const Args& a) {
         auto t0 = clock::now();
         FramePrediction p = post.run(raw, h, w, conf, iou, max_det);
         auto t1 = clock::now();
-        DynamicResult r = dynamic_mask(p, kps, rules);
+        std::vector<float> depth;  // optional depth_m float32 [H, W] (metres)
+        if (const RawTensor* d = dump.find("depth_m")) {
+            if (d->type != RawType::Float32 || d->shape.size() != 2 || d->shape[0] != h ||
+                d->shape[1] != w)
+                throw Error(path.string() + ": depth_m must be float32 [H, W] of the frame");
+            depth.resize(static_cast<size_t>(d->numel()));
+            std::memcpy(depth.data(), d->bytes.data(), d->bytes.size());
+        }
+        DynamicResult r = dynamic_mask(p, kps, rules, depth.empty() ? nullptr : depth.data());
         auto t2 = clock::now();
         ms_post += std::chrono::duration<double, std::milli>(t1 - t0).count();
         ms += std::chrono::duration<double, std::milli>(t2 - t0).count();

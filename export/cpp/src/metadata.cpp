@@ -77,6 +77,9 @@ MaskingSettings masking_entry(const Json& e, const std::string& field) {
     if (const Json* v = e.find("dilation_reference_px"))
         s.dilation_reference_px = integer(*v, field + ".dilation_reference_px", 1, 1 << 20);
     real("keep_score", s.keep_score, false, false);
+    if (const Json* v = e.find("cut_behind_m"))
+        s.cut_behind_m = in_range(num(*v, field + ".cut_behind_m"), 0.0, 100.0, false, false,
+                                  field + ".cut_behind_m");
     if (const Json* v = e.find("rule")) {
         s.rule = text(*v, field + ".rule");
         if (s.rule != "eq1" && s.rule != "degrade")

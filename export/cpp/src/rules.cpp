@@ -70,6 +70,40 @@ void paint(std::vector<std::uint8_t>& mask, int w, const WindowMask& m) {
                 mask[static_cast<size_t>(m.y0 + y) * w + (m.x0 + x)] = 255;
 }
 
+// slimseg.dynamic.depth_cut.reference_depths: the median valid depth under the mask inside
+// its box, on a grid of step max(1, int(sqrt(area / 400))); NaN without any.
+float reference_depth(const WindowMask& mask, const WindowMask& box, const float* depth, int w) {
+    std::int64_t area = 0;
+    for (int y = box.y0; y < box.y0 + box.h; ++y)
+        for (int x = box.x0; x < box.x0 + box.w; ++x) area += mask.at(y, x);
+    if (area == 0) return std::nanf("");
+    const int step = std::max(1, static_cast<int>(std::sqrt(static_cast<double>(area) / 400.0)));
+    std::vector<float> d;
+    for (int y = box.y0; y < box.y0 + box.h; y += step)
+        for (int x = box.x0; x < box.x0 + box.w; x += step) {
+            const float v = depth[static_cast<size_t>(y) * w + x];
+            if (mask.at(y, x) && std::isfinite(v) && v > 0) d.push_back(v);
+        }
+    if (d.empty()) return std::nanf("");
+    std::sort(d.begin(), d.end());
+    const size_t n = d.size();
+    return n % 2 ? d[n / 2] : (d[n / 2 - 1] + d[n / 2]) / 2.0f;  // NumPy's float32 median
+}
+
+// slimseg.dynamic.depth_cut.cut_behind: the region's pixels inside the box deeper than
+// ref + band (compared in float32; NaN depth or reference: kept) are cleared.
+void cut_behind(WindowMask& region, const WindowMask& box, const float* depth, int w, float ref,
+                double band) {
+    if (!std::isfinite(ref)) return;
+    const float thr = static_cast<float>(static_cast<double>(ref) + band);
+    const int y0 = std::max(box.y0, region.y0), y1 = std::min(box.y0 + box.h, region.y0 + region.h);
+    const int x0 = std::max(box.x0, region.x0), x1 = std::min(box.x0 + box.w, region.x0 + region.w);
+    for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x)
+            if (depth[static_cast<size_t>(y) * w + x] > thr)
+                region.pixels[static_cast<size_t>(y - region.y0) * region.w + (x - region.x0)] = 0;
+}
+
 // slimseg.dynamic.degrade.degrade with the keypoints as the static support: candidates
 // (mobility > m_th_start) leave the mask least certain first (score x mobility; ties: the
 // larger region, then the later object) while fewer than min_static keypoints lie outside
@@ -148,6 +182,7 @@ Rules Rules::from_metadata(const Metadata& meta, Mode mode, const std::string& p
     r.t_o = s.t_o;
     r.degrade = s.rule == "degrade";
     r.keep_score = s.keep_score;
+    r.cut_behind_m = s.cut_behind_m;
     return r;
 }
 
@@ -290,12 +325,13 @@ Objects objects_of(const FramePrediction& p, int min_area) {
 }
 
 DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& keypoints_xy,
-                           const Rules& rules) {
-    return dynamic_mask(objects_of(p), p.h, p.w, keypoints_xy, rules);
+                           const Rules& rules, const float* depth_m) {
+    return dynamic_mask(objects_of(p), p.h, p.w, keypoints_xy, rules, depth_m);
 }
 
 DynamicResult dynamic_mask(const Objects& objects, int h, int w,
-                           const std::vector<float>& keypoints_xy, const Rules& rules) {
+                           const std::vector<float>& keypoints_xy, const Rules& rules,
+                           const float* depth_m) {
     if (keypoints_xy.size() % 2) throw Error("keypoints: expected (x, y) pairs, got an odd count");
     const size_t m = objects.boxes.size(), n = keypoints_xy.size() / 2;
     if (objects.classes.size() != m || (objects.has_masks && objects.masks.size() != m) ||
@@ -314,6 +350,12 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
     std::vector<WindowMask> boxes, regions;
     for (const auto& b : objects.boxes) boxes.push_back(box_window(b, h, w));
     regions = rules.mode == Mode::Box ? boxes : objects.masks;
+    const bool cut = depth_m != nullptr && rules.cut_behind_m > 0 && rules.mode != Mode::Box;
+    std::vector<float> ref(m, std::nanf(""));
+    for (size_t i = 0; cut && i < m; ++i) {  // masks that stay on their object
+        ref[i] = reference_depth(regions[i], boxes[i], depth_m, w);
+        cut_behind(regions[i], boxes[i], depth_m, w, ref[i], rules.cut_behind_m);
+    }
     if (rules.dilation_px > 0)  // points near a mask edge belong to the object (ORB patches)
         for (auto& r : regions) r = dilate(r, rules.dilation_px, h, w);
     DynamicResult res;
@@ -340,7 +382,10 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
             double s_o = static_cast<double>(inter) /
                          static_cast<double>(std::max<std::int64_t>(b.area(), 1));
             res.used_seg[i] = s_o > rules.t_o;
-            if (!res.used_seg[i]) regions[i] = b;
+            if (!res.used_seg[i]) {
+                regions[i] = b;
+                if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], rules.cut_behind_m);
+            }
         }
         point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
     }

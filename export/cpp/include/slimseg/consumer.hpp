@@ -70,6 +70,7 @@ struct MaskingSettings {  // slam_masking: the SLAM-facing defaults
     int dilation_reference_px = 640;
     std::string rule = "eq1";  // eq1 | degrade (what happens when static support runs short)
     double keep_score = 0.5;   // degrade: a candidate scoring this or more is never given up
+    double cut_behind_m = 0.0; // with depth: mask pixels this far behind the object are cut
 };
 
 struct Metadata {
@@ -204,6 +205,9 @@ struct Rules {
     // caller's keypoints are the static support)
     bool degrade = false;
     double keep_score = 0.5;
+    // with a depth image (seg / fusion): pixels inside an object's box more than cut_behind_m
+    // behind the median depth under its seg mask leave its region (slimseg.dynamic.depth_cut)
+    double cut_behind_m = 0.0;
 
     static Rules from_metadata(const Metadata& meta, Mode mode, const std::string& preset = "");
 };
@@ -233,10 +237,12 @@ struct DynamicResult {
 };
 
 // keypoints_xy: N (x, y) pairs in frame pixels, flattened.
+// depth_m: optional h*w metres (0 or NaN: no depth), for rules.cut_behind_m.
 DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& keypoints_xy,
-                           const Rules& rules);
+                           const Rules& rules, const float* depth_m = nullptr);
 DynamicResult dynamic_mask(const Objects& objects, int h, int w,
-                           const std::vector<float>& keypoints_xy, const Rules& rules);
+                           const std::vector<float>& keypoints_xy, const Rules& rules,
+                           const float* depth_m = nullptr);
 
 // The contract's step 6 without keypoints: union of the masks (boxes for detection models,
 // class pixels for class maps) of `classes`, dilated by `radius` frame pixels.
