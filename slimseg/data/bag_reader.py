@@ -108,6 +108,12 @@ class BagFile:
 
         self.cdr = self.path.suffix.lower() != ".bag"
         self._store = get_typestore(Stores.ROS2_HUMBLE if self.cdr else Stores.ROS1_NOETIC)
+        if not self.cdr:  # ROS 1's store lacks tf2's message; its definition is one line
+            from rosbags.typesys import get_types_from_msg
+
+            self._store.register(
+                get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF)
+            )
         try:
             self._reader = self._open()
         except SlimsegError:

@@ -48,6 +48,8 @@ class Plan:
 
     sequence: TumSequence
     names: list[str]
+    groundtruth: np.ndarray | None = None
+    """true poses ``[K, 8]`` (TUM rows); None: the folder's ``groundtruth.txt``"""
     model: str | None = None
     gt_instances: bool = False
     masks: Path | None = None
@@ -265,7 +267,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     seq = plan.sequence
     vocab_label = check_engine(plan.engine, plan.vocab)
     say(seq.describe_camera())  # the same line as slimseg dynamic's
-    gt = ground_truth(seq)
+    gt = ground_truth(seq) if plan.groundtruth is None else plan.groundtruth
     masked = mask_conditions(plan, out, say)
     conds: list[Condition] = []
     if "raw" in plan.names:
