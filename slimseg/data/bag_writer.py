@@ -99,7 +99,9 @@ class BagWriter:
             )
         return types["std_msgs/msg/Header"](stamp=stamp, frame_id=header.frame_id)
 
-    def _write(self, topic: str, msgtype: str, header: Header, msg: object) -> None:
+    def _write(
+        self, topic: str, msgtype: str, header: Header, msg: object, log_ns: int | None = None
+    ) -> None:
         if topic not in self._conns:
             self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self._store)
         raw = (
@@ -107,18 +109,26 @@ class BagWriter:
             if self.ros1
             else self._store.serialize_cdr(msg, msgtype)
         )
-        self._writer.write(self._conns[topic], header.ns, raw)
+        self._writer.write(self._conns[topic], header.ns if log_ns is None else log_ns, raw)
 
-    def write_image(self, topic: str, header: Header, array: np.ndarray, encoding: str) -> None:
+    def write_image(
+        self,
+        topic: str,
+        header: Header,
+        array: np.ndarray,
+        encoding: str,
+        log_ns: int | None = None,
+    ) -> None:
         """A ``sensor_msgs/Image``: ``array [H, W]`` or ``[H, W, C]`` (uint8, uint16 or
-        float32, little-endian) stored as is under ``encoding``."""
+        float32, little-endian) stored as is under ``encoding``; ``log_ns``: the log time when
+        it is not the header stamp (a recorder's receive time)."""
         a = np.ascontiguousarray(array)
         h, w = a.shape[:2]
         msg = self._store.types[IMAGE](
             header=self._header(topic, header), height=h, width=w, encoding=encoding,
             is_bigendian=0, step=a.nbytes // h, data=a.reshape(-1).view(np.uint8),
         )  # fmt: skip
-        self._write(topic, IMAGE, header, msg)
+        self._write(topic, IMAGE, header, msg, log_ns)
 
     def write_compressed(self, topic: str, header: Header, data: bytes, fmt: str) -> None:
         """A ``sensor_msgs/CompressedImage`` holding ``data`` under ``format`` ``fmt``."""
