@@ -6,6 +6,7 @@ package, and bad bags end in one line, exit 2, nothing written."""
 
 from __future__ import annotations
 
+import json
 import struct
 import sys
 from pathlib import Path
@@ -22,8 +23,8 @@ from slimseg.data.bag_sequence import BagSequence
 from slimseg.data.bag_writer import BagWriter
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
-from slimseg.data.tum import TumSequence, mask_name
-from slimseg.data.tum_to_bag import DEPTH_TOPIC, FRAME_ID, RGB_TOPIC, tum_to_bag
+from slimseg.data.tum import TumSequence, mask_name, read_trajectory
+from slimseg.data.tum_to_bag import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
 from slimseg.dynamic.mask_bag import MASK_TOPIC
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
@@ -184,6 +185,36 @@ def test_bag2tum_gives_the_folder_back(env: Env, tmp_path: Path, capsys) -> None
     for i in range(len(ref)):
         for a, b in zip(back.load(i), ref.load(i), strict=True):
             assert np.array_equal(a, b)
+
+
+def test_bag2tum_writes_the_pose_topic_as_groundtruth(env: Env, tmp_path: Path) -> None:
+    out = tmp_path / "tum"
+    argv = ["data", "bag2tum", "--bag", str(env.bags["sqlite_raw"]), "--out", str(out)]
+    assert main([*argv, "--pose-topic", POSE_TOPIC, "--quiet"]) == 0
+    got, want = (
+        read_trajectory(out / "groundtruth.txt"),
+        read_trajectory(env.seq / "groundtruth.txt"),
+    )
+    assert got.shape == want.shape and np.allclose(got, want, rtol=0, atol=1e-9)
+
+
+def test_slam_eval_on_a_bag_scores_as_on_the_folder(env: Env, tmp_path: Path, capsys) -> None:
+    pytest.importorskip("evo")
+    base = ["slam-eval", "--engine", "dense", "--modes", "raw", "--json", "--quiet"]
+    ates = []
+    for k, source in enumerate((
+        [str(env.seq)],
+        [str(env.bags["bare.mcap"]), "--pose-topic", POSE_TOPIC],
+        [str(env.bags["raw.bag"]), "--groundtruth", str(env.seq / "groundtruth.txt")],
+    )):  # fmt: skip
+        capsys.readouterr()
+        assert main([*base, "--out", str(tmp_path / str(k)), "--sequence", *source]) == 0
+        rows = json.loads(capsys.readouterr().out)
+        ates.append(rows[0]["ate_rmse"])
+    assert ates[0] is not None and ates == [ates[0]] * 3  # the dense engine is deterministic
+    bare = [*base, "--out", str(tmp_path / "x"), "--sequence", str(env.bags["raw.bag"])]
+    assert main(bare) == 2
+    assert "give --groundtruth FILE (TUM) or --pose-topic" in capsys.readouterr().err
 
 
 def _bag(path: Path, ros1: bool = True) -> BagWriter:

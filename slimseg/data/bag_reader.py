@@ -24,6 +24,7 @@ log = logging.getLogger(__name__)
 
 BAG_SUFFIXES = (".bag", ".mcap")
 INSTALL_HINT = "pip install 'slimseg[ros]'"
+DAMAGED = "a truncated or damaged recording: record it again, or repair it with its reindex tool"
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
@@ -119,7 +120,7 @@ class BagFile:
         except SlimsegError:
             raise
         except Exception as e:  # the third-party parser's errors on a damaged file, all of them
-            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)}") from None
+            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
         self._connections = list(self._reader.connections)
         self.topics: dict[str, str] = {}
         for c in self._connections:
@@ -166,10 +167,7 @@ class BagFile:
             for conn, t, raw in self._reader.messages(connections=conns, start=start_ns):
                 yield conn.topic, t, raw
         except Exception as e:  # the third-party parser's errors on a damaged file, all of them
-            raise SlimsegError(
-                f"cannot read bag {self.path}: {_why(e)} (truncated or damaged recording: "
-                "record it again, or repair it with the recorder's reindex tool)"
-            ) from None
+            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
 
     def decode(self, raw: bytes, msgtype: str, topic: str) -> object:
         """The message object of ``raw`` (a ``msgtype`` message on ``topic``)."""
@@ -194,5 +192,5 @@ class BagFile:
 
 def _why(e: Exception) -> str:
     """One line: the exception's message (or its type when it has none)."""
-    text = " ".join(str(e).split()) or type(e).__name__
+    text = " ".join(" ".join(str(a) for a in e.args).split()) or type(e).__name__
     return text[:300]

@@ -3,9 +3,10 @@
 
 Topics follow the TUM RGB-D benchmark's own bags: colour on ``/camera/rgb/image_color``,
 depth on ``/camera/depth/image``, intrinsics on ``/camera/rgb/camera_info`` (one per colour
-frame); compressed colour adds ``/compressed``, compressed depth ``/compressedDepth``. Each
-message is stamped (header and log time) with its file's timestamp; frames stream one at a
-time.
+frame); compressed colour adds ``/compressed``, compressed depth ``/compressedDepth``; a
+``groundtruth.txt`` goes on :data:`POSE_TOPIC` as ``geometry_msgs/PoseStamped`` in
+:data:`WORLD_FRAME`. Each message is stamped (header and log time) with its file's timestamp and
+written in time order; frames stream one at a time.
 """
 
 from __future__ import annotations
@@ -18,13 +19,15 @@ import numpy as np
 
 from slimseg.data.bag_reader import Header, stamp_ns
 from slimseg.data.bag_writer import BagWriter
-from slimseg.data.tum import TumSequence
+from slimseg.data.tum import TumSequence, read_trajectory
 from slimseg.errors import SlimsegError
 
 RGB_TOPIC = "/camera/rgb/image_color"
 DEPTH_TOPIC = "/camera/depth/image"
 INFO_TOPIC = "/camera/rgb/camera_info"
 FRAME_ID = "camera_rgb_optical_frame"
+POSE_TOPIC = "/groundtruth"
+WORLD_FRAME = "world"
 COLOURS = ("rgb8", "bgr8", "jpeg", "png")  # Image encodings, or CompressedImage formats
 DEPTHS = ("16UC1", "32FC1", "compressedDepth")  # Image encodings, or the PNG transport
 MM_PER_M = 1000.0
@@ -48,16 +51,25 @@ def tum_to_bag(
         raise SlimsegError(f"--depth {depth}: expected one of {', '.join(DEPTHS)}")
     seq = TumSequence(sequence)
     cam = seq.camera
+    gt_path = seq.root / "groundtruth.txt"
+    poses = read_trajectory(gt_path) if gt_path.is_file() else np.zeros((0, 8))
+    k = 0
     with BagWriter(out, storage) as bag:
         for i in range(len(seq)):
             rgb, depth_m, t = seq.load(i)
             t_depth = seq.frames[i][1][0]
+            while k < len(poses) and poses[k, 0] <= t:  # time order: the poses up to now
+                row = poses[k]
+                bag.write_pose(POSE_TOPIC, Header(stamp_ns(row[0]), WORLD_FRAME), row[1:4], row[4:])
+                k += 1
             head = Header(stamp_ns(t), FRAME_ID)
             if camera_info:
                 size = (rgb.shape[1], rgb.shape[0])
                 bag.write_camera_info(INFO_TOPIC, head, size, (cam.fx, cam.fy, cam.cx, cam.cy))
             _write_colour(bag, head, rgb, colour)
             _write_depth(bag, Header(stamp_ns(t_depth), FRAME_ID), depth_m, depth)
+        for row in poses[k:]:
+            bag.write_pose(POSE_TOPIC, Header(stamp_ns(row[0]), WORLD_FRAME), row[1:4], row[4:])
     return len(seq)
 
 

@@ -293,7 +293,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     info = RunInfo(
         sequence=seq.root, frames=len(seq), engine=plan.engine, vocabulary=vocab_label,
         intrinsics=seq.camera_source, synthetic=(seq.root / "background").is_dir(),
-        runs=plan.runs,
+        runs=plan.runs, groundtruth=gt,
     )  # fmt: skip
     rows = write_report(out, info, results, still_floor(gt_at_frames(gt, seq)))
     return rows, info
