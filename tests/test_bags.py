@@ -175,6 +175,21 @@ def test_masks_written_as_ros1_bag_and_rosbag2_folder(env: Env, tmp_path: Path, 
     assert got[2].encoding == "mono8" and np.array_equal(got[2].data.reshape(128, 160), png)
 
 
+def test_predict_on_a_bags_colour_topic_as_on_the_folder(env: Env, tmp_path: Path) -> None:
+    base = ["predict", "--model", str(env.weights), "--threads", "1", "--quiet"]
+    assert main([*base, "--source", str(env.seq / "rgb"), "--out", str(tmp_path / "f")]) == 0
+    bag = ["--source", str(env.bags["mcap_dir_bgr"])]
+    assert main([*base, *bag, "--out", str(tmp_path / "b")]) == 0
+    want = sorted((tmp_path / "f").glob("*_classes.png"))
+    got = sorted((tmp_path / "b").glob("*_classes.png"))
+    assert len(want) == 5 and [p.name for p in got] == [p.name for p in want]
+    assert all(a.read_bytes() == b.read_bytes() for a, b in zip(got, want, strict=True))
+    assert main([*base, *bag, "--track", "--out", str(tmp_path / "t")]) == 0
+    assert sorted(p.name for p in (tmp_path / "t" / "tracks").iterdir()) == [
+        p.name.replace("_classes", "") for p in want
+    ]
+
+
 def test_bag2tum_gives_the_folder_back(env: Env, tmp_path: Path, capsys) -> None:
     out = tmp_path / "tum"
     assert main(["data", "bag2tum", "--bag", str(env.bags["png_cdepth.bag"]), "--out", str(out),

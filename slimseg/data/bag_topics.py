@@ -56,6 +56,14 @@ def _only(bag: str, kind: str, found: list[str], opt: str, topics: dict[str, str
     )
 
 
+def choose_colour(bag: str, topics: dict[str, str], rgb: str | None = None) -> tuple[str, str]:
+    """The colour topic (``rgb``: the user's choice, checked) and how it was chosen."""
+    if rgb is not None:
+        return _given(bag, topics, rgb, IMAGE_TYPES, "--rgb-topic"), "--rgb-topic"
+    images = [t for t, ty in topics.items() if ty in IMAGE_TYPES and "depth" not in t.lower()]
+    return _only(bag, "colour", images, "--rgb-topic", topics), "the only colour image topic"
+
+
 def choose_topics(
     bag: str,
     topics: dict[str, str],
@@ -67,13 +75,7 @@ def choose_topics(
     (``{topic: message type}``); ``rgb`` / ``depth`` / ``info``: the user's choice, if any."""
     why: dict[str, str] = {}
     images = [t for t, ty in topics.items() if ty in IMAGE_TYPES]
-    if rgb is None:
-        rgb = _only(bag, "colour", [t for t in images if "depth" not in t.lower()],
-                    "--rgb-topic", topics)  # fmt: skip
-        why["colour"] = "the only colour image topic"
-    else:
-        rgb = _given(bag, topics, rgb, IMAGE_TYPES, "--rgb-topic")
-        why["colour"] = "--rgb-topic"
+    rgb, why["colour"] = choose_colour(bag, topics, rgb)
     if depth is None:
         depth = _only(bag, "depth", [t for t in images if "depth" in t.lower() and t != rgb],
                       "--depth-topic", topics)  # fmt: skip
