@@ -190,6 +190,18 @@ def test_predict_on_a_bags_colour_topic_as_on_the_folder(env: Env, tmp_path: Pat
     ]
 
 
+def test_slam_vocab_from_a_bags_colour_frames(env: Env, tmp_path: Path) -> None:
+    from slimseg.slam.vocab import build_vocabulary
+
+    out = tmp_path / "voc.txt"
+    argv = ["slam", "vocab", "--images", str(env.bags["bgr_mm.bag"]), "--out", str(out)]
+    assert main([*argv, "--k", "4", "--levels", "2", "--max-images", "3"]) == 0
+    tum = TumSequence(env.seq)  # frames 0, 1, 3 of 5: the thinning of --images files
+    grey = [cv2.cvtColor(tum.load(i)[0], cv2.COLOR_RGB2GRAY) for i in (0, 1, 3)]
+    build_vocabulary(grey, tmp_path / "ref.txt", 4, 2)
+    assert out.read_bytes() == (tmp_path / "ref.txt").read_bytes()
+
+
 def test_bag2tum_gives_the_folder_back(env: Env, tmp_path: Path, capsys) -> None:
     out = tmp_path / "tum"
     assert main(["data", "bag2tum", "--bag", str(env.bags["png_cdepth.bag"]), "--out", str(out),

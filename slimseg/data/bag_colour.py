@@ -44,12 +44,15 @@ class BagColour:
         s = np.asarray(self.stamps)
         return float(1.0 / np.median(np.diff(s))) if len(s) > 1 else DEFAULT_FPS
 
-    def frames(self) -> Iterator[tuple[str, str, np.ndarray]]:
-        """``(stem, source, rgb uint8 [H, W, 3])`` per message, stem the stamp with 6 decimals
-        (the name ``slimseg dynamic`` and ``bag2tum`` give that frame)."""
+    def frames(self, only: set[int] | None = None) -> Iterator[tuple[str, str, np.ndarray]]:
+        """``(stem, source, rgb uint8 [H, W, 3])`` per message (``only``: just those message
+        indices, the others not decoded), stem the stamp with 6 decimals (the name
+        ``slimseg dynamic`` and ``bag2tum`` give that frame)."""
         source = f"{self.path}:{self.topic}"
         msgs = self._bag.messages([self.topic])
-        for t, (_, _, raw) in zip(self.stamps, msgs, strict=True):
+        for i, (t, (_, _, raw)) in enumerate(zip(self.stamps, msgs, strict=True)):
+            if only is not None and i not in only:
+                continue
             msg = self._bag.decode(raw, self._type, self.topic)
             try:
                 rgb = (
