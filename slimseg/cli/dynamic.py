@@ -125,6 +125,9 @@ def run(args: argparse.Namespace) -> int:
     bag_out = _bag_output(args, out)
     seq = open_sequence(sequence, bag_options_from_args(args))  # fails before the model loads
     if isinstance(seq, BagSequence):
+        if args.gt_instances:
+            raise SlimsegError("--gt-instances reads a synthetic TUM folder's annotations.json; "
+                               f"a bag ({sequence}) has none: give --model")  # fmt: skip
         print(seq.describe())
     print(seq.describe_camera())
     if args.gt_instances:
