@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from functools import partial
 from pathlib import Path
 
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
@@ -179,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
         args.modes, args.model is not None or args.gt_instances, args.masks is not None
     )
     seq = open_sequence(args.sequence, bag_options_from_args(args))
-    gt = ground_truth(seq.root, args.groundtruth, args.pose_topic, args.pose_frame)
+    gt = partial(ground_truth, seq.root, args.groundtruth, args.pose_topic, args.pose_frame)
     session.refuse_masks_inside(args.out, args.masks)
     plan = session.Plan(
         sequence=seq,

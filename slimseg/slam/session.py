@@ -48,8 +48,9 @@ class Plan:
 
     sequence: TumSequence
     names: list[str]
-    groundtruth: np.ndarray | None = None
-    """true poses ``[K, 8]`` (TUM rows); None: the folder's ``groundtruth.txt``"""
+    groundtruth: Callable[[], np.ndarray] | None = None
+    """reads the true poses ``[K, 8]`` (TUM rows; ``--groundtruth`` / ``--pose-topic``), called
+    where the folder's ``groundtruth.txt`` would be read; None: that file"""
     model: str | None = None
     gt_instances: bool = False
     masks: Path | None = None
@@ -267,7 +268,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     seq = plan.sequence
     vocab_label = check_engine(plan.engine, plan.vocab)
     say(seq.describe_camera())  # the same line as slimseg dynamic's
-    gt = ground_truth(seq) if plan.groundtruth is None else plan.groundtruth
+    gt = ground_truth(seq) if plan.groundtruth is None else plan.groundtruth()
     masked = mask_conditions(plan, out, say)
     conds: list[Condition] = []
     if "raw" in plan.names:
