@@ -82,6 +82,7 @@ class BagSequence:
         self._cursor: object = None
         self._cursor_at = -1  # ordinal of the last message the cursor yielded
         self._ahead: dict[Key, bytes] = {}
+        self._counts: dict[tuple[str, int], int] = {}  # the cursor's messages per (topic, time)
         self._cached: tuple[int, tuple[np.ndarray, np.ndarray, float]] | None = None
         self.load(0)  # an unknown encoding, a size mismatch or a wrong depth unit fails here
 
@@ -268,7 +269,7 @@ class BagSequence:
             self._cursor = self._bag.messages([self.topics.rgb, self.topics.depth], start)
             self._cursor_at = bisect.bisect_left(self._times, start) - 1
             self._ahead.clear()
-            self._counts: dict[tuple[str, int], int] = {}
+            self._counts = {}
         elif self._cursor is None:
             self._cursor = self._bag.messages([self.topics.rgb, self.topics.depth])
             self._counts = {}
