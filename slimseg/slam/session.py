@@ -155,7 +155,7 @@ def _mode_condition(
 
     folder = out / "masks" / mode.replace("+", "_")
     rep = run_sequence(
-        predictor, plan.sequence.root, folder, mode, plan.masking, plan.keypoints,
+        predictor, plan.sequence, folder, mode, plan.masking, plan.keypoints,
         progress=plan.progress, track=plan.track,
     )  # fmt: skip
     ms = rep.ms_per_frame["model"] + rep.ms_per_frame["masking_logic"]
@@ -193,7 +193,7 @@ def restored_condition(
 
     t0 = time.perf_counter()
     rep = restore_sequence(
-        plan.sequence.root, masks, folder, cond.dilation_px, keypoints=plan.keypoints,
+        plan.sequence, masks, folder, cond.dilation_px, keypoints=plan.keypoints,
         progress=plan.progress,
     )  # fmt: skip
     ms = 1000 * (time.perf_counter() - t0) / max(rep.frames, 1) + (cond.masking_ms or 0.0)
