@@ -25,7 +25,7 @@ from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
 from slimseg.data.tum_to_bag import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
-from slimseg.dynamic.mask_bag import MASK_TOPIC
+from slimseg.dynamic.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 from slimseg.utils.atomic import write_png
@@ -155,6 +155,19 @@ def test_masks_written_to_mcap_read_back_with_the_mcap_package(env: Env, tmp_pat
         assert (h, w, enc) == (128, 160, "mono8")
         assert np.array_equal(np.frombuffer(pixels, np.uint8).reshape(h, w), png)
     assert [p.name for p in tmp_path.iterdir()] == ["masks.mcap"]  # no staging left
+
+
+def test_masks_of_a_folder_written_to_mcap_carry_its_stamps(env: Env, tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    out = tmp_path / "m.mcap"
+    assert main(env.dynamic(env.seq, out)) == 0
+    with out.open("rb") as f:
+        heads = [_cdr_image(m.data)[:3] for _, _, m in make_reader(f).iter_messages()]
+    want = [
+        (*divmod(stamp_ns(t), 10**9), FOLDER_FRAME_ID) for (t, _), _ in TumSequence(env.seq).frames
+    ]
+    assert heads == want
 
 
 @pytest.mark.parametrize("suffix", ["masks.bag", "rosbag2_sqlite"])
