@@ -304,6 +304,14 @@ def _zero_info(p: Path) -> Path:
     return w.path
 
 
+def _info_of_another_size(p: Path) -> Path:
+    with _bag(p) as w:
+        w.write_camera_info("/camera/rgb/camera_info", Header(stamp_ns(10), "cam"), (640, 480),
+                            (525.0, 525.0, 319.5, 239.5))  # fmt: skip
+        _pairs(w)
+    return w.path
+
+
 def _backwards(p: Path) -> Path:
     with _bag(p) as w:  # log times rise, header stamps fall back at the third frame
         for i, t in enumerate((10.0, 10.033, 10.01)):
@@ -329,6 +337,7 @@ BAD = {
     "depth without colour": (lambda e, p: _depth_only(p), [], "no colour image topic"),
     "camera_info of zeros": (lambda e, p: _zero_info(p), [], "uncalibrated camera"),
     "stamps backwards": (lambda e, p: _backwards(p), [], "go backwards"),
+    "camera_info of another size": (lambda e, p: _info_of_another_size(p), [], "is for 640x480"),
 }
 
 

@@ -79,6 +79,8 @@ class BagSequence:
         self._types = {t: self._bag.topics[t] for t in (self.topics.rgb, self.topics.depth)}
         info = self._index()
         self.camera, self.camera_source = self._intrinsics(info)
+        # (w, h) the camera_info was calibrated at; 0 x 0 when it does not say
+        self._info_size = (0, 0) if info is None else (int(info.width), int(info.height))
         self._cursor: object = None
         self._cursor_at = -1  # ordinal of the last message the cursor yielded
         self._ahead: dict[Key, bytes] = {}
@@ -229,6 +231,7 @@ class BagSequence:
             )
         if self._cached is None:
             self._check_depth(depth)
+            self._check_info_size(rgb.shape[1], rgb.shape[0])
         self._cached = (i, (rgb, depth, t_rgb))
         return rgb.copy(), depth.copy(), t_rgb
 
@@ -256,6 +259,17 @@ class BagSequence:
                     f"{median:.3g} m, outside {lo}-{hi} m: its encoding does not match its "
                     "units (16UC1 must be millimetres, 32FC1 metres)"
                 )
+
+    def _check_info_size(self, w: int, h: int) -> None:
+        """Refuse a ``camera_info`` calibrated at another size than the colour frames (the
+        depth camera's, or another resolution's): its intrinsics would be wrong."""
+        if self._info_size != (0, 0) and self._info_size != (w, h):
+            iw, ih = self._info_size
+            raise SlimsegError(
+                f"bag {self.root}: camera_info {self.topics.info} is for {iw}x{ih} frames but "
+                f"{self.topics.rgb} is {w}x{h}: name the colour camera's with "
+                "--camera-info-topic, or give --camera camera.yaml"
+            )
 
     def _fetch(self, i: int, keys: tuple[Key, Key]) -> list[bytes]:
         """The raw messages of ``keys`` (frame ``i``'s colour and depth), from what the
