@@ -357,6 +357,11 @@ def test_a_bad_bag_ends_in_one_line_exit_2_nothing_written(
     assert [p.name for p in tmp_path.iterdir()] == made
 
 
+def test_bag_options_on_a_folder_are_refused(env: Env, tmp_path: Path, capsys) -> None:
+    assert main(env.dynamic(env.seq, tmp_path / "o", "--rgb-topic", "/x")) == 2
+    assert "--rgb-topic: for a ROS bag --sequence only" in capsys.readouterr().err
+
+
 def test_a_bag_without_rosbags_names_the_extra(env: Env, tmp_path: Path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "rosbags", None)
     assert main(env.dynamic(env.bags["raw.bag"], tmp_path / "o")) == 2

@@ -150,6 +150,8 @@ def open_source(
     if is_bag(path):
         bag = BagColour(path, rgb_topic)
         return bag.frames(), len(bag.stamps), False
+    if rgb_topic is not None:
+        raise SlimsegError(f"--rgb-topic applies to a ROS bag --source; {path} is not one")
     if path.is_dir():
         images = sorted(
             p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES

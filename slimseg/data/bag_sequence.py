@@ -62,6 +62,16 @@ class BagOptions:
     camera: Path | None = None
     max_dt: float = MAX_DT
 
+    def given(self) -> list[str]:
+        """The command-line options set (``["--rgb-topic", ...]``)."""
+        opts = {
+            "--rgb-topic": self.rgb_topic,
+            "--depth-topic": self.depth_topic,
+            "--camera-info-topic": self.camera_info_topic,
+            "--camera": self.camera,
+        }
+        return [k for k, v in opts.items() if v is not None]
+
 
 class BagSequence:
     """A bag as a sequence (see the module docstring). Raises ``SlimsegError`` (one line) for
