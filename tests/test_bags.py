@@ -289,6 +289,14 @@ def _unknown_encoding(p: Path) -> Path:
     return w.path
 
 
+def _bad_third_frame(p: Path) -> Path:
+    with _bag(p, ros1=False) as w:  # fails mid-run, after the first frames were processed
+        _pairs(w, 2)
+        _frame(w, RGB_TOPIC, 10.1, "yuv422")
+        _frame(w, DEPTH_TOPIC, 10.104, "16UC1")
+    return w.path
+
+
 def _depth_only(p: Path) -> Path:
     with _bag(p) as w:
         for i in range(3):
@@ -332,6 +340,7 @@ BAD = {
     "missing topic": (lambda e, p: e.bags["raw.bag"], ["--rgb-topic", "/nope"], "no such topic"),
     "two colour topics": (lambda e, p: _two_colour(p), [], "2 candidate colour topics"),
     "unknown encoding": (lambda e, p: _unknown_encoding(p), [], "colour encoding '16UC3'"),
+    "a later frame in yuv422": (lambda e, p: _bad_third_frame(p), [], "encoding 'yuv422'"),
     "truncated ROS 1": (lambda e, p: _truncated(e, p, "raw.bag"), [], "cannot read bag"),
     "truncated MCAP": (lambda e, p: _truncated(e, p, "bare.mcap"), [], "cannot read bag"),
     "depth without colour": (lambda e, p: _depth_only(p), [], "no colour image topic"),
@@ -347,7 +356,7 @@ def test_a_bad_bag_ends_in_one_line_exit_2_nothing_written(
 ) -> None:
     make, extra, message = BAD[case]
     bag = make(env, tmp_path / "bad")
-    for out in (tmp_path / "out", tmp_path / "out.mcap"):
+    for out in (tmp_path / "out", tmp_path / "new" / "out.mcap"):
         capsys.readouterr()
         assert main(env.dynamic(bag, out, *extra)) == 2
         err = capsys.readouterr().err

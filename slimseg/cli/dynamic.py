@@ -259,6 +259,7 @@ def _staged_output(
         with staged_dir(out) as stage:
             yield stage
         return
+    created = [p for p in (out.parent, *out.parent.parents) if not p.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
     work = out.parent / stage_name(out.name)
     work.mkdir()
@@ -267,6 +268,9 @@ def _staged_output(
         write_mask_bag(seq, work / "masks", out, args.bag_storage, args.bag_masked_rgb)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+        for p in created:  # innermost first; only folders this run made and left empty
+            if p.is_dir() and not out.exists() and not any(p.iterdir()):
+                p.rmdir()
 
 
 def _restore(args: argparse.Namespace, seq: Sequence, out: Path, which: str) -> RestoreReport:
