@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from slimseg.cli import data_coco, data_show, data_synth
+from slimseg.cli import data_bag, data_coco, data_show, data_synth
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "data",
-        help="datasets: synth, coco-subset, voc2coco, check, show",
+        help="datasets: synth, coco-subset, voc2coco, check, show, bag2tum, tum2bag",
         description="Build the embedded synthetic dataset, cut the COCO-20 subset, convert VOC, "
         "check a dataset for bad input, or draw augmented samples.",
     )
@@ -18,3 +18,4 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     data_synth.add_parser(actions)
     data_coco.add_parsers(actions)
     data_show.add_parser(actions)
+    data_bag.add_parsers(actions)

@@ -6,11 +6,16 @@ import argparse
 import csv
 import io
 import math
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
     add_dropout_arg,
@@ -19,7 +24,11 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
-from slimseg.data.tum import TumSequence, mask_name
+from slimseg.data.bag_sequence import BagSequence
+from slimseg.data.bag_writer import STORAGES
+from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.tum import mask_name
+from slimseg.dynamic.mask_bag import MASK_TOPIC, MASKED_TOPIC, write_mask_bag
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import (
     REPORT_HEADERS,
@@ -29,7 +38,7 @@ from slimseg.dynamic.restore_run import (
 )
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
 from slimseg.errors import SlimsegError
-from slimseg.utils.atomic import staged_dir, write_text
+from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.table import format_table
 
 
@@ -52,8 +61,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "sequences): evaluates the masking logic and the epipolar check without detector errors",
     )
     add_dropout_arg(p)
-    p.add_argument("--sequence", required=True, help="folder with rgb.txt and depth.txt")
-    p.add_argument("--out", default="runs/dynamic")
+    p.add_argument("--sequence", required=True, help=SEQUENCE_HELP)
+    add_bag_args(p)
+    p.add_argument(
+        "--out",
+        default="runs/dynamic",
+        help="output folder; or a .mcap / .bag file (or a rosbag2 folder with --bag-storage): "
+        f"the masks as mono8 images on {MASK_TOPIC} with each frame's header",
+    )
+    p.add_argument(
+        "--bag-storage",
+        choices=STORAGES,
+        help="write --out as a rosbag2 folder with this storage",
+    )
+    p.add_argument(
+        "--bag-masked-rgb",
+        action="store_true",
+        help=f"bag output: also the colour frames with dynamic pixels black on {MASKED_TOPIC}",
+    )
     p.add_argument("--mode", default="fusion", choices=MODES)
     p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
     add_masking_args(p)
@@ -96,7 +121,14 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError(f"--fps {args.fps}: expected frames per second >= 0")
     dropout = dropout_from_args(args)
     sequence = Path(args.sequence)
-    seq = TumSequence(sequence)  # a bad folder fails before the model loads
+    out = Path(args.out)
+    bag_out = _bag_output(args, out)
+    seq = open_sequence(sequence, bag_options_from_args(args))  # fails before the model loads
+    if isinstance(seq, BagSequence):
+        if args.gt_instances:
+            raise SlimsegError("--gt-instances reads a synthetic TUM folder's annotations.json; "
+                               f"a bag ({sequence}) has none: give --model")  # fmt: skip
+        print(seq.describe())
     print(seq.describe_camera())
     if args.gt_instances:
         from slimseg.dynamic.annotations import AnnotationInstances
@@ -115,8 +147,7 @@ def run(args: argparse.Namespace) -> int:
             f"--restore-mask gt needs ground-truth masks in {sequence / 'dynamic'}; "
             "use --restore-mask pred"
         )
-    out = Path(args.out)
-    with staged_dir(out) as stage:  # masks/, frames.csv, ... appear complete or not at all
+    with _staged_output(out, seq, bag_out, args) as stage:  # complete or not at all
         report = run_sequence(
             predictor,
             seq,
@@ -129,9 +160,10 @@ def run(args: argparse.Namespace) -> int:
             track=track,
             fps=args.fps,
         )
-        restored = _restore(args, sequence, stage, restore_mask) if args.restore else None
+        restored = _restore(args, seq, stage, restore_mask) if args.restore else None
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
-    print(f"{report.frames} frames, mode {args.mode}: masks in {out / 'masks'}; per frame {timing}")
+    where = f"bag {out} on {MASK_TOPIC}" if bag_out else out / "masks"
+    print(f"{report.frames} frames, mode {args.mode}: masks in {where}; per frame {timing}")
     print(f"masking settings: {masking.describe()}")
     print(
         f"masking rule ({masking.rule}): {report.dropped} candidate masks left out over "
@@ -209,10 +241,47 @@ def _num(v: float) -> str:
     return "-" if math.isnan(v) else f"{v:.1f}"
 
 
-def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) -> RestoreReport:
+def _bag_output(args: argparse.Namespace, out: Path) -> bool:
+    """Whether ``--out`` is a bag; refuses what a bag output cannot hold before any work."""
+    if not (args.bag_storage or out.suffix.lower() in (".mcap", ".bag")):
+        if args.bag_masked_rgb:
+            raise SlimsegError("--bag-masked-rgb needs a bag --out (.mcap, .bag or --bag-storage)")
+        return False
+    if args.restore:
+        raise SlimsegError(f"--restore writes image folders: give --out DIR, not the bag {out}")
+    if os.path.lexists(out):
+        raise SlimsegError(f"--out {out} exists: a bag is never overwritten; give a new path")
+    return True
+
+
+@contextmanager
+def _staged_output(
+    out: Path, seq: Sequence, bag_out: bool, args: argparse.Namespace
+) -> Iterator[Path]:
+    """A staging folder for the run's files; on a clean exit they move into the ``out``
+    folder, or, for a bag ``out``, the masks are written into the bag (the rest dropped)."""
+    if not bag_out:
+        with staged_dir(out) as stage:
+            yield stage
+        return
+    created = [p for p in (out.parent, *out.parent.parents) if not p.exists()]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    work = out.parent / stage_name(out.name)
+    work.mkdir()
+    try:
+        yield work
+        write_mask_bag(seq, work / "masks", out, args.bag_storage, args.bag_masked_rgb)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+        for p in created:  # innermost first; only folders this run made and left empty
+            if p.is_dir() and not out.exists() and not any(p.iterdir()):
+                p.rmdir()
+
+
+def _restore(args: argparse.Namespace, seq: Sequence, out: Path, which: str) -> RestoreReport:
     """Restore the frames into ``out/restored`` (``out``: the staging folder, holding this
     run's ``masks/``); with a true background, the score table in ``out/restoration.csv``."""
-    folder = out / "masks" if which == "pred" else sequence / "dynamic"
+    folder = out / "masks" if which == "pred" else seq.root / "dynamic"
 
     def masks(i: int, stamp: float) -> np.ndarray:
         path = folder / mask_name(stamp)
@@ -222,7 +291,7 @@ def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) ->
         return m
 
     rep = restore_sequence(
-        sequence,
+        seq,
         masks,
         out,
         args.restore_dilation,

@@ -35,6 +35,8 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
+from slimseg.data.bag_colour import BagColour
+from slimseg.data.bag_reader import is_bag
 from slimseg.data.images import read_rgb
 from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
@@ -66,7 +68,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "Exit 1 if some files could not be read.",
     )
     p.add_argument("--model", required=True, help="model.onnx, weights.pt or checkpoint.ckpt")
-    p.add_argument("--source", required=True, help="an image, a folder of images or a video")
+    p.add_argument(
+        "--source",
+        required=True,
+        help="an image, a folder of images, a video, or a ROS bag's colour topic (.bag, .mcap, "
+        "rosbag2 folder; needs slimseg[ros])",
+    )
+    p.add_argument("--rgb-topic", help="bag --source: the colour topic (default: the only one)")
     p.add_argument("--conf", type=float, default=PREDICT_CONF, help="score threshold")
     p.add_argument("--iou", type=float, default=NMS_IOU, help="NMS IoU threshold")
     p.add_argument(
@@ -131,13 +139,19 @@ def _video_frames(path: Path) -> Iterator[tuple[str, str, np.ndarray | None]]:
 
 
 def open_source(
-    source: str | Path,
+    source: str | Path, rgb_topic: str | None = None
 ) -> tuple[Iterator[tuple[str, str, np.ndarray | None]], int, bool]:
     """Frames of ``source`` as ``(stem, path, RGB or None if unreadable)``, their count (0:
-    unknown) and whether they come from a video."""
+    unknown) and whether they come from a video (a bag's colour topic, ``rgb_topic`` or the
+    only one, gives stems of its stamps)."""
     path = Path(source)
     if not path.exists():
         raise SlimsegError(f"{path}: no such file or folder")
+    if is_bag(path):
+        bag = BagColour(path, rgb_topic)
+        return bag.frames(), len(bag.stamps), False
+    if rgb_topic is not None:
+        raise SlimsegError(f"--rgb-topic applies to a ROS bag --source; {path} is not one")
     if path.is_dir():
         images = sorted(
             p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
@@ -212,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
         if args.dump_raw:
             raise SlimsegError("--dump-raw writes per-frame outputs; drop --track to use it")
         return run_tracked(args, plan)
-    frames, total, is_video = open_source(args.source)
+    frames, total, is_video = open_source(args.source, args.rgb_topic)
     predictor = Predictor.from_path(
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
     )
@@ -281,8 +295,12 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
             f"--track follows objects across frames: give a folder of frames or a video, "
             f"not one image ({source})"
         )
-    frames, total, is_video = open_source(source)
-    fps = _video_fps(source) if is_video else DEFAULT_FPS
+    if is_bag(source):  # the rate of the header stamps
+        bag = BagColour(source, args.rgb_topic)
+        frames, total, fps = bag.frames(), len(bag.stamps), bag.fps
+    else:
+        frames, total, is_video = open_source(source)
+        fps = _video_fps(source) if is_video else DEFAULT_FPS
     predictor = Predictor.from_path(
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
     )

@@ -6,6 +6,10 @@ import argparse
 import glob
 from pathlib import Path
 
+import cv2
+import numpy as np
+
+from slimseg.data.bag_reader import is_bag
 from slimseg.errors import SlimsegError
 
 
@@ -23,7 +27,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "binary words (k-majority per level, idf weights) and write it in DBoW2's text format, "
         "which ORB-SLAM3 loads like ORBvoc.txt. Results made with it are marked non-official.",
     )
-    v.add_argument("--images", nargs="+", required=True, help="image files or glob patterns")
+    v.add_argument(
+        "--images",
+        nargs="+",
+        required=True,
+        help="image files or glob patterns, or one ROS bag (its colour topic; slimseg[ros])",
+    )
+    v.add_argument("--rgb-topic", help="bag --images: the colour topic (default: the only one)")
     v.add_argument("--out", type=Path, required=True, help="vocabulary text file to write")
     v.add_argument("--k", type=int, default=10, help="children per node (default 10)")
     v.add_argument("--levels", type=int, default=4, help="tree depth L (default 4)")
@@ -51,10 +61,28 @@ def expand_images(patterns: list[str], max_images: int) -> list[Path]:
     return paths
 
 
+def bag_frames(bag: str, rgb_topic: str | None, max_images: int) -> list[np.ndarray]:
+    """A bag's colour frames as grey ``uint8 [H, W]``, evenly thinned to ``max_images`` (only
+    those decoded)."""
+    from slimseg.data.bag_colour import BagColour
+
+    if max_images < 1:
+        raise SlimsegError(f"--max-images {max_images} must be at least 1")
+    frames = BagColour(bag, rgb_topic)
+    n = len(frames.stamps)
+    keep = (
+        set(range(n)) if n <= max_images else {int(i * n / max_images) for i in range(max_images)}
+    )
+    return [cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) for _, _, rgb in frames.frames(keep)]
+
+
 def run_vocab(args: argparse.Namespace) -> int:
     from slimseg.slam.vocab import build_vocabulary
 
-    paths = expand_images(args.images, args.max_images)
+    if len(args.images) == 1 and is_bag(args.images[0]):
+        paths = bag_frames(args.images[0], args.rgb_topic, args.max_images)
+    else:
+        paths = expand_images(args.images, args.max_images)
     info = build_vocabulary(paths, args.out, args.k, args.levels, args.per_image, args.seed)
     print(
         f"vocabulary {info.path}: {len(paths)} images, {info.nodes} nodes, {info.words} words "

@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from functools import partial
 from pathlib import Path
 
+from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
     add_dropout_arg,
@@ -42,8 +44,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         required=True,
         type=Path,
         action="append",
-        help="TUM-layout folder (repeat it with --sweep for several sequences)",
+        help="TUM-layout folder (repeat it with --sweep for several sequences), or a ROS bag "
+        "(.bag, .mcap, rosbag2 folder; needs slimseg[ros]; docs/bags.md)",
     )
+    add_bag_args(p)
+    gt = p.add_argument_group("ground truth (default: the folder's groundtruth.txt)")
+    gt.add_argument("--groundtruth", type=Path, help="a TUM groundtruth.txt for the sequence")
+    gt.add_argument(
+        "--pose-topic", help="bag topic with the true poses (PoseStamped, Odometry or tf)"
+    )
+    gt.add_argument("--pose-frame", help="with a tf --pose-topic: the child frame to use")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--model", help="exported .onnx (or weights) for the mask modes")
     src.add_argument("--masks", type=Path, help="a slimseg dynamic output (masks/<ts>.png)")
@@ -148,7 +158,8 @@ def _restore_list(text: str | None, names: list[str]) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from slimseg.data.tum import TumSequence
+    from slimseg.data.bag_poses import ground_truth
+    from slimseg.data.sequence_source import open_sequence
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
@@ -169,13 +180,12 @@ def run(args: argparse.Namespace) -> int:
     names = parse_modes(
         args.modes, args.model is not None or args.gt_instances, args.masks is not None
     )
-    seq = TumSequence(args.sequence)
-    gt_path = args.sequence / "groundtruth.txt"
-    if not gt_path.is_file():
-        raise SlimsegError(f"{gt_path} is missing: a trajectory cannot be scored without it")
+    seq = open_sequence(args.sequence, bag_options_from_args(args))
+    gt = partial(ground_truth, seq.root, args.groundtruth, args.pose_topic, args.pose_frame)
     session.refuse_masks_inside(args.out, args.masks)
     plan = session.Plan(
         sequence=seq,
+        groundtruth=gt,
         names=names,
         model=args.model,
         gt_instances=args.gt_instances,

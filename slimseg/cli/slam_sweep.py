@@ -39,6 +39,7 @@ def run_sweep_command(
 ) -> int:
     """Validate the sweep options, run it, print and write the tables (every setting under
     the ``track`` stage, on ground-truth instances with ``dropout`` if given)."""
+    from slimseg.data.bag_reader import is_bag
     from slimseg.data.tum import TumSequence
     from slimseg.slam.sweep import parse_sweep
     from slimseg.slam.sweep_report import table, write_sweep
@@ -53,6 +54,10 @@ def run_sweep_command(
         raise SlimsegError("--sweep needs --model X.onnx or --gt-instances")
     if args.restore is not None:
         raise SlimsegError("--restore is not swept: run slam-eval --restore on the chosen setting")
+    bags = [str(s) for s in args.sequence if is_bag(s)]
+    if bags:
+        raise SlimsegError(f"--sweep reads TUM folders, not bags ({', '.join(bags)}): convert "
+                           "them first with slimseg data bag2tum")  # fmt: skip
     plan = SweepPlan(
         sequences=[TumSequence(s) for s in args.sequence],
         mode=mode,

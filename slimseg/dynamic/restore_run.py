@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.data.tum import TumSequence, mask_name
+from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.tum import mask_name
 from slimseg.dynamic.restore import (
     MAX_REFS,
     STRIDE,
@@ -95,7 +96,7 @@ def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = 1000) -> int:
 
 
 def restore_sequence(
-    sequence: Path,
+    sequence: Path | Sequence,
     masks: MaskSource,
     out: Path,
     dilation_px: int = 2,
@@ -106,12 +107,13 @@ def restore_sequence(
     progress: bool = True,
 ) -> RestoreReport:
     """Restore every associated frame of ``sequence``; ``masks(i, rgb_timestamp)`` gives frame
-    ``i``'s dynamic mask (``[H, W]``, nonzero = removed). See the module docstring."""
-    seq = TumSequence(sequence)
+    ``i``'s dynamic mask (``[H, W]``, nonzero = removed); ``sequence``: the folder, or it
+    opened (a bag too). See the module docstring."""
+    seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
     scale = seq.camera.depth_scale
     (out / "restored" / "rgb").mkdir(parents=True, exist_ok=True)
     (out / "restored" / "depth").mkdir(parents=True, exist_ok=True)
-    bg_dir = Path(sequence) / "background"
+    bg_dir = seq.root / "background"
     report = RestoreReport()
     if (bg_dir / "rgb").is_dir():
         report.methods = {"PatchMatch (ours)": MethodScore(), "cv2.inpaint Telea": MethodScore()}
@@ -162,7 +164,7 @@ def restore_sequence(
 
 def _score(
     report: RestoreReport,
-    seq: TumSequence,
+    seq: Sequence,
     i: int,
     bg_dir: Path,
     name: str,

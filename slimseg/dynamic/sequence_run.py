@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.data.tum import TumSequence, mask_name
+from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
@@ -115,7 +116,7 @@ class SequenceReport:
 
 def run_sequence(
     predictor: object,
-    sequence: Path | TumSequence,
+    sequence: Path | Sequence,
     out: Path,
     mode: str = "fusion",
     masking: MaskingSettings = DEFAULT,
@@ -135,7 +136,7 @@ def run_sequence(
     its own thread (``track.model_thread``) the frames are replayed in real time at ``fps``
     (None: the sequence's own timestamps; 0: as fast as the loop goes) and only the chosen
     mode is scored (the others would delay the next frame)."""
-    seq = sequence if isinstance(sequence, TumSequence) else TumSequence(sequence)
+    seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
     gt_dir = seq.root / "dynamic"
     mobility = np.asarray(predictor.mobility, np.float32)
     (out / "masks").mkdir(parents=True, exist_ok=True)

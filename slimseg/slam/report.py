@@ -34,6 +34,8 @@ class RunInfo:
     intrinsics: str
     synthetic: bool
     runs: int
+    groundtruth: np.ndarray | None = None
+    """the true poses ``[K, 8]`` scored against; None: ``sequence``'s ``groundtruth.txt``"""
 
 
 def summary_rows(results: list[ConditionResult], floor: float, frames: int) -> list[dict]:
@@ -138,7 +140,9 @@ def plot_trajectories(path: Path, info: RunInfo, results: list[ConditionResult])
 
     from slimseg.slam.metrics import aligned_positions
 
-    gt = read_trajectory(info.sequence / "groundtruth.txt")
+    gt = info.groundtruth
+    if gt is None:
+        gt = read_trajectory(info.sequence / "groundtruth.txt")
     fig = Figure(figsize=(7, 6), dpi=110)
     ax = fig.add_subplot(1, 1, 1)
     ax.plot(gt[:, 1], gt[:, 3], "k--", lw=1.5, label="ground truth", zorder=10)

@@ -48,6 +48,9 @@ class Plan:
 
     sequence: TumSequence
     names: list[str]
+    groundtruth: Callable[[], np.ndarray] | None = None
+    """reads the true poses ``[K, 8]`` (TUM rows; ``--groundtruth`` / ``--pose-topic``), called
+    where the folder's ``groundtruth.txt`` would be read; None: that file"""
     model: str | None = None
     gt_instances: bool = False
     masks: Path | None = None
@@ -152,7 +155,7 @@ def _mode_condition(
 
     folder = out / "masks" / mode.replace("+", "_")
     rep = run_sequence(
-        predictor, plan.sequence.root, folder, mode, plan.masking, plan.keypoints,
+        predictor, plan.sequence, folder, mode, plan.masking, plan.keypoints,
         progress=plan.progress, track=plan.track,
     )  # fmt: skip
     ms = rep.ms_per_frame["model"] + rep.ms_per_frame["masking_logic"]
@@ -190,7 +193,7 @@ def restored_condition(
 
     t0 = time.perf_counter()
     rep = restore_sequence(
-        plan.sequence.root, masks, folder, cond.dilation_px, keypoints=plan.keypoints,
+        plan.sequence, masks, folder, cond.dilation_px, keypoints=plan.keypoints,
         progress=plan.progress,
     )  # fmt: skip
     ms = 1000 * (time.perf_counter() - t0) / max(rep.frames, 1) + (cond.masking_ms or 0.0)
@@ -265,7 +268,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     seq = plan.sequence
     vocab_label = check_engine(plan.engine, plan.vocab)
     say(seq.describe_camera())  # the same line as slimseg dynamic's
-    gt = ground_truth(seq)
+    gt = ground_truth(seq) if plan.groundtruth is None else plan.groundtruth()
     masked = mask_conditions(plan, out, say)
     conds: list[Condition] = []
     if "raw" in plan.names:
@@ -291,7 +294,7 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
     info = RunInfo(
         sequence=seq.root, frames=len(seq), engine=plan.engine, vocabulary=vocab_label,
         intrinsics=seq.camera_source, synthetic=(seq.root / "background").is_dir(),
-        runs=plan.runs,
+        runs=plan.runs, groundtruth=gt,
     )  # fmt: skip
     rows = write_report(out, info, results, still_floor(gt_at_frames(gt, seq)))
     return rows, info

@@ -100,13 +100,16 @@ def k_majority(
     return cent, labels
 
 
-def orb_descriptors(paths: list[Path], per_image: int = 1000) -> tuple[np.ndarray, np.ndarray]:
-    """ORB descriptors of every image (ORB-SLAM's defaults: 8 levels, scale 1.2): ``uint8
-    [N, 32]`` and the index of the source image ``int64 [N]``. Unreadable files raise."""
+def orb_descriptors(
+    paths: list[Path] | list[np.ndarray], per_image: int = 1000
+) -> tuple[np.ndarray, np.ndarray]:
+    """ORB descriptors of every image (a file, or a ``uint8 [H, W]`` grey frame; ORB-SLAM's
+    defaults: 8 levels, scale 1.2): ``uint8 [N, 32]`` and the index of the source image
+    ``int64 [N]``. Unreadable files raise."""
     orb = cv2.ORB_create(nfeatures=per_image, scaleFactor=1.2, nlevels=8)
     descs, owners = [], []
     for i, p in enumerate(tqdm(paths, desc="ORB", unit="img", disable=len(paths) < 20)):
-        gray = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        gray = p if isinstance(p, np.ndarray) else cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
         if gray is None:
             raise SlimsegError(f"cannot read image {p} (slimseg slam vocab --images)")
         _, d = orb.detectAndCompute(gray, None)
@@ -119,7 +122,12 @@ def orb_descriptors(paths: list[Path], per_image: int = 1000) -> tuple[np.ndarra
 
 
 def build_vocabulary(
-    paths: list[Path], out: Path, k: int = 10, levels: int = 4, per_image: int = 1000, seed: int = 0
+    paths: list[Path] | list[np.ndarray],
+    out: Path,
+    k: int = 10,
+    levels: int = 4,
+    per_image: int = 1000,
+    seed: int = 0,
 ) -> VocabularyInfo:
     """Train a ``k``-ary, ``levels``-deep vocabulary on the ORB descriptors of ``paths`` and
     write it to ``out`` (DBoW2 text format, atomically). Leaves get idf = ln(images / images

@@ -48,6 +48,11 @@ def _tag() -> str:
     return f"{socket.gethostname()}.{os.getpid()}.{secrets.token_hex(4)}"
 
 
+def stage_name(name: str) -> str:
+    """A temporary name for a staged output beside ``name`` (``.NAME.<host.pid.token>.tmp``)."""
+    return f".{name}.{_tag()}.tmp"
+
+
 @contextmanager
 def staged_dir(
     path: str | Path, option: str = "--out", owned: tuple[str, ...] = ()

@@ -1,0 +1,196 @@
+"""ROS recordings opened for reading: a ROS 1 ``.bag``, a rosbag2 folder (``metadata.yaml`` with
+MCAP or SQLite storage) or a bare ``.mcap`` file, through the pure-Python ``rosbags`` library
+(the ``slimseg[ros]`` extra, imported here only when a bag is opened; no ROS installation).
+
+:class:`BagFile` lists the topics with their message types and yields raw messages in log-time
+order; :func:`header_of` reads a message's ``std_msgs/Header`` straight from its bytes (both
+wire formats put it first), so indexing a bag of images does not copy a single pixel;
+:meth:`BagFile.decode` turns a raw message into the library's message object. Every failure of
+the underlying reader (a truncated or corrupt file, an unknown storage) becomes a one-line
+``SlimsegError`` naming the bag.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from slimseg.errors import SlimsegError
+
+log = logging.getLogger(__name__)
+
+BAG_SUFFIXES = (".bag", ".mcap")
+INSTALL_HINT = "pip install 'slimseg[ros]'"
+DAMAGED = "a truncated or damaged recording: record it again, or repair it with its reindex tool"
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POSE = "geometry_msgs/msg/PoseStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF = "tf2_msgs/msg/TFMessage"
+
+
+def is_bag(path: str | Path) -> bool:
+    """True for what :class:`BagFile` opens: a ``.bag`` / ``.mcap`` path, or a folder holding a
+    rosbag2 ``metadata.yaml``."""
+    p = Path(path)
+    return p.suffix.lower() in BAG_SUFFIXES or (p.is_dir() and (p / "metadata.yaml").is_file())
+
+
+def require_rosbags(path: str | Path) -> None:
+    """``SlimsegError`` naming the extra to install when ``rosbags`` is missing."""
+    try:
+        import rosbags  # noqa: F401
+    except ImportError:
+        raise SlimsegError(
+            f"{path} is a ROS bag; reading and writing bags needs the rosbags library: "
+            f"{INSTALL_HINT}"
+        ) from None
+
+
+@dataclass(frozen=True)
+class Header:
+    """A message's ``std_msgs/Header``: stamp (integer ns and seconds) and ``frame_id``."""
+
+    ns: int
+    frame_id: str
+
+    @property
+    def seconds(self) -> float:
+        """The stamp in seconds, parsed from its decimal form (the same float a TUM list's
+        ``sec.nsec`` text gives)."""
+        return float(f"{self.ns // 1_000_000_000}.{self.ns % 1_000_000_000:09d}")
+
+
+def stamp_ns(seconds: float) -> int:
+    """A TUM stamp (s, microseconds as written in ``rgb.txt``) as integer nanoseconds, through
+    its 6-decimal text so no float rounding creeps in."""
+    whole, _, frac = f"{seconds:.6f}".partition(".")
+    sign = -1 if whole.startswith("-") else 1
+    return int(whole) * 1_000_000_000 + sign * int(frac) * 1000
+
+
+def header_of(raw: bytes | memoryview, cdr: bool) -> Header:
+    """The leading ``Header`` of a serialized message (ROS 1: ``seq, sec, nsec, frame_id``;
+    CDR: 4-byte encapsulation, ``sec, nanosec, frame_id``). Raises ``ValueError`` when the bytes
+    are too short to hold one."""
+    buf = memoryview(raw)
+    if cdr:
+        if len(buf) < 16:
+            raise ValueError("message shorter than a header")
+        endian = "<" if buf[1] & 1 else ">"  # representation 0x0001 = CDR_LE, 0x0000 = CDR_BE
+        sec, nsec, n = struct.unpack_from(f"{endian}iII", buf, 4)
+        name = bytes(buf[16 : 16 + max(n - 1, 0)])
+    else:
+        if len(buf) < 16:
+            raise ValueError("message shorter than a header")
+        _, sec, nsec, n = struct.unpack_from("<IIII", buf, 0)
+        name = bytes(buf[16 : 16 + n])
+    if len(name) != max(n - (1 if cdr else 0), 0) or nsec >= 1_000_000_000:
+        raise ValueError("malformed header")
+    return Header(sec * 1_000_000_000 + nsec, name.decode("utf-8", "replace"))
+
+
+class BagFile:
+    """An open recording (use as a context manager).
+
+    ``topics``: ``{topic: message type}`` (``"sensor_msgs/msg/Image"`` spelling for both ROS
+    generations); ``cdr``: True for rosbag2 / MCAP (CDR), False for ROS 1."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise SlimsegError(f"bag {self.path} does not exist")
+        require_rosbags(self.path)
+        from rosbags.typesys import Stores, get_typestore
+
+        self.cdr = self.path.suffix.lower() != ".bag"
+        self._store = get_typestore(Stores.ROS2_HUMBLE if self.cdr else Stores.ROS1_NOETIC)
+        if not self.cdr:  # ROS 1's store lacks tf2's message; its definition is one line
+            from rosbags.typesys import get_types_from_msg
+
+            self._store.register(
+                get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF)
+            )
+        try:
+            self._reader = self._open()
+        except SlimsegError:
+            raise
+        except Exception as e:  # the third-party parser's errors on a damaged file, all of them
+            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
+        self._connections = list(self._reader.connections)
+        self.topics: dict[str, str] = {}
+        for c in self._connections:
+            self.topics.setdefault(c.topic, c.msgtype)
+
+    def _open(self) -> object:
+        if self.path.is_dir():
+            if not (self.path / "metadata.yaml").is_file():
+                raise SlimsegError(
+                    f"bag folder {self.path} has no metadata.yaml: not a rosbag2 recording"
+                )
+            from rosbags.rosbag2 import Reader
+        elif self.path.suffix.lower() == ".mcap":
+            from rosbags.rosbag2.storage_mcap import McapReader as Reader
+        else:
+            from rosbags.rosbag1 import Reader
+        reader = Reader(self.path)
+        reader.open()
+        return reader
+
+    def __enter__(self) -> BagFile:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._reader is not None:
+            try:
+                self._reader.close()
+            except Exception:  # closing a damaged file: nothing left to report
+                log.debug("closing %s failed", self.path, exc_info=True)
+            self._reader = None
+
+    def messages(
+        self, topics: list[str], start_ns: int | None = None
+    ) -> Iterator[tuple[str, int, bytes]]:
+        """``(topic, log time ns, raw bytes)`` of ``topics`` in log-time order, from
+        ``start_ns`` on (None: the start). A damaged file raises ``SlimsegError``."""
+        conns = [c for c in self._connections if c.topic in topics]
+        if not conns:
+            return
+        try:
+            for conn, t, raw in self._reader.messages(connections=conns, start=start_ns):
+                yield conn.topic, t, raw
+        except Exception as e:  # the third-party parser's errors on a damaged file, all of them
+            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
+
+    def decode(self, raw: bytes, msgtype: str, topic: str) -> object:
+        """The message object of ``raw`` (a ``msgtype`` message on ``topic``)."""
+        try:
+            if self.cdr:
+                return self._store.deserialize_cdr(raw, msgtype)
+            return self._store.deserialize_ros1(raw, msgtype)
+        except Exception as e:  # the third-party deserializer's errors, all of them
+            raise SlimsegError(
+                f"bag {self.path}: a {msgtype} message on {topic} does not decode: {_why(e)}"
+            ) from None
+
+    def header(self, raw: bytes, topic: str) -> Header:
+        """:func:`header_of` with the bag's wire format, ``SlimsegError`` naming the topic."""
+        try:
+            return header_of(raw, self.cdr)
+        except (ValueError, struct.error) as e:
+            raise SlimsegError(
+                f"bag {self.path}: a message on {topic} has no header: {e}"
+            ) from None
+
+
+def _why(e: Exception) -> str:
+    """One line: the exception's message (or its type when it has none)."""
+    text = " ".join(" ".join(str(a) for a in e.args).split()) or type(e).__name__
+    return text[:300]
