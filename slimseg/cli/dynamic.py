@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from slimseg.cli.arg_types import count
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
     add_dropout_arg,
@@ -19,6 +20,7 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
+from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import (
@@ -55,7 +57,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sequence", required=True, help="folder with rgb.txt and depth.txt")
     p.add_argument("--out", default="runs/dynamic")
     p.add_argument("--mode", default="fusion", choices=MODES)
-    p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
+    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features per frame")
     add_masking_args(p)
     add_track_args(p)
     add_rate_args(p)
@@ -78,9 +80,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "dynamic/ masks (gt, default without --model)",
     )
     p.add_argument(
-        "--restore-dilation", type=int, default=2, help="px added around the removed region"
+        "--restore-dilation", type=count(0), default=2, help="px added around the removed region"
     )
-    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--threads", type=count(0), default=None)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(run=run)
 
@@ -211,7 +213,7 @@ def _restore(args: argparse.Namespace, sequence: Path, out: Path, which: str) ->
 
     def masks(i: int, stamp: float) -> np.ndarray:
         path = folder / mask_name(stamp)
-        m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        m = decode_file(path, cv2.IMREAD_GRAYSCALE)
         if m is None:
             raise SlimsegError(f"missing or unreadable dynamic mask {path}")
         return m

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.cli.arg_types import FRACTION, count, multiple_of
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.images import read_rgb
 from slimseg.data.problems import ImageProblem
@@ -67,18 +68,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--model", required=True, help="model.onnx, weights.pt or checkpoint.ckpt")
     p.add_argument("--source", required=True, help="an image, a folder of images or a video")
-    p.add_argument("--conf", type=float, default=PREDICT_CONF, help="score threshold")
-    p.add_argument("--iou", type=float, default=NMS_IOU, help="NMS IoU threshold")
+    p.add_argument("--conf", type=FRACTION, default=PREDICT_CONF, help="score threshold")
+    p.add_argument("--iou", type=FRACTION, default=NMS_IOU, help="NMS IoU threshold")
     p.add_argument(
         "--imgsz",
-        type=int,
+        type=multiple_of(),
         nargs="+",
         default=None,
         help="network input H [W] (default: the model's; static ONNX graphs only run at theirs)",
     )
     p.add_argument("--backend", default="auto", choices=BACKENDS)
-    p.add_argument("--threads", type=int, default=None, help="intra-op CPU threads")
-    p.add_argument("--max-det", type=int, default=MAX_DET, help="detections kept per frame")
+    p.add_argument("--threads", type=count(0), default=None, help="intra-op CPU threads")
+    p.add_argument("--max-det", type=count(1), default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument(
@@ -91,7 +92,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--keypoints",
-        type=int,
+        type=count(1),
         default=1000,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )
