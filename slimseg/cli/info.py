@@ -12,6 +12,7 @@ from slimseg.eval.complexity import Complexity, count_params, measure
 from slimseg.eval.paper import TABLE2, TABLE2_IMGSZ, TABLE2_NUM_CLASSES
 from slimseg.models.registry import build_model, list_models
 from slimseg.utils.table import format_table
+from slimseg.utils.text import printable
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -72,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _print_one(model: nn.Module, c: Complexity) -> None:
     spec = model.spec
-    print(f"{spec.name}: {spec.description}")
+    print(printable(f"{spec.name}: {spec.description}"))  # a user's spec file
     print(f"  classes {spec.num_classes}, input {c.imgsz[0]}x{c.imgsz[1]}, spec hash {spec.hash}")
     rows = [
         ("params", c.params),

@@ -100,21 +100,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _read_image(path: Path) -> np.ndarray | None:
-    """RGB ``uint8 [h, w, 3]`` (the shared image reader), or ``None`` if it cannot be read."""
-    try:
-        return read_rgb(path)
-    except ImageProblem:
-        return None
-
-
 def _image_frames(paths: list[Path]) -> Iterator[tuple[str, str, np.ndarray | None]]:
-    """``(stem, source path, RGB or None)`` per image; duplicate stems get their suffix."""
+    """``(stem, source path, RGB)`` per image; duplicate stems get their suffix. An image that
+    cannot be read comes as ``(stem, "<path>: <why>", None)`` (the skip report names both)."""
     stems = [p.stem for p in paths]
     for path, stem in zip(paths, stems, strict=True):
         if stems.count(stem) > 1:  # a.png and a.jpg: keep both
             stem = f"{stem}_{path.suffix[1:].lower()}"
-        yield stem, str(path), _read_image(path)
+        try:
+            image, source = read_rgb(path), str(path)
+        except ImageProblem as e:
+            image, source = None, str(e)
+        yield stem, source, image
 
 
 def _video_frames(path: Path) -> Iterator[tuple[str, str, np.ndarray | None]]:
