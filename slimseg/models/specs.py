@@ -207,7 +207,8 @@ class ModelSpec:
                 raise SpecError(f"{self.name}: {name}={value!r} is not one of {list(valid)}")
         if not 1 <= self.num_classes <= MAX_CLASSES:
             raise SpecError(
-                f"{self.name}: num_classes must be in 1..{MAX_CLASSES}, got {self.num_classes}"
+                f"{self.name}: num_classes must be >= 1 and <= {MAX_CLASSES}, "
+                f"got {self.num_classes}"
             )
         if self.family == "yolov8" and self.scale is None:
             raise SpecError(f"{self.name}: yolov8 specs need a 'scale' section")
