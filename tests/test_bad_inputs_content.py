@@ -368,3 +368,25 @@ def test_error_line_escapes_a_path_from_data_yaml(env: Env, tmp_path: Path, capf
     argv = ["data", "show", "--data", str(data), "--out", str(tmp_path / "s.png")]
     printed = _escaped_run(argv, capfd)
     assert "\x1b" not in printed and "train/\\x1b[2J\\x1b[HOK.json" in printed, printed
+
+
+def test_lightning_device_banners_are_held_while_the_trainer_is_built(capfd) -> None:
+    import logging
+
+    import lightning as L
+
+    from slimseg.engine.banners import BANNER_LOGGERS, quiet_device_banners
+
+    def build() -> str:
+        capfd.readouterr()
+        L.Trainer(accelerator="cpu", devices=1, logger=False, enable_checkpointing=False,
+                  enable_progress_bar=False, enable_model_summary=False)  # fmt: skip
+        printed = capfd.readouterr()
+        return printed.out + printed.err
+
+    assert "GPU available" in build()  # Lightning's own behaviour, outside the block
+    with quiet_device_banners():
+        held = build()
+    assert "GPU available" not in held and "TPU available" not in held, held
+    assert all(not logging.getLogger(name).filters for name in BANNER_LOGGERS)
+    assert "GPU available" in build()  # the loggers are as they were

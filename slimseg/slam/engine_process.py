@@ -126,23 +126,24 @@ def run_orbslam3_isolated(
     send.close()  # the child holds the only writer: its death reads as EOF here
     try:
         msg = _receive(recv, timeout_s)
+    except BaseException:  # Ctrl-C while waiting: the run goes with the caller
+        child.kill()
+        child.join()
+        raise
     finally:
         recv.close()
     if msg is _TIMEOUT:
         child.kill()
         child.join()
-        log.warning("ORB-SLAM3 run %d killed after %g s", run, timeout_s)
         return RunFailure(f"engine timed out after {timeout_s:g} s (killed)")
     child.join(EXIT_GRACE_S)
     if child.is_alive():  # it closed its pipe but does not exit: stuck in shutdown
         child.kill()
         child.join()
-        log.warning("ORB-SLAM3 run %d hung on exit and was killed", run)
+        log.warning("ORB-SLAM3 run %d hung on exit and was killed (its result is kept)", run)
     log.debug("ORB-SLAM3 run %d: child process %.2f s", run, time.perf_counter() - t0)
     if msg is None:
-        reason = f"engine crashed ({_exit_reason(child.exitcode)})"
-        log.warning("ORB-SLAM3 run %d: %s", run, reason)
-        return RunFailure(reason)
+        return RunFailure(f"engine crashed ({_exit_reason(child.exitcode)})")
     if msg[0] == "error":
         return RunFailure(f"engine error: {msg[1]}")
     _, trajectory, states, ms, late = msg
