@@ -13,7 +13,7 @@ import argparse
 import math
 from collections.abc import Callable
 
-STRIDE = 32  # the largest feature-map stride of every model: image sides are multiples of it
+from slimseg.deploy.preprocess import MAX_STRIDE as STRIDE  # image sides are multiples of it
 
 
 def count(low: int = 1, high: int | None = None) -> Callable[[str], int]:
