@@ -290,6 +290,7 @@ def test_int8_onnxruntime_gate_refuses(setup, tmp_path: Path, capsys, monkeypatc
     assert not out.exists() and list(out.parent.iterdir()) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target", ["tensorrt", "onnxruntime"])
 def test_entropy_calibration_is_not_minmax(
     setup, tmp_path: Path, target: str, monkeypatch: pytest.MonkeyPatch
