@@ -31,7 +31,8 @@ from slimseg.deploy.metadata import build_metadata, to_metadata_props
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
-NAMES = ["person", "chair"]
+NAMES = ["person", "dog", "sports ball", "bottle", "chair", "tv"]  # the synthetic data's
+MOBILITY = [1.0, 0.75, 0.75, 0.5, 0.25, 0.0]
 IMGSZ = 64
 ESC = "\x1b[2J\x1b[H"  # clear the screen, cursor home: then a fake verdict could follow
 SPEC = Path(__file__).parents[1] / "slimseg" / "configs" / "models" / "yolov8n-seg.yaml"
@@ -118,9 +119,9 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Env:
     root = tmp_path_factory.mktemp("bad_content")
     generate(root / "d", 2, 1, IMGSZ, 0, sequences=1, frames=8, seq_size=(96, 64), progress=False)
     model = build_model("yolov8n-seg", num_classes=len(NAMES)).eval()
-    info = WeightsInfo(model.spec, NAMES, [1.0, 0.0], train_config={"imgsz": IMGSZ})
+    info = WeightsInfo(model.spec, NAMES, MOBILITY, train_config={"imgsz": IMGSZ})
     detector = build_model("yolov8n", num_classes=len(NAMES)).eval()
-    meta = build_metadata(detector, NAMES, [1.0, 0.0], (IMGSZ, IMGSZ))
+    meta = build_metadata(detector, NAMES, MOBILITY, (IMGSZ, IMGSZ))
     return Env(
         root=root,
         seq=root / "d" / "sequences" / "seq_000",
