@@ -207,7 +207,7 @@ def slam_eval_truncated_vocabulary(env: Env, case: Path) -> tuple[list[str], str
             str(cut), "--runs", "1", "--modes", "raw", "--quiet"], "ORBvoc_cut.txt"  # fmt: skip
 
 
-def demo_vocabulary_nan_weight(env: Env, case: Path) -> tuple[list[str], str]:
+def slam_eval_vocabulary_nan_weight(env: Env, case: Path) -> tuple[list[str], str]:
     pytest.importorskip("evo", reason="the [slam] extra")
     pytest.importorskip("pyorbslam3", reason="the [slam] extra")
     lines = env.vocab.read_text().splitlines()
@@ -291,7 +291,7 @@ CASES_B = [
     slam_eval_png_bomb_frame,
     pixel_cap_env_not_a_number,
     slam_eval_truncated_vocabulary,
-    demo_vocabulary_nan_weight,
+    slam_eval_vocabulary_nan_weight,
 ]
 CASE_ENV = {"pixel_cap_env_not_a_number": {"SLIMSEG_MAX_IMAGE_PIXELS": "lots"}}
 CASE_EXIT = {"predict_png_bomb": 1}  # predict skips unreadable frames, then exits 1
