@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slimseg.cli.arg_types import count, multiple_of, number
+from slimseg.cli.arg_types import count, number
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
@@ -30,9 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "the checks hold; otherwise the command fails and leaves nothing.",
     )
     p.add_argument("--weights", required=True, help="weights .pt/.ckpt, or a model name")
-    p.add_argument(
-        "--imgsz", type=multiple_of(), nargs="+", default=[640], help="H [W], multiples of 32"
-    )
+    p.add_argument("--imgsz", type=int, nargs="+", default=[640], help="H [W], multiples of 32")
     p.add_argument("--nc", type=count(1), default=None, help="classes, when --weights is a name")
     p.add_argument("--half", action="store_true", help="FP16 weights, compute, input, outputs")
     p.add_argument("--dynamic", action="store_true", help="dynamic batch, height and width")

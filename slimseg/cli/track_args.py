@@ -80,7 +80,7 @@ def add_rate_args(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--fps",
-        type=number(0),
+        type=float,
         default=None,
         help="--model-thread: replay rate in frames per second (default: the sequence's "
         "timestamps; 0: as fast as the masking goes)",
