@@ -68,3 +68,23 @@ def test_crashed_killed_and_hung_runs_cost_one_run_each(
     with open(tmp_path / "runs.csv") as f:
         errors = [row["error"] for row in csv.DictReader(f)]
     assert errors == ["", outcome[2], outcome[3], outcome[4], ""]
+
+
+def test_frames_spill_to_files_when_shared_memory_is_small(
+    sequence: tuple[TumSequence, Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A container's /dev/shm (64 MB by default) cannot hold a long sequence: the frames go to
+    .npy files beside the run's outputs, mapped by the child, deleted afterwards."""
+    from slimseg.slam import engine_process
+    from slimseg.slam.conditions import condition_frames
+
+    seq, vocab, settings = sequence
+    monkeypatch.setattr(engine_process, "_shm_room", lambda: 0)
+    frames = condition_frames(seq, Condition("raw", "raw"), FRAMES)
+    with engine_process.SharedFrames(frames, tmp_path) as shared:
+        assert {kind for kind, *_ in shared.spec.values()} == {"file"}
+        run = engine_process.run_orbslam3_isolated(shared, vocab, settings, False,
+                                                   tmp_path / "log", 1.0, 60)  # fmt: skip
+    assert isinstance(run, engine_process.EngineRun), run
+    assert run.states[0] == "OK" and len(run.trajectory) >= FRAMES - 3
+    assert not list(tmp_path.glob(".frames.*"))  # the spill files are gone

@@ -153,7 +153,7 @@ def evaluate_condition(
             result.runs.append(_scored(run_dense(frames, seq.camera), k, n, gt, cfg.fps, folder))
         return result
     timeout = cfg.timeout_s or default_timeout(n, cfg.fps, cfg.realtime, cfg.speed)
-    with SharedFrames(frames) as shared:
+    with SharedFrames(frames, spill=folder) as shared:
         del frames  # the shared copy is what the runs read
         for k in ticks:
             log_path = folder / "orbslam3.log"

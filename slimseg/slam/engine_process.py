@@ -61,41 +61,65 @@ def default_timeout(frames: int, fps: float, realtime: bool, speed: float) -> fl
 
 
 _FIELDS = ("rgb", "depth", "stamp")
+SHM_DIR = Path("/dev/shm")
+SHM_HEADROOM = 0.8  # use at most this share of /dev/shm's free space (containers: often 64 MB)
+Spec = dict[str, tuple[str, str, tuple[int, ...], str]]
+"""per field: ``("shm", block name | "file", .npy path, shape, dtype)``"""
 
 
 class SharedFrames:
-    """One condition's frames in shared memory (see the module docstring); a context
-    manager that frees the blocks on exit. All frames must have the same size."""
+    """One condition's frames where every run's child can map them (see the module
+    docstring): POSIX shared memory, or, when ``/dev/shm`` has not the room (a container's
+    default is 64 MB), ``.npy`` files in ``spill`` (deleted on :meth:`close`). A context
+    manager. All frames must have the same size."""
 
-    def __init__(self, frames: Sequence[EngineFrame]) -> None:
+    def __init__(self, frames: Sequence[EngineFrame], spill: Path) -> None:
         if not frames:
             raise SlimsegError("no frames to track")
-        arrays = {
-            "rgb": np.stack([f.rgb for f in frames]).astype(np.uint8, copy=False),
-            "depth": np.stack([f.depth_m for f in frames]).astype(np.float32, copy=False),
-            "stamp": np.array([f.stamp for f in frames], np.float64),
-        }
-        self.spec: dict[str, tuple[str, tuple[int, ...], str]] = {}
+        n, (h, w) = len(frames), frames[0].rgb.shape[:2]
+        layout = {"rgb": ((n, h, w, 3), np.uint8), "depth": ((n, h, w), np.float32),
+                  "stamp": ((n,), np.float64)}  # fmt: skip
+        total = sum(int(np.prod(shape)) * np.dtype(t).itemsize for shape, t in layout.values())
+        in_memory = _shm_room() >= total
+        self.spec: Spec = {}
         self._blocks: list[shared_memory.SharedMemory] = []
+        self._files: list[Path] = []
         try:
-            for key, a in arrays.items():
-                block = shared_memory.SharedMemory(create=True, size=max(a.nbytes, 1))
-                self._blocks.append(block)
-                np.ndarray(a.shape, a.dtype, buffer=block.buf)[...] = a
-                self.spec[key] = (block.name, a.shape, a.dtype.str)
+            for key, (shape, dtype) in layout.items():
+                target = self._allocate(key, shape, np.dtype(dtype), in_memory, spill)
+                for i, f in enumerate(frames):  # filled in place: no stacked copy
+                    target[i] = (f.rgb, f.depth_m, f.stamp)[_FIELDS.index(key)]
+                del target
         except BaseException:
             self.close()
             raise
 
+    def _allocate(
+        self, key: str, shape: tuple[int, ...], dtype: np.dtype, in_memory: bool, spill: Path
+    ) -> np.ndarray:
+        if in_memory:
+            nbytes = int(np.prod(shape)) * dtype.itemsize
+            block = shared_memory.SharedMemory(create=True, size=max(nbytes, 1))
+            self._blocks.append(block)
+            self.spec[key] = ("shm", block.name, shape, dtype.str)
+            return np.ndarray(shape, dtype, buffer=block.buf)
+        path = spill / f".frames.{os.getpid()}.{key}.npy"
+        self._files.append(path)
+        self.spec[key] = ("file", str(path), shape, dtype.str)
+        return np.lib.format.open_memmap(path, mode="w+", dtype=dtype, shape=shape)
+
     def __len__(self) -> int:
-        return self.spec["stamp"][1][0]
+        return self.spec["stamp"][2][0]
 
     def close(self) -> None:
-        """Free the blocks (children that still map them keep their mapping)."""
+        """Free the blocks and delete the files (children that still map them keep their
+        mapping)."""
         for block in self._blocks:
             block.close()
             block.unlink()
-        self._blocks = []
+        for path in self._files:
+            path.unlink(missing_ok=True)
+        self._blocks, self._files = [], []
 
     def __enter__(self) -> SharedFrames:
         return self
@@ -185,6 +209,15 @@ def _exit_reason(code: int | None) -> str:
     return f"exit code {code} without a result"
 
 
+def _shm_room() -> int:
+    """Bytes of ``/dev/shm`` this may use (:data:`SHM_HEADROOM` of its free space); where
+    there is no ``/dev/shm`` (macOS, Windows), shared memory is not size-limited that way."""
+    if not SHM_DIR.is_dir():
+        return 1 << 62
+    st = os.statvfs(SHM_DIR)
+    return int(SHM_HEADROOM * st.f_bavail * st.f_frsize)
+
+
 def _fault(run: int) -> str | None:
     """This run's entry of :data:`FAULT_ENV` (``SIGNAL@frame`` or ``hang@frame``), if any."""
     for item in os.environ.get(FAULT_ENV, "").split(","):
@@ -195,7 +228,7 @@ def _fault(run: int) -> str | None:
 
 
 def _child(
-    spec: dict[str, tuple[str, tuple[int, ...], str]],
+    spec: Spec,
     vocab: str,
     settings: str,
     realtime: bool,
@@ -206,12 +239,16 @@ def _child(
 ) -> None:
     """The child's body: map the frames, track, send ``("ok", trajectory, states, ms, late)``
     or ``("error", message)``."""
-    blocks = [shared_memory.SharedMemory(name=spec[k][0]) for k in _FIELDS]
+    blocks, arrays = [], []  # the blocks stay referenced while their arrays are in use
+    for k in _FIELDS:
+        kind, ref, shape, dtype = spec[k]
+        if kind == "shm":
+            blocks.append(shared_memory.SharedMemory(name=ref))
+            arrays.append(np.ndarray(shape, np.dtype(dtype), buffer=blocks[-1].buf))
+        else:
+            arrays.append(np.load(ref, mmap_mode="c", allow_pickle=False))  # writable view
+    rgb, depth, stamp = arrays
     try:
-        rgb, depth, stamp = (
-            np.ndarray(spec[k][1], np.dtype(spec[k][2]), buffer=b.buf)
-            for k, b in zip(_FIELDS, blocks, strict=True)
-        )
         frames: list = [EngineFrame(rgb[i], depth[i], float(stamp[i])) for i in range(len(stamp))]
         if fault:
             frames = _inject(frames, fault)
