@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slimseg.ablate.config import load_ablation_config
+from slimseg.cli.arg_types import count, number
 from slimseg.errors import SlimsegError
 from slimseg.utils.shipped import shipped_names
 
@@ -38,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", default=None, help="data YAML replacing the config's data")
     p.add_argument("--accelerator", default=None, help="cpu | gpu | auto (default: config)")
     p.add_argument("--devices", default=None, help="e.g. 4 for DDP on 4 GPUs (default: config)")
-    p.add_argument("--num-nodes", type=int, default=None)
+    p.add_argument("--num-nodes", type=count(1), default=None)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument(
         "--resume",
@@ -61,12 +62,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument(
         "--gpus-per-run",
-        type=float,
+        type=number(0),
         default=None,
         help="ray: GPUs per run, fractions pack runs onto a GPU, 2+ is DDP inside the run "
         "(default 1 when the cluster has GPUs, else 0)",
     )
-    g.add_argument("--cpus-per-run", type=float, default=None, help="ray: CPUs per run (1)")
+    g.add_argument(
+        "--cpus-per-run", type=number(0, open_low=True), default=None, help="ray: CPUs per run (1)"
+    )
     g.add_argument(
         "--max-retries",
         type=int,
@@ -75,7 +78,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument(
         "--throughput-steps",
-        type=int,
+        type=count(1),
         default=None,
         help="ray: training steps timed per run in the serial measure phase (20)",
     )

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from slimseg.cli.arg_types import count, multiple_of
 from slimseg.deploy.bench import INT8_FORMS, bench_model, machine_info
 from slimseg.deploy.calibration import load_calibration_set
 from slimseg.deploy.int8_placement import INT8_TARGETS
@@ -27,14 +28,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "product) and the load average are printed with the figures (--json: the 'cpu' key).",
     )
     p.add_argument("--model", nargs="+", default=["yolov8s-seg", "yolov8s-seg-gs-rep"])
-    p.add_argument("--nc", type=int, default=20)
-    p.add_argument("--imgsz", type=int, default=640)
-    p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--runs", type=int, default=10)
-    p.add_argument("--warmup", type=int, default=3)
+    p.add_argument("--nc", type=count(1), default=20)
+    p.add_argument("--imgsz", type=multiple_of(), default=640)
+    p.add_argument("--threads", type=count(0), default=2)
+    p.add_argument("--runs", type=count(1), default=10)
+    p.add_argument("--warmup", type=count(0), default=3)
     p.add_argument("--int8", action="store_true", help="add onnxruntime INT8 Q/DQ (needs --calib)")
     p.add_argument("--calib", default=None, help="--int8: DATA.yaml (val split) or image folder")
-    p.add_argument("--calib-images", type=int, default=32, help="--int8: calibration frames")
+    p.add_argument("--calib-images", type=count(1), default=32, help="--int8: calibration frames")
     p.add_argument("--calib-method", default="minmax", choices=CALIB_METHODS)
     p.add_argument(
         "--int8-target",

@@ -12,8 +12,10 @@ import json
 import sys
 from pathlib import Path
 
+from slimseg.cli.arg_types import count
 from slimseg.errors import SlimsegError
 from slimseg.utils.table import format_table
+from slimseg.utils.text import printable
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -78,7 +80,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
     p.add_argument("source", type=Path, help="data yaml, dataset folder or COCO json")
     p.add_argument("--images", type=Path, default=None, help="images folder (json input)")
     p.add_argument("--split", choices=("train", "val"), default=None, help="yaml: one split")
-    p.add_argument("--workers", type=int, default=8, help="image reading threads")
+    p.add_argument("--workers", type=count(1), default=8, help="image reading threads")
     p.add_argument("--strict", action="store_true", help="also fail (exit 1) on warnings")
     p.add_argument("--no-info", action="store_true", help="hide info-level rows")
     p.add_argument("--json", action="store_true", help="print JSON (every file) instead")
@@ -93,7 +95,7 @@ def run_coco_subset(args: argparse.Namespace) -> int:
         args.ann, args.classes, args.out, keep_unlabeled=args.keep_unlabeled, images_dir=args.images
     )
     for w in stats.warnings:
-        print(f"warning: {w}", file=sys.stderr)
+        print(f"warning: {printable(w)}", file=sys.stderr)
     print(
         format_table(
             ["id", "class", "coco_id", "mobility", "instances", "crowd", "images"], stats.rows()
@@ -120,7 +122,7 @@ def run_voc2coco(args: argparse.Namespace) -> int:
     if stats.bad_boxes:
         print(
             f"warning: skipped {len(stats.bad_boxes)} empty boxes, e.g. "
-            + ", ".join(stats.bad_boxes[:5]),
+            + printable(", ".join(stats.bad_boxes[:5])),
             file=sys.stderr,
         )
     print(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slimseg.cli.arg_types import count, multiple_of
 from slimseg.data.augment import load_augment_config
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
@@ -22,10 +23,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--data", required=True, help="dataset config YAML")
     p.add_argument("--augment", default=None, help="augmentation YAML (default: recipe defaults)")
-    p.add_argument("--imgsz", type=int, default=320)
-    p.add_argument("--count", type=int, default=16, help="number of samples")
-    p.add_argument("--columns", type=int, default=4)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--imgsz", type=multiple_of(), default=320)
+    p.add_argument("--count", type=count(1), default=16, help="number of samples")
+    p.add_argument("--columns", type=count(1), default=4)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--val", action="store_true", help="show the validation split, letterbox only")
     p.add_argument("--out", default="runs/data_show.png", help="output PNG")
     p.set_defaults(run=run)

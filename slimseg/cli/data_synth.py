@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slimseg.cli.arg_types import count, number
 from slimseg.data.synth.presets import PRESETS
 
 
@@ -23,18 +24,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder (created)")
     p.add_argument(
         "--train",
-        type=int,
+        type=count(0),
         default=512,
         help="training images (default 512); 0 with --val 0 and --sequences N: sequences only",
     )
-    p.add_argument("--val", type=int, default=128, help="validation images (default 128)")
+    p.add_argument("--val", type=count(0), default=128, help="validation images (default 128)")
     p.add_argument(
         "--imgsz", type=int, default=320, help="image size, square, multiple of 32 (default 320)"
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--sequences", type=int, default=0, help="TUM-style RGB-D sequences (default 0)")
+    p.add_argument("--seed", type=count(0), default=0, help="random seed (default 0)")
     p.add_argument(
-        "--frames", type=int, default=60, help="frames per sequence at 30 Hz (default 60)"
+        "--sequences", type=count(0), default=0, help="TUM-style RGB-D sequences (default 0)"
+    )
+    p.add_argument(
+        "--frames", type=count(1), default=60, help="frames per sequence at 30 Hz (default 60)"
     )
     p.add_argument(
         "--preset",
@@ -47,7 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--exposure-ms",
-        type=float,
+        type=number(0),
         default=None,
         metavar="MS",
         help="shutter time of the sequences' motion blur in milliseconds, 0 to 33.3: camera "
@@ -57,7 +60,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--seq-size",
-        type=int,
+        type=count(1),
         nargs=2,
         default=(640, 480),
         metavar=("W", "H"),
@@ -69,20 +72,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     w.add_argument(
         "--seq-train",
-        type=int,
+        type=count(0),
         default=0,
         metavar="N",
         help="training worlds: short sequences, presets mixed, written under "
         "train_sequences/ with annotations.json and listed as the train split's 'sequences' "
         "(beside --train images, if any); their seeds never meet an evaluation sequence's",
     )
-    w.add_argument("--seq-val", type=int, default=0, metavar="N", help="validation worlds")
+    w.add_argument("--seq-val", type=count(0), default=0, metavar="N", help="validation worlds")
     w.add_argument(
-        "--seq-frames", type=int, default=96, help="frames each world spans at 30 Hz (default 96)"
+        "--seq-frames",
+        type=count(1),
+        default=96,
+        help="frames each world spans at 30 Hz (default 96)",
     )
     w.add_argument(
         "--seq-step",
-        type=int,
+        type=count(1),
         default=6,
         help="write every N-th of them (default 6: 16 frames per world, 0.2 s apart)",
     )

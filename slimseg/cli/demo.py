@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from slimseg.cli.arg_types import count, multiple_of
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import ZooDataset
@@ -51,11 +52,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", default="runs/demo", help="demo folder (data/, train/, plots)")
     p.add_argument("--model", default="yolov8n-seg-gs-rep")
-    p.add_argument("--epochs", type=int, default=None, help="default: the cpu-demo recipe's")
-    p.add_argument("--imgsz", type=int, default=320)
+    p.add_argument("--epochs", type=count(1), default=None, help="default: the cpu-demo recipe's")
+    p.add_argument("--imgsz", type=multiple_of(), default=320)
     p.add_argument(
         "--seq-train",
-        type=int,
+        type=count(0),
         default=DEMO_WORLDS.train,
         help=f"training worlds of the sequence world (default {DEMO_WORLDS.train}: "
         f"{DEMO_WORLDS.train * DEMO_WORLDS.per_world} frames at 640x480, presets mixed, "
@@ -63,18 +64,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--seq-val",
-        type=int,
+        type=count(0),
         default=DEMO_WORLDS.val,
         help=f"validation worlds (default {DEMO_WORLDS.val})",
     )
     p.add_argument(
         "--train-images",
-        type=int,
+        type=count(0),
         default=0,
         help="still images (square collages) mixed into training (default 0)",
     )
-    p.add_argument("--val-images", type=int, default=0, help="still images mixed into val")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--val-images", type=count(0), default=0, help="still images mixed into val")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     g = p.add_argument_group("SLAM stage (export/, slam/, slam.png)")
     g.add_argument("--no-slam", action="store_true", help="stop after the plots")
@@ -84,10 +85,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=sorted(PRESETS),
         help="synthetic sequence preset (default walking_xyz: a moving camera)",
     )
-    g.add_argument("--slam-frames", type=int, default=100, help="sequence frames at 30 Hz")
+    g.add_argument("--slam-frames", type=count(1), default=100, help="sequence frames at 30 Hz")
     g.add_argument(
         "--slam-size",
-        type=int,
+        type=count(1),
         nargs=2,
         default=(640, 480),
         metavar=("W", "H"),
@@ -95,7 +96,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument(
         "--slam-seed",
-        type=int,
+        type=count(0),
         default=None,
         help=f"sequence seed (default --seed + {SLAM_SEED_OFFSET})",
     )

@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from slimseg.cli.arg_types import count
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
@@ -26,6 +27,7 @@ from slimseg.cli.track_args import (
 )
 from slimseg.data.bag_sequence import BagSequence
 from slimseg.data.bag_writer import STORAGES
+from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.mask_bag import MASK_TOPIC, MASKED_TOPIC, write_mask_bag
@@ -80,7 +82,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"bag output: also the colour frames with dynamic pixels black on {MASKED_TOPIC}",
     )
     p.add_argument("--mode", default="fusion", choices=MODES)
-    p.add_argument("--keypoints", type=int, default=1000, help="ORB features per frame")
+    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features per frame")
     add_masking_args(p)
     add_track_args(p)
     add_rate_args(p)
@@ -103,9 +105,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "dynamic/ masks (gt, default without --model)",
     )
     p.add_argument(
-        "--restore-dilation", type=int, default=2, help="px added around the removed region"
+        "--restore-dilation", type=count(0), default=2, help="px added around the removed region"
     )
-    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--threads", type=count(0), default=None)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(run=run)
 
@@ -285,7 +287,7 @@ def _restore(args: argparse.Namespace, seq: Sequence, out: Path, which: str) -> 
 
     def masks(i: int, stamp: float) -> np.ndarray:
         path = folder / mask_name(stamp)
-        m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        m = decode_file(path, cv2.IMREAD_GRAYSCALE)
         if m is None:
             raise SlimsegError(f"missing or unreadable dynamic mask {path}")
         return m

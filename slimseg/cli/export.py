@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slimseg.cli.arg_types import count, number
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
@@ -30,10 +31,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--weights", required=True, help="weights .pt/.ckpt, or a model name")
     p.add_argument("--imgsz", type=int, nargs="+", default=[640], help="H [W], multiples of 32")
-    p.add_argument("--nc", type=int, default=None, help="classes, when --weights is a name")
+    p.add_argument("--nc", type=count(1), default=None, help="classes, when --weights is a name")
     p.add_argument("--half", action="store_true", help="FP16 weights, compute, input, outputs")
     p.add_argument("--dynamic", action="store_true", help="dynamic batch, height and width")
-    p.add_argument("--opset", type=int, default=18)
+    p.add_argument("--opset", type=count(1), default=18)
     p.add_argument("--no-simplify", action="store_true", help="skip onnxslim")
     p.add_argument("--int8", action="store_true", help="INT8 Q/DQ, calibrated and gated")
     p.add_argument(
@@ -45,12 +46,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--calib", default=None, help="--int8: DATA.yaml (val split) or image folder")
     p.add_argument(
-        "--calib-images", type=int, default=None, help="--int8: frames (default: up to 300)"
+        "--calib-images", type=count(1), default=None, help="--int8: frames (default: up to 300)"
     )
     p.add_argument("--calib-method", default="minmax", choices=CALIB_METHODS)
     p.add_argument(
         "--int8-max-drop",
-        type=float,
+        type=number(0),
         default=DEFAULT_MAX_DROP,
         help="--int8: most box/mask mAP50-95 points INT8 may lose against FP32",
     )

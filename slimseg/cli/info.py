@@ -7,10 +7,12 @@ import json
 
 from torch import nn
 
+from slimseg.cli.arg_types import count, multiple_of
 from slimseg.eval.complexity import Complexity, count_params, measure
 from slimseg.eval.paper import TABLE2, TABLE2_IMGSZ, TABLE2_NUM_CLASSES
 from slimseg.models.registry import build_model, list_models
 from slimseg.utils.table import format_table
+from slimseg.utils.text import printable
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -23,8 +25,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "s-scale segmenters with the paper's Table II.",
     )
     p.add_argument("--model", default="all", help="variant name, spec YAML path, or 'all'")
-    p.add_argument("--nc", type=int, default=None, help="number of classes (default: the spec's)")
-    p.add_argument("--imgsz", type=int, default=640, help="square input size (multiple of 32)")
+    p.add_argument(
+        "--nc", type=count(1), default=None, help="number of classes (default: the spec's)"
+    )
+    p.add_argument(
+        "--imgsz", type=multiple_of(), default=640, help="square input size (multiple of 32)"
+    )
     p.add_argument("--fused", action="store_true", help="build the model in fused (deploy) form")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(run=run)
@@ -67,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _print_one(model: nn.Module, c: Complexity) -> None:
     spec = model.spec
-    print(f"{spec.name}: {spec.description}")
+    print(printable(f"{spec.name}: {spec.description}"))  # a user's spec file
     print(f"  classes {spec.num_classes}, input {c.imgsz[0]}x{c.imgsz[1]}, spec hash {spec.hash}")
     rows = [
         ("params", c.params),

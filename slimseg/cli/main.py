@@ -35,6 +35,7 @@ from slimseg.cli import (
     val,
 )
 from slimseg.errors import SlimsegError
+from slimseg.utils.text import printable
 from slimseg.version import __version__
 
 DEBUG_ENV = "SLIMSEG_DEBUG"  # set to 1: user errors raise with their traceback (bug reports)
@@ -46,13 +47,14 @@ COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynami
 @contextmanager
 def cli_logging() -> Iterator[None]:
     """While a command runs, the library's INFO lines (``slimseg.*`` loggers) print as plain
-    lines on the current stdout; the logger is put back as it was afterwards (no handler
-    outlives the command, so a library caller's logging is never changed for good). OpenCV's
-    own warnings (``[ WARN:0] ... PNG input buffer is incomplete``) are off meanwhile: the
-    readers report an unreadable file themselves, on one line."""
+    lines on the current stdout (control characters escaped, see :func:`printable`); the
+    logger is put back as it was afterwards (no handler outlives the command, so a library
+    caller's logging is never changed for good). OpenCV's own warnings (``[ WARN:0] ... PNG
+    input buffer is incomplete``) are off meanwhile: the readers report an unreadable file
+    themselves, on one line."""
     logger = logging.getLogger("slimseg")
     handler = logging.StreamHandler(sys.stdout)
-    handler.setFormatter(logging.Formatter("%(message)s"))
+    handler.setFormatter(PrintableFormatter("%(message)s"))
     level, propagate = logger.level, logger.propagate
     logger.addHandler(handler)
     # a library that configured the root logger (onnxruntime's quantizer does) would print
@@ -71,12 +73,20 @@ def cli_logging() -> Iterator[None]:
         logger.propagate = propagate
 
 
+class PrintableFormatter(logging.Formatter):
+    """Log lines with terminal control characters escaped (:func:`printable`): library
+    messages carry file names and class names read from data files."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return printable(super().format(record), newlines=True)
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse with its errors on one line (``slimseg <command>: error: ...``, exit 2)
     instead of the usage block; subcommand parsers are made of this class too."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -125,7 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SlimsegError as exc:
         if debug:
             raise
-        print(f"slimseg {args.command}: error: {exc}", file=sys.stderr)
+        print(f"slimseg {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"slimseg {args.command}: interrupted", file=sys.stderr)
@@ -137,7 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:  # a path the user gave: unreadable input, unwritable output
         if debug:
             raise
-        print(f"slimseg {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        line = printable(describe_os_error(exc))
+        print(f"slimseg {args.command}: error: {line}", file=sys.stderr)
         return 2
 
 

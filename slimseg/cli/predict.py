@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.cli.arg_types import FRACTION, count, multiple_of
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.bag_colour import BagColour
 from slimseg.data.bag_reader import is_bag
@@ -75,18 +76,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "rosbag2 folder; needs slimseg[ros])",
     )
     p.add_argument("--rgb-topic", help="bag --source: the colour topic (default: the only one)")
-    p.add_argument("--conf", type=float, default=PREDICT_CONF, help="score threshold")
-    p.add_argument("--iou", type=float, default=NMS_IOU, help="NMS IoU threshold")
+    p.add_argument("--conf", type=FRACTION, default=PREDICT_CONF, help="score threshold")
+    p.add_argument("--iou", type=FRACTION, default=NMS_IOU, help="NMS IoU threshold")
     p.add_argument(
         "--imgsz",
-        type=int,
+        type=multiple_of(),
         nargs="+",
         default=None,
         help="network input H [W] (default: the model's; static ONNX graphs only run at theirs)",
     )
     p.add_argument("--backend", default="auto", choices=BACKENDS)
-    p.add_argument("--threads", type=int, default=None, help="intra-op CPU threads")
-    p.add_argument("--max-det", type=int, default=MAX_DET, help="detections kept per frame")
+    p.add_argument("--threads", type=count(0), default=None, help="intra-op CPU threads")
+    p.add_argument("--max-det", type=count(1), default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument(
@@ -99,7 +100,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--keypoints",
-        type=int,
+        type=count(1),
         default=1000,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )
@@ -107,21 +108,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _read_image(path: Path) -> np.ndarray | None:
-    """RGB ``uint8 [h, w, 3]`` (the shared image reader), or ``None`` if it cannot be read."""
-    try:
-        return read_rgb(path)
-    except ImageProblem:
-        return None
-
-
 def _image_frames(paths: list[Path]) -> Iterator[tuple[str, str, np.ndarray | None]]:
-    """``(stem, source path, RGB or None)`` per image; duplicate stems get their suffix."""
+    """``(stem, source path, RGB)`` per image; duplicate stems get their suffix. An image that
+    cannot be read comes as ``(stem, "<path>: <why>", None)`` (the skip report names both)."""
     stems = [p.stem for p in paths]
     for path, stem in zip(paths, stems, strict=True):
         if stems.count(stem) > 1:  # a.png and a.jpg: keep both
             stem = f"{stem}_{path.suffix[1:].lower()}"
-        yield stem, str(path), _read_image(path)
+        try:
+            image, source = read_rgb(path), str(path)
+        except ImageProblem as e:
+            image, source = None, str(e)
+        yield stem, source, image
 
 
 def _video_frames(path: Path) -> Iterator[tuple[str, str, np.ndarray | None]]:

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from slimseg.cli.arg_types import count
 from slimseg.data.bag_reader import is_bag
 from slimseg.errors import SlimsegError
 
@@ -35,11 +36,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     v.add_argument("--rgb-topic", help="bag --images: the colour topic (default: the only one)")
     v.add_argument("--out", type=Path, required=True, help="vocabulary text file to write")
-    v.add_argument("--k", type=int, default=10, help="children per node (default 10)")
-    v.add_argument("--levels", type=int, default=4, help="tree depth L (default 4)")
-    v.add_argument("--per-image", type=int, default=1000, help="ORB features per image")
-    v.add_argument("--max-images", type=int, default=300, help="evenly subsample to this many")
-    v.add_argument("--seed", type=int, default=0)
+    v.add_argument("--k", type=count(2, 20), default=10, help="children per node (default 10)")
+    v.add_argument("--levels", type=count(1, 10), default=4, help="tree depth L (default 4)")
+    v.add_argument("--per-image", type=count(1), default=1000, help="ORB features per image")
+    v.add_argument("--max-images", type=count(1), default=300, help="evenly subsample to this many")
+    v.add_argument("--seed", type=count(0), default=0)
     v.set_defaults(run=run_vocab)
 
 

@@ -8,6 +8,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
+from slimseg.cli.arg_types import count, number
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
@@ -81,11 +82,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "comma list such as gt,fusion)",
     )
     p.add_argument("--engine", choices=("orbslam3", "dense"), default="orbslam3")
-    p.add_argument("--runs", type=int, default=3, help="ORB-SLAM3 runs per condition")
+    p.add_argument("--runs", type=count(1), default=3, help="ORB-SLAM3 runs per condition")
     p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
-    p.add_argument("--keypoints", type=int, default=1000, help="ORB features (mask modes)")
+    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features (mask modes)")
     add_masking_args(p)
     add_track_args(p)
     p.add_argument(
@@ -104,18 +105,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="oneway: one key at a time around the --preset/flags settings; grid: every "
         "combination",
     )
-    p.add_argument("--features", type=int, default=1000, help="ORB-SLAM3 ORB features")
+    p.add_argument("--features", type=count(1), default=1000, help="ORB-SLAM3 ORB features")
     p.add_argument(
         "--no-realtime", action="store_true", help="feed frames as fast as tracking goes"
     )
     p.add_argument(
         "--speed",
-        type=float,
+        type=number(0, open_low=True),
         default=1.0,
         help="realtime replay speed (0.5: half the frame rate, so the schedule holds on a "
         "loaded machine; the late column counts frames fed behind it)",
     )
-    p.add_argument("--threads", type=int, default=None, help="model threads")
+    p.add_argument("--threads", type=count(0), default=None, help="model threads")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=run)
 

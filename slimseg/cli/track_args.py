@@ -9,6 +9,7 @@ import argparse
 from collections.abc import Callable
 from typing import TypeVar
 
+from slimseg.cli.arg_types import count, number
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import (
@@ -50,7 +51,7 @@ def add_track_args(p: argparse.ArgumentParser, segment_every: bool = True) -> No
     if segment_every:
         g.add_argument(
             "--segment-every",
-            type=int,
+            type=count(1),
             default=1,
             metavar="N",
             help="run the model on every N-th frame only; the tracks carry the masks between "
@@ -64,7 +65,7 @@ def add_rate_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("model rate (with --track; docs/tracking.md section 6)")
     g.add_argument(
         "--budget-ms",
-        type=float,
+        type=number(0),
         default=0.0,
         metavar="MS",
         help="mean milliseconds per frame to stay within: the model runs on every N-th frame "

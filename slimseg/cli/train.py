@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from slimseg.cli.arg_types import count, multiple_of, number
 from slimseg.data.augment import load_augment_config
 from slimseg.data.config import SPLITS, load_data_config
 from slimseg.engine.config import load_train_config
@@ -33,13 +34,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="augmentation YAML, or the shipped 'augment' (the default values)",
     )
-    p.add_argument("--imgsz", type=int, default=None)
-    p.add_argument("--epochs", type=int, default=None)
-    p.add_argument("--batch", type=int, default=None)
-    p.add_argument("--lr0", type=float, default=None)
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (0 = all cores)")
+    p.add_argument("--imgsz", type=multiple_of(), default=None)
+    p.add_argument("--epochs", type=count(1), default=None)
+    p.add_argument("--batch", type=count(1), default=None)
+    p.add_argument("--lr0", type=number(0, open_low=True), default=None)
+    p.add_argument("--workers", type=count(0), default=None)
+    p.add_argument("--seed", type=count(0), default=None)
+    p.add_argument(
+        "--threads", type=count(0), default=None, help="torch CPU threads (0 = all cores)"
+    )
     p.add_argument(
         "--precision",
         choices=PRECISIONS,
@@ -57,7 +60,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--accelerator", default="auto", help="cpu | gpu | auto")
     p.add_argument("--devices", default="auto", help="number of devices, e.g. 2 (DDP)")
-    p.add_argument("--num-nodes", type=int, default=1)
+    p.add_argument("--num-nodes", type=count(1), default=1)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=run)
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from slimseg.cli.arg_types import FRACTION, count, multiple_of
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import ZooDataset
@@ -52,12 +53,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--data", required=True, help="dataset config YAML")
     p.add_argument("--split", default="val", choices=("val", "train"))
-    p.add_argument("--imgsz", type=int, default=None, help="default: the training imgsz")
-    p.add_argument("--batch", type=int, default=8)
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--imgsz", type=multiple_of(), default=None, help="default: the training imgsz")
+    p.add_argument("--batch", type=count(1), default=8)
+    p.add_argument("--workers", type=count(0), default=2)
     p.add_argument(
         "--conf",
-        type=float,
+        type=FRACTION,
         default=None,
         help=f"score threshold (default {EVAL_CONF} for mAP, {SEMANTIC_CONF} for --semantic)",
     )
@@ -82,7 +83,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="no model: score the ground-truth masks pushed through a RATIO times coarser "
         "mask grid and back (the best masks on that grid can do), with --mask-quality's metrics",
     )
-    p.add_argument("--iou", type=float, default=NMS_IOU)
+    p.add_argument("--iou", type=FRACTION, default=NMS_IOU)
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--save-json", default=None, help="also write COCO results json here")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (network and masks)")

@@ -18,6 +18,8 @@ import struct
 import cv2
 import numpy as np
 
+from slimseg.data.images import decode_bytes
+
 MM_PER_M = 1000.0
 COLOUR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8")
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
@@ -73,7 +75,7 @@ def colour_from_compressed(msg: object) -> np.ndarray:
     fmt = str(msg.format)
     if "compresseddepth" in fmt.lower():
         raise ValueError(f"format {fmt!r} is compressed depth, not colour")
-    bgr = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_COLOR)
+    bgr = decode_bytes(np.asarray(msg.data, np.uint8), cv2.IMREAD_COLOR, f"{fmt} message")
     if bgr is None:
         raise ValueError(f"compressed image (format {fmt!r}) does not decode as JPEG or PNG")
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
@@ -91,7 +93,7 @@ def depth_from_compressed(msg: object) -> np.ndarray:
         if data.size <= COMPRESSED_DEPTH_HEADER:
             raise ValueError(f"compressedDepth message of {data.size} bytes has no image")
         _, qa, qb = struct.unpack_from("<iff", data.tobytes()[:COMPRESSED_DEPTH_HEADER])
-        raw = cv2.imdecode(data[COMPRESSED_DEPTH_HEADER:], cv2.IMREAD_UNCHANGED)
+        raw = decode_bytes(data[COMPRESSED_DEPTH_HEADER:], cv2.IMREAD_UNCHANGED, f"{fmt} message")
         if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
             raise ValueError(f"compressedDepth ({fmt!r}) does not hold a 16-bit PNG")
         if kind == "32FC1":  # quantised inverse depth
@@ -102,7 +104,7 @@ def depth_from_compressed(msg: object) -> np.ndarray:
         if kind in ("16UC1", "mono16", ""):
             return _metres_from_mm(raw)
         raise ValueError(f"compressedDepth of {kind!r}: expected 16UC1 or 32FC1")
-    raw = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    raw = decode_bytes(data, cv2.IMREAD_UNCHANGED, f"{fmt} message")
     if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
         raise ValueError(
             f"compressed depth (format {fmt!r}) is not a 16-bit single-channel PNG; "

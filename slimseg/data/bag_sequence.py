@@ -32,6 +32,7 @@ from slimseg.data.bag_images import (
 )
 from slimseg.data.bag_reader import COMPRESSED, BagFile, Header
 from slimseg.data.bag_topics import TopicChoice, choose_topics
+from slimseg.data.problems import ImageProblem
 from slimseg.data.tum import (
     CALIBRATIONS,
     DEFAULT,
@@ -252,7 +253,7 @@ class BagSequence:
             if msgtype == COMPRESSED:
                 return colour_from_compressed(msg) if colour else depth_from_compressed(msg)
             return colour_from_image(msg) if colour else depth_from_image(msg)
-        except ValueError as e:
+        except (ValueError, ImageProblem) as e:  # ImageProblem: a header over the pixel cap
             kind = "colour" if colour else "depth"
             raise SlimsegError(
                 f"bag {self.root}: {kind} topic {topic} at {stamp:.6f} s: {e}"

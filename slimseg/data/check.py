@@ -33,6 +33,7 @@ from slimseg.data.problems import ERROR, INFO, KINDS, WARNING, ImageProblem, Loa
 from slimseg.data.sequence_split import merge_split
 from slimseg.errors import SlimsegError
 from slimseg.utils.table import format_table
+from slimseg.utils.text import printable
 
 _LEVEL_ORDER = {ERROR: 0, WARNING: 1, INFO: 2}
 
@@ -114,7 +115,7 @@ class CheckReport:
             lines += ["", *(f"  {k}: {KINDS[k][1]}" for k in used if k in KINDS)]
         verdict = "FAILED" if self.errors else "OK"
         lines += ["", f"{verdict}: {self.errors:,} errors, {self.warnings:,} warnings"]
-        return "\n".join(lines)
+        return printable("\n".join(lines), newlines=True)  # file names come from the json
 
     def to_dict(self) -> dict:
         """JSON-ready form: per split, per kind, level, count and every location."""

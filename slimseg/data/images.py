@@ -5,26 +5,96 @@ works), as stored (``cv2.IMREAD_UNCHANGED``; EXIF orientation is *not* applied: 
 annotations refer to the stored pixel grid), then converted to ``uint8 [H, W, 3]`` RGB:
 grayscale replicated, alpha dropped (no compositing), 16-bit mapped by ``round(v / 257)``.
 Depth maps are TUM's ``uint16`` (5000 = 1 m).
+
+Before anything is decoded, the size the file's header declares is checked against a pixel
+cap (:data:`DEFAULT_MAX_PIXELS`, or the ``SLIMSEG_MAX_IMAGE_PIXELS`` environment variable): a
+661-byte PNG may declare 50000 x 50000 pixels, which would take gigabytes to decode.
 """
 
 from __future__ import annotations
 
+import io
+import os
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from slimseg.data.problems import ImageProblem
+from slimseg.errors import SlimsegError
+
+MAX_PIXELS_ENV = "SLIMSEG_MAX_IMAGE_PIXELS"
+DEFAULT_MAX_PIXELS = 100_000_000  # 100 MP: 10000 x 10000; a TUM frame is 0.3 MP
+
+
+def max_image_pixels() -> int:
+    """The pixel cap: ``SLIMSEG_MAX_IMAGE_PIXELS`` (a whole number >= 1) or 100 MP."""
+    text = os.environ.get(MAX_PIXELS_ENV, "").strip()
+    if not text:
+        return DEFAULT_MAX_PIXELS
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise SlimsegError(f"{MAX_PIXELS_ENV}={text!r}: give a whole number of pixels >= 1")
+    return value
+
+
+def check_declared_size(path: Path | str, buf: np.ndarray) -> None:
+    """:class:`ImageProblem` (``unreadable_image``) naming ``path`` and the size its header
+    declares when that is over :func:`max_image_pixels`. Only the header is parsed (Pillow's
+    lazy open); formats Pillow does not know are left to the decoder."""
+    cap = max_image_pixels()
+    size = _header_size(buf)
+    if size is None:
+        return  # not a format Pillow parses (or a broken header): the decoder decides
+    w, h = size
+    if w * h > cap:
+        raise ImageProblem(
+            "unreadable_image",
+            f"{path}: declares {w}x{h} pixels ({w * h / 1e6:.1f} MP), over the {cap / 1e6:g} MP "
+            f"cap (raise it with {MAX_PIXELS_ENV}=N if the image is genuine)",
+        )
+
+
+def _header_size(buf: np.ndarray) -> tuple[int, int] | None:
+    """``(W, H)`` from the header alone: Pillow's format parsers, called directly (no pixel is
+    decoded, and no process-wide warning filter or limit is touched: ``Image.open`` would
+    warn or refuse on its own limits, which are not this cap)."""
+    head = buf[:16].tobytes()
+    for load in (Image.preinit, Image.init):  # the common formats first, then every plugin
+        load()
+        for fmt in Image.ID:
+            factory, accept = Image.OPEN[fmt]
+            if accept is not None and not accept(head):
+                continue
+            try:
+                return factory(io.BytesIO(buf), None).size
+            except (OSError, ValueError, SyntaxError, TypeError, IndexError, EOFError):
+                continue
+    return None
 
 
 def decode_file(path: Path, flags: int) -> np.ndarray | None:
-    """``cv2.imdecode`` of the file's bytes with ``flags``; None if unreadable or empty."""
+    """``cv2.imdecode`` of the file's bytes with ``flags``; None if unreadable or empty.
+    A header over the pixel cap raises :class:`ImageProblem` (:func:`check_declared_size`)."""
+    path = Path(path)
     try:
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError:
         return None
     if buf.size == 0:
         return None
+    return decode_bytes(buf, flags, path)
+
+
+def decode_bytes(buf: np.ndarray, flags: int, source: Path | str) -> np.ndarray | None:
+    """``cv2.imdecode`` of an encoded image's bytes ``uint8 [B]`` (a file's, a bag message's)
+    with ``flags``; None if it does not decode. A header over the pixel cap raises
+    :class:`ImageProblem` naming ``source`` (:func:`check_declared_size`)."""
+    check_declared_size(source, buf)
     return cv2.imdecode(buf, flags)
 
 

@@ -9,6 +9,7 @@ from collections import Counter
 from collections.abc import Iterable
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.text import printable
 
 ERROR, WARNING, INFO = "error", "warning", "info"
 
@@ -81,7 +82,7 @@ class LoadReport(Counter):
             if kind_level(kind) in wanted and n:
                 ex = ", ".join(self.examples.get(kind, [])[:3])
                 lines.append(f"{kind_level(kind)} {kind}: {n}" + (f" (e.g. {ex})" if ex else ""))
-        return "\n".join(lines)
+        return printable("\n".join(lines), newlines=True)  # file names come from the json
 
 
 class ImageProblem(SlimsegError):

@@ -41,7 +41,7 @@ class OnnxModel(nn.Module):
         self.spec: ModelSpec = spec_from_mapping(
             ModelSpec, self.metadata["spec"], f"{self.path} metadata spec"
         )
-        self.runner = OnnxRunner(session)
+        self.runner = OnnxRunner(session, str(self.path))
         self.num_classes = len(self.metadata["names"])
         self.precision = str(self.metadata.get("precision", "fp32"))
 

@@ -139,7 +139,7 @@ class Predictor:
     def _from_onnx(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
         session = cpu_session(path, threads)
         meta = read_session_metadata(path, session)
-        runner = OnnxRunner(session)
+        runner = OnnxRunner(session, str(path))
         static_hw = runner.static_hw
         default = static_hw or parse_imgsz(meta["imgsz"])
         if hw is not None and static_hw is not None and hw != static_hw:

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from slimseg.errors import SlimsegError
 from slimseg.utils.threads import torch_threads
 
 # Output names a slimseg export uses, in the order the runners return them.
@@ -36,6 +37,25 @@ class TorchRunner:
         return pred, proto
 
 
+def check_single_image_input(session: Any, where: str) -> None:
+    """``SlimsegError`` unless the graph takes exactly one input, a float ``[B, 3, H, W]``
+    image (a slimseg export): another graph would fail inside onnxruntime at the first frame."""
+    inputs = session.get_inputs()
+    if len(inputs) != 1:
+        names = ", ".join(f"{i.name} {list(i.shape)}" for i in inputs)
+        raise SlimsegError(
+            f"{where}: the graph takes {len(inputs)} inputs ({names}); a slimseg model takes one "
+            "image [B, 3, H, W]: export it with slimseg export"
+        )
+    inp = inputs[0]
+    shape = list(inp.shape)
+    if inp.type not in ("tensor(float)", "tensor(float16)") or len(shape) != 4 or shape[1] != 3:
+        raise SlimsegError(
+            f"{where}: input {inp.name} is {inp.type} {shape}; a slimseg model takes one float "
+            "image [B, 3, H, W]: export it with slimseg export"
+        )
+
+
 class OnnxRunner:
     """Forward pass of an onnxruntime session (CPU provider).
 
@@ -43,8 +63,9 @@ class OnnxRunner:
     batch, ``None`` when dynamic; ``static_hw``: the static input ``(H, W)`` or ``None``.
     """
 
-    def __init__(self, session: Any) -> None:
+    def __init__(self, session: Any, where: str = "the ONNX model") -> None:
         self.session = session
+        check_single_image_input(session, where)
         inp = session.get_inputs()[0]
         self.input_name = inp.name
         self.dtype = np.float16 if inp.type == "tensor(float16)" else np.float32

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
@@ -156,7 +157,7 @@ def build_cache(
         dets = CachedDetections.pack(d.boxes, d.scores, d.classes, d.masks, d.hw)
         t2 = time.perf_counter()
         truth = None
-        gt = cv2.imread(str(gt_dir / mask_name(stamp)), cv2.IMREAD_GRAYSCALE)
+        gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
         if gt is not None:
             truth = at_keypoints(gt > 0, feats.keypoints)
         cache.frames.append(

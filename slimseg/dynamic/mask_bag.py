@@ -17,6 +17,7 @@ import cv2
 from slimseg.data.bag_reader import Header, stamp_ns
 from slimseg.data.bag_sequence import BagSequence
 from slimseg.data.bag_writer import BagWriter
+from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence
 from slimseg.data.tum import mask_name
 from slimseg.errors import SlimsegError
@@ -47,7 +48,7 @@ def write_mask_bag(
         for i in range(len(seq)):
             stamp = seq.frames[i][0][0]
             path = masks / mask_name(stamp)
-            mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            mask = decode_file(path, cv2.IMREAD_GRAYSCALE)
             if mask is None:
                 raise SlimsegError(f"missing or unreadable dynamic mask {path}")
             head = frame_header(seq, i)

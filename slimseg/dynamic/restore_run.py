@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.restore import (
@@ -173,12 +174,12 @@ def _score(
     depth: np.ndarray,
     t_ours: float,
 ) -> None:
-    truth_bgr = cv2.imread(str(bg_dir / "rgb" / name), cv2.IMREAD_COLOR)
+    truth_bgr = decode_file(bg_dir / "rgb" / name, cv2.IMREAD_COLOR)
     if truth_bgr is None:
         return
     truth = cv2.cvtColor(truth_bgr, cv2.COLOR_BGR2RGB)
     depth_name = Path(seq.frames[i][1][1]).name
-    raw = cv2.imread(str(bg_dir / "depth" / depth_name), cv2.IMREAD_UNCHANGED)
+    raw = decode_file(bg_dir / "depth" / depth_name, cv2.IMREAD_UNCHANGED)
     truth_d = None if raw is None else raw.astype(np.float32) / seq.camera.depth_scale
     region = target.removed
     t0 = time.perf_counter()

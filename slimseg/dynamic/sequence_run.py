@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
@@ -231,7 +232,7 @@ def run_sequence(
                 }
             )
             if report.scores:
-                gt = cv2.imread(str(gt_dir / name), cv2.IMREAD_GRAYSCALE)
+                gt = decode_file(gt_dir / name, cv2.IMREAD_GRAYSCALE)
                 if gt is None:
                     report.skipped.append(str(gt_dir / name))
                 else:

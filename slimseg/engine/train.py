@@ -29,6 +29,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from slimseg.data.augment import AugmentConfig
 from slimseg.data.config import load_data_config
 from slimseg.data.datamodule import SegDataModule
+from slimseg.engine.banners import quiet_device_banners
 from slimseg.engine.config import TrainConfig
 from slimseg.engine.freeze import FreezeModules, frozen_children
 from slimseg.engine.module import ZooModule
@@ -307,38 +308,39 @@ def _train(
             )
         )
     multi = num_nodes > 1 or (devices not in ("auto", 1, "1"))
-    trainer = L.Trainer(
-        max_epochs=cfg.epochs,
-        accelerator=accelerator,
-        devices=devices,
-        num_nodes=num_nodes,
-        strategy="ddp" if multi else "auto",
-        precision=lightning_precision,
-        gradient_clip_val=cfg.grad_clip or None,
-        sync_batchnorm=cfg.sync_bn and multi,
-        logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),
-        callbacks=[
-            # checkpoints/last.ckpt after every epoch, so a killed run loses one epoch at most
-            ModelCheckpoint(
-                dirpath=out / "checkpoints",
-                filename="last",
-                save_top_k=1,
-                every_n_epochs=1,
-                save_on_train_epoch_end=True,  # Lightning's default waits for validation
-                enable_version_counter=False,
-            ),
-            RunWriter(out),
-            *(callbacks or []),
-            *([TQDMProgressBar(refresh_rate=1)] if progress else []),
-        ],
-        check_val_every_n_epoch=cfg.val_every,
-        num_sanity_val_steps=0,
-        log_every_n_steps=5,
-        enable_progress_bar=progress,
-        enable_model_summary=False,
-        default_root_dir=str(out),
-        plugins=[AtomicCheckpointIO()],
-    )
+    with quiet_device_banners():  # never before a data error's one line
+        trainer = L.Trainer(
+            max_epochs=cfg.epochs,
+            accelerator=accelerator,
+            devices=devices,
+            num_nodes=num_nodes,
+            strategy="ddp" if multi else "auto",
+            precision=lightning_precision,
+            gradient_clip_val=cfg.grad_clip or None,
+            sync_batchnorm=cfg.sync_bn and multi,
+            logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),
+            callbacks=[
+                # checkpoints/last.ckpt after every epoch, so a killed run loses one epoch at most
+                ModelCheckpoint(
+                    dirpath=out / "checkpoints",
+                    filename="last",
+                    save_top_k=1,
+                    every_n_epochs=1,
+                    save_on_train_epoch_end=True,  # Lightning's default waits for validation
+                    enable_version_counter=False,
+                ),
+                RunWriter(out),
+                *(callbacks or []),
+                *([TQDMProgressBar(refresh_rate=1)] if progress else []),
+            ],
+            check_val_every_n_epoch=cfg.val_every,
+            num_sanity_val_steps=0,
+            log_every_n_steps=5,
+            enable_progress_bar=progress,
+            enable_model_summary=False,
+            default_root_dir=str(out),
+            plugins=[AtomicCheckpointIO()],
+        )
     with warnings.catch_warnings():
         for message in QUIET_WARNINGS:
             warnings.filterwarnings("ignore", message=message)

@@ -20,6 +20,11 @@ HEAD_KINDS = ("decoupled", "shared-rep", "yolov3")
 NECKS = ("c2f", "slim")
 
 
+MAX_SCALE = 2.0  # compound depth/width multipliers (YOLOv8x: 1.0 / 1.25)
+MAX_CHANNELS = 4096  # any channel count of a spec (reference sizes reach 1024)
+MAX_CLASSES = 65535
+
+
 class SpecError(ConfigError):
     """A model spec is malformed; the message names the file and field."""
 
@@ -34,6 +39,14 @@ class ScaleSpec:
     depth: float
     width: float
     max_channels: int = 1024
+
+    def __post_init__(self) -> None:
+        # checked before anything is allocated: width 64 would ask for 64x the channels
+        for name, value, hi in (("depth", self.depth, MAX_SCALE), ("width", self.width, MAX_SCALE)):
+            if not (math.isfinite(value) and 0 < value <= hi):
+                raise SpecError(f"scale.{name}={value} must be in (0, {hi:g}]")
+        if not 8 <= self.max_channels <= MAX_CHANNELS:
+            raise SpecError(f"scale.max_channels={self.max_channels} must be in 8..{MAX_CHANNELS}")
 
     def channels(self, c: int) -> int:
         """``ceil_to_8(min(c, max_channels) · width)``."""
@@ -98,6 +111,12 @@ class HeadSpec:
     mask_loss: MaskLossSpec = field(default_factory=MaskLossSpec, metadata=_OMIT_AT_DEFAULT)
 
     def __post_init__(self) -> None:
+        sizes = (("reg_max", self.reg_max, 64), ("num_masks", self.num_masks, 256),
+                 ("proto_channels", self.proto_channels, MAX_CHANNELS),
+                 ("hidden", self.hidden, MAX_CHANNELS))  # fmt: skip
+        for name, value, hi in sizes:
+            if not 1 <= value <= hi:
+                raise SpecError(f"head.{name}={value} must be in 1..{hi}")
         if self.proto_stride not in PROTO_STRIDES:
             raise SpecError(
                 f"head.proto_stride={self.proto_stride} is not one of {list(PROTO_STRIDES)}"
@@ -142,8 +161,10 @@ class MSNetSpec:
     def __post_init__(self) -> None:
         for name in ("channels", "embed_dims", "depths", "heads"):
             values = getattr(self, name)
-            if len(values) != 4 or min(values) < 1:
-                raise SpecError(f"msnet.{name}: need 4 positive values (C2..C5), got {values}")
+            if len(values) != 4 or min(values) < 1 or max(values) > MAX_CHANNELS:
+                raise SpecError(
+                    f"msnet.{name}: need 4 values in 1..{MAX_CHANNELS} (C2..C5), got {values}"
+                )
         for dim, heads in zip(self.embed_dims, self.heads, strict=True):
             if dim % heads:
                 raise SpecError(f"msnet.embed_dims {dim} is not divisible by heads {heads}")
@@ -184,8 +205,11 @@ class ModelSpec:
         for name, value, valid in checks:
             if value not in valid:
                 raise SpecError(f"{self.name}: {name}={value!r} is not one of {list(valid)}")
-        if self.num_classes < 1:
-            raise SpecError(f"{self.name}: num_classes must be >= 1, got {self.num_classes}")
+        if not 1 <= self.num_classes <= MAX_CLASSES:
+            raise SpecError(
+                f"{self.name}: num_classes must be >= 1 and <= {MAX_CLASSES}, "
+                f"got {self.num_classes}"
+            )
         if self.family == "yolov8" and self.scale is None:
             raise SpecError(f"{self.name}: yolov8 specs need a 'scale' section")
         if (self.family == "msnet") != (self.msnet is not None):

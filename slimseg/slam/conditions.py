@@ -97,7 +97,7 @@ def condition_frames(
         static = None
         if cond.kind == "masked":
             path = cond.masks / mask_name(stamp)
-            m = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            m = decode_file(path, cv2.IMREAD_GRAYSCALE)
             if m is None:
                 raise SlimsegError(f"missing or unreadable dynamic mask {path}")
             if m.shape != rgb.shape[:2]:

@@ -21,6 +21,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from slimseg.data.images import decode_file
 from slimseg.data.tum import MAX_DT, TumSequence, mask_name, read_trajectory
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
@@ -186,7 +187,7 @@ def restored_condition(
     folder = out / "restore" / cond.name.replace("+", "_").replace(" ", "_")
 
     def masks(i: int, stamp: float) -> np.ndarray:
-        m = cv2.imread(str(cond.masks / mask_name(stamp)), cv2.IMREAD_GRAYSCALE)
+        m = decode_file(cond.masks / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
         if m is None:
             raise SlimsegError(f"missing or unreadable mask {cond.masks / mask_name(stamp)}")
         return m

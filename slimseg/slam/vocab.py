@@ -17,6 +17,7 @@ a file before it reaches ORB-SLAM3, which terminates the process on a malformed 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.images import decode_file
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
 
@@ -109,7 +111,7 @@ def orb_descriptors(
     orb = cv2.ORB_create(nfeatures=per_image, scaleFactor=1.2, nlevels=8)
     descs, owners = [], []
     for i, p in enumerate(tqdm(paths, desc="ORB", unit="img", disable=len(paths) < 20)):
-        gray = p if isinstance(p, np.ndarray) else cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        gray = p if isinstance(p, np.ndarray) else decode_file(p, cv2.IMREAD_GRAYSCALE)
         if gray is None:
             raise SlimsegError(f"cannot read image {p} (slimseg slam vocab --images)")
         _, d = orb.detectAndCompute(gray, None)
@@ -193,14 +195,25 @@ def check_vocabulary(path: str | Path, max_lines: int = CHECK_LINES) -> Vocabula
                 0 < k <= 20 and 1 <= levels <= 10 and 0 <= scoring <= 5 and 0 <= weighting <= 3
             ):
                 raise SlimsegError(f"{path}:1: header values out of DBoW2's range: {head}")
+            internal: set[int] = set()  # nodes declared non-leaf ...
+            parents: set[int] = set()  # ... and the nodes some line names as its parent
             for no, line in enumerate(f, 2):
                 if not line.strip():
                     raise SlimsegError(f"{path}:{no}: empty line (DBoW2 reads it as a node)")
                 nodes += 1
-                if nodes <= max_lines:
-                    words += _check_node(path, no, line, nodes)
-                else:
-                    words += line.split(" ", 2)[1] == "1"
+                check = _check_node if nodes <= max_lines else _check_node_shape
+                parent, leaf = check(path, no, line, nodes)
+                words += leaf
+                if not leaf:
+                    internal.add(nodes)
+                parents.add(parent)
+            childless = sorted(internal - parents)
+            if childless:
+                raise SlimsegError(
+                    f"vocabulary {path}: {len(childless)} inner node(s) without children (first: "
+                    f"node {childless[0]}, line {childless[0] + 1}): the file is truncated or "
+                    "was edited; copy or extract it again"
+                )
     except UnicodeDecodeError:
         raise SlimsegError(f"vocabulary {path} is not a text file (DBoW2 text format)") from None
     except OSError as e:
@@ -210,22 +223,35 @@ def check_vocabulary(path: str | Path, max_lines: int = CHECK_LINES) -> Vocabula
     return VocabularyInfo(path, k, levels, nodes, words)
 
 
-def _check_node(path: Path, no: int, line: str, nid: int) -> bool:
+def _check_node_shape(path: Path, no: int, line: str, nid: int) -> tuple[int, bool]:
+    """A node line's field count, parent, leaf flag and weight (a finite number >= 0); the
+    descriptor bytes are left to :func:`_check_node` (the first lines only: they cost most).
+    Returns the parent id and whether the node is a leaf (a word)."""
     parts = line.split()
     try:
-        if len(parts) != 3 + DESCRIPTOR_BYTES:
-            raise ValueError
-        parent, leaf = int(parts[0]), int(parts[1])
-        byte_values = [int(v) for v in parts[2:-1]]
-        float(parts[-1])
+        parent, leaf, weight = int(parts[0]), int(parts[1]), float(parts[-1])
         if (
-            not 0 <= parent < nid
+            len(parts) != 3 + DESCRIPTOR_BYTES
+            or not 0 <= parent < nid
             or leaf not in (0, 1)
-            or not all(0 <= b < 256 for b in byte_values)
+            or not (math.isfinite(weight) and weight >= 0)
         ):
             raise ValueError
-    except ValueError:
+    except (ValueError, IndexError):
         raise SlimsegError(
-            f"{path}:{no}: expected 'parent is_leaf <32 bytes> weight' with parent < {nid}"
+            f"{path}:{no}: expected 'parent is_leaf <32 bytes> weight' with parent < {nid} "
+            "and a finite weight >= 0"
         ) from None
-    return leaf == 1
+    return parent, leaf == 1
+
+
+def _check_node(path: Path, no: int, line: str, nid: int) -> tuple[int, bool]:
+    """:func:`_check_node_shape` and the 32 descriptor bytes."""
+    parent, leaf = _check_node_shape(path, no, line, nid)
+    parts = line.split()
+    try:
+        if not all(0 <= int(v) < 256 for v in parts[2:-1]):
+            raise ValueError
+    except ValueError:
+        raise SlimsegError(f"{path}:{no}: descriptor bytes must be whole numbers 0..255") from None
+    return parent, leaf

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from slimseg.utils.text import printable
+
 
 def format_table(
     headers: Sequence[str], rows: Sequence[Sequence[object]], markdown: bool = False
 ) -> str:
     """Render ``rows`` under ``headers``; numbers right-aligned, text left-aligned."""
-    cells = [[str(c) for c in headers]] + [[_fmt(c) for c in row] for row in rows]
+    cells = [[printable(c) for c in headers]] + [[printable(_fmt(c)) for c in row] for row in rows]
     numeric = [
         all(isinstance(row[i], (int, float)) for row in rows) if rows else False
         for i in range(len(headers))
