@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import batchnorm_from
+from test_bad_inputs_content import png_bomb
 
 from slimseg.cli.main import main
 from slimseg.data.bag_reader import Header, stamp_ns
@@ -328,6 +329,17 @@ def _backwards(p: Path) -> Path:
     return w.path
 
 
+def _compressed_bomb(p: Path) -> Path:
+    """A CompressedImage whose PNG header declares 50000 x 50000 pixels (the pixel cap)."""
+    bomb = png_bomb(p.with_suffix(".png")).read_bytes()
+    p.with_suffix(".png").unlink()
+    with _bag(p) as w:
+        for i in range(2):
+            w.write_compressed(RGB_TOPIC, Header(stamp_ns(10 + i / 30), "cam"), bomb, "png")
+            _frame(w, DEPTH_TOPIC, 10 + i / 30 + 0.004, "16UC1")
+    return w.path
+
+
 def _truncated(env: Env, p: Path, name: str) -> Path:
     src = env.bags[name]
     data = src.read_bytes()
@@ -347,6 +359,7 @@ BAD = {
     "camera_info of zeros": (lambda e, p: _zero_info(p), [], "uncalibrated camera"),
     "stamps backwards": (lambda e, p: _backwards(p), [], "go backwards"),
     "camera_info of another size": (lambda e, p: _info_of_another_size(p), [], "is for 640x480"),
+    "a compressed frame over the pixel cap": (lambda e, p: _compressed_bomb(p), [], "50000x50000"),
 }
 
 
