@@ -116,7 +116,9 @@ def run(args: argparse.Namespace) -> int:
             "use --restore-mask pred"
         )
     out = Path(args.out)
-    with staged_dir(out) as stage:  # masks/, frames.csv, ... appear complete or not at all
+    inputs = {"--sequence": sequence, "--model": args.model}
+    # masks/, frames.csv, ... appear complete or not at all, never over a user's folder
+    with staged_dir(out, command="dynamic", inputs=inputs) as stage:
         report = run_sequence(
             predictor,
             seq,
