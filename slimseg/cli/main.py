@@ -35,6 +35,7 @@ from slimseg.cli import (
     val,
 )
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import ALLOW_OUTSIDE_ENV, ALLOW_OUTSIDE_FLAG
 from slimseg.version import __version__
 
 DEBUG_ENV = "SLIMSEG_DEBUG"  # set to 1: user errors raise with their traceback (bug reports)
@@ -90,6 +91,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help=f"show the traceback of a user error (for bug reports; or set {DEBUG_ENV}=1)",
     )
+    parser.add_argument(
+        ALLOW_OUTSIDE_FLAG,
+        action="store_true",
+        help="read paths from data files (annotations.json file_name, rgb.txt/depth.txt, "
+        "data.yaml splits) that are absolute or climb out of their root with '..' (refused "
+        f"otherwise; or set {ALLOW_OUTSIDE_ENV}=1)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
     for command in COMMANDS:
         command.add_parser(sub)
@@ -101,6 +109,22 @@ def describe_os_error(exc: OSError) -> str:
     what = exc.strerror or str(exc)
     paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
     return f"{what}: {' -> '.join(paths)}" if paths else what
+
+
+@contextmanager
+def _outside_root(allowed: bool) -> Iterator[None]:
+    """``--allow-outside-root``: :data:`ALLOW_OUTSIDE_ENV` set while the command runs (so
+    data-loader workers and DDP ranks inherit it), put back after."""
+    before = os.environ.get(ALLOW_OUTSIDE_ENV)
+    if allowed:
+        os.environ[ALLOW_OUTSIDE_ENV] = "1"
+    try:
+        yield
+    finally:
+        if allowed and before is None:
+            del os.environ[ALLOW_OUTSIDE_ENV]
+        elif allowed:
+            os.environ[ALLOW_OUTSIDE_ENV] = before
 
 
 def _debug(argv: Sequence[str] | None) -> bool:
@@ -120,7 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         parser.error(str(exc))
     try:
-        with cli_logging():
+        with cli_logging(), _outside_root(args.allow_outside_root):
             return int(args.run(args) or 0)
     except SlimsegError as exc:
         if debug:

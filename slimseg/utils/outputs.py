@@ -189,6 +189,16 @@ def outside_allowed() -> bool:
     return os.environ.get(ALLOW_OUTSIDE_ENV, "") not in ("", "0")
 
 
+def escapes_root(value: str | Path) -> bool:
+    """A relative path from a data file that is absolute or climbs out of the folder it is
+    relative to (``../x``, ``a/../../x``), and outside paths are not allowed."""
+    if outside_allowed():
+        return False
+    p = Path(value).expanduser()
+    norm = os.path.normpath(p)
+    return p.is_absolute() or norm == os.pardir or norm.startswith(os.pardir + os.sep)
+
+
 def inside_root(root: str | Path, value: str | Path, where: str) -> Path:
     """``root / value`` for a path read from a data file (``where``: the file and field).
 
