@@ -28,7 +28,9 @@ Schema::
 
 Every path below ``path`` must lie inside the root (relative without climbing out with ``..``,
 or absolute inside it; ``slimseg --allow-outside-root`` lifts this,
-:func:`slimseg.utils.outputs.inside_root`). A yaml needs a train or val split, or sequences; without a split, ``names`` is required (no
+:func:`slimseg.utils.outputs.inside_root`).
+
+A yaml needs a train or val split, or sequences; without a split, ``names`` is required (no
 json to take them from) and ``split()`` says the file has none. Default names and mobility come
 from the val json (usually the smaller one), else train. Every problem (unknown key, missing
 file or folder, bad names, mobility or sequences) raises :class:`~slimseg.errors.SlimsegError`
