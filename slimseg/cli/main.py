@@ -49,8 +49,9 @@ def cli_logging() -> Iterator[None]:
     """While a command runs, the library's INFO lines (``slimseg.*`` loggers) print as plain
     lines on the current stdout; the logger is put back as it was afterwards (no handler
     outlives the command, so a library caller's logging is never changed for good). OpenCV's
-    own warnings (``[ WARN:0] ... PNG input buffer is incomplete``) are off meanwhile: the
-    readers report an unreadable file themselves, on one line."""
+    own warnings and errors (``[ WARN:0] ... PNG input buffer is incomplete``, ``[ERROR:0]
+    ... IHDR chunk shall be first``) are off meanwhile: the readers report an unreadable file
+    themselves, on one line."""
     logger = logging.getLogger("slimseg")
     handler = logging.StreamHandler(sys.stdout)
     handler.setFormatter(logging.Formatter("%(message)s"))
@@ -62,7 +63,7 @@ def cli_logging() -> Iterator[None]:
     if level == logging.NOTSET:
         logger.setLevel(logging.INFO)
     cv2_level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         yield
     finally:
