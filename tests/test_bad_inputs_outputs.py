@@ -23,6 +23,7 @@ from slimseg.cli.main import main
 from slimseg.data.synth import generate
 from slimseg.data.synth.categories import MOBILITY, NAMES
 from slimseg.deploy.onnx_export import export_onnx
+from slimseg.errors import SlimsegError
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 from slimseg.utils.atomic import staged_dir
@@ -321,6 +322,22 @@ def test_staged_dir_swaps_the_whole_folder(tmp_path: Path, monkeypatch) -> None:
         assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
 
+def test_a_file_dropped_in_while_a_command_runs_is_kept(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    with staged_dir(out, command="t") as stage:
+        (stage / "a.txt").write_text("run 1")
+    with staged_dir(out, command="t") as stage:
+        (stage / "a.txt").write_text("run 2")
+        (out / "notes.txt").write_bytes(USER)  # the user, meanwhile
+    assert (out / "notes.txt").read_bytes() == USER and (out / "a.txt").read_text() == "run 2"
+    assert "notes.txt" not in json.loads((out / MANIFEST).read_text())["entries"]
+    (out / "notes.txt").unlink()
+    with pytest.raises(SlimsegError, match=r"b\.txt appeared"), staged_dir(out) as stage:
+        (stage / "b.txt").write_text("run 3")
+        (out / "b.txt").write_bytes(USER)  # the same name the command writes
+    assert (out / "b.txt").read_bytes() == USER and (out / "a.txt").read_text() == "run 2"
+
+
 # -- class 1: no command deletes or overwrites a user's file in its --out -------------------
 
 
@@ -328,6 +345,7 @@ def _user_file_cases(env: Env, tmp: Path) -> dict[str, tuple[list[str], Path]]:
     """``{command: (argv, the user's file)}``; the file sits in (or at) the command's output."""
     frames = frames_folder(tmp / "frames", ["a.png"])
     seq = Path(shutil.copytree(env.seq, tmp / "seq"))
+    (tmp / "classes.yaml").write_text("classes: [{name: person, coco_id: 1, mobility: 1.0}]\n")
     out = tmp / "out"
     syn = ["data", "synth", "--train", "1", "--val", "1", "--imgsz", "64", "--quiet"]
     val = [
@@ -361,6 +379,23 @@ def _user_file_cases(env: Env, tmp: Path) -> dict[str, tuple[list[str], Path]]:
         "export": ([*export, "--out", str(out / "e" / "m.onnx")], out / "e" / "m.json"),
         "val --save-json": ([*val, "--save-json", str(out / "v.json")], out / "v.json"),
         "slam vocab": ([*vocab, "--out", str(out / "voc.txt")], out / "voc.txt"),
+        "slam-eval --sweep": (
+            [*_slam(seq, out / "w")[:-1], "--gt-instances", "--sweep", "conf=0.3,0.5"],
+            out / "w" / "sweep.md",
+        ),
+        "data coco-subset": (
+            [
+                "data",
+                "coco-subset",
+                "--ann",
+                str(env.data.parent / "val" / "annotations.json"),
+                "--classes",
+                str(tmp / "classes.yaml"),
+                "--out",
+                str(out / "c"),
+            ],
+            out / "c" / "annotations.json",
+        ),
     }
 
 

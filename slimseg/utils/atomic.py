@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import yaml
 
+from slimseg.errors import SlimsegError
 from slimseg.utils.outputs import claim_folder, foreign_entries, refuse_inputs, write_manifest
 
 
@@ -95,11 +96,16 @@ def staged_dir(
 def _publish(stage: Path, path: Path, command: str) -> None:
     """Move the finished ``stage`` to ``path``; an earlier folder there ends up in ``stage``
     (deleted by the caller) after its foreign entries (a race) moved into the new one."""
-    if path.is_dir():
-        for name in foreign_entries(path):  # appeared while the command ran: the user's
-            if not os.path.lexists(stage / name):
-                os.replace(path / name, stage / name)
-    write_manifest(stage, command)
+    foreign = foreign_entries(path) if path.is_dir() else []  # appeared while it ran
+    taken = [name for name in foreign if os.path.lexists(stage / name)]
+    if taken:  # the user's entry would be replaced: keep it, and --out as it was
+        raise SlimsegError(
+            f"{path}: {', '.join(taken)} appeared while the command ran and would be "
+            "replaced; move it and run again"
+        )
+    write_manifest(stage, command)  # lists what the command wrote, nothing else
+    for name in foreign:  # the user's: carried into the new folder
+        os.replace(path / name, stage / name)
     if not path.exists():
         os.rename(stage, path)
     elif not _exchange(stage, path):
