@@ -482,7 +482,8 @@ def test_data_yaml_split_outside_its_root_is_refused(
 ) -> None:
     data = Path(shutil.copytree(env.data.parent, tmp_path / "d"))
     cfg = yaml.safe_load((data / "data.yaml").read_text())
-    cfg["val"]["images"] = "../../elsewhere/images"
+    shutil.copytree(data / "val" / "images", tmp_path / "elsewhere" / "images")  # readable
+    cfg["val"]["images"] = "../elsewhere/images"
     (data / "data.yaml").write_text(yaml.safe_dump(cfg))
     argv = [
         "val",
