@@ -103,11 +103,12 @@ def user_folder(path: Path, *names: str) -> dict[str, bytes | None]:
 
 
 def frames_folder(path: Path, names: list[str]) -> Path:
-    """Images named ``names`` (PNG/JPEG by suffix), 48x64 gradients."""
+    """Images named ``names`` (PNG/JPEG by suffix), 48x64 blocks of random colours."""
     path.mkdir(parents=True, exist_ok=True)
-    img = np.tile(np.linspace(0, 255, 64, dtype=np.uint8), (48, 1))
-    for i, name in enumerate(names):
-        cv2.imwrite(str(path / name), np.dstack([img, img[::-1], np.full_like(img, 40 * i)]))
+    rng = np.random.default_rng(len(names))
+    for name in names:  # blocky noise: ORB finds keypoints in it
+        blocks = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+        cv2.imwrite(str(path / name), cv2.resize(blocks, (64, 48), interpolation=cv2.INTER_NEAREST))
     return path
 
 
@@ -360,7 +361,7 @@ def _user_file_cases(env: Env, tmp: Path) -> dict[str, tuple[list[str], Path]]:
         "0",
         "--json",
     ]
-    vocab = ["slam", "vocab", "--images", str(frames / "a.png"), "--k", "2", "--levels", "1"]
+    vocab = ["slam", "vocab", "--images", str(seq / "rgb" / "*.png"), "--k", "2", "--levels", "1"]
     export = ["export", "--weights", str(env.weights), "--imgsz", "64", "--no-simplify"]
     return {
         "predict": (_predict(env, frames, out / "p"), out / "p" / "notes.txt"),
@@ -380,7 +381,21 @@ def _user_file_cases(env: Env, tmp: Path) -> dict[str, tuple[list[str], Path]]:
         "val --save-json": ([*val, "--save-json", str(out / "v.json")], out / "v.json"),
         "slam vocab": ([*vocab, "--out", str(out / "voc.txt")], out / "voc.txt"),
         "slam-eval --sweep": (
-            [*_slam(seq, out / "w")[:-1], "--gt-instances", "--sweep", "conf=0.3,0.5"],
+            [
+                "slam-eval",
+                "--sequence",
+                str(seq),
+                "--out",
+                str(out / "w"),
+                "--engine",
+                "dense",
+                "--runs",
+                "1",
+                "--gt-instances",
+                "--sweep",
+                "dilation=0,2",
+                "--quiet",
+            ],
             out / "w" / "sweep.md",
         ),
         "data coco-subset": (
