@@ -528,7 +528,7 @@ def test_vocab_symlink_loop_counts_each_frame_once(
 # -- class 4: outputs never written in place ------------------------------------------------
 
 
-def test_interrupted_dump_raw_leaves_the_users_folder_as_it_was(
+def test_interrupted_dump_raw_leaves_no_half_dump(
     env: Env, tmp_path: Path, capfd: pytest.CaptureFixture[str], monkeypatch
 ) -> None:
     from slimseg.deploy.predictor import Predictor
@@ -536,20 +536,24 @@ def test_interrupted_dump_raw_leaves_the_users_folder_as_it_was(
     frames = frames_folder(tmp_path / "frames", ["1.png", "2.png", "3.png"])
     dump, out = tmp_path / "dump", tmp_path / "out"
     argv = _predict(env, frames, out, "--dump-raw", str(dump))
-    assert run(argv, capfd)[0] == 0
-    assert len(list(dump.glob("*.ssraw"))) == 3 and (dump / "metadata.json").is_file()
-    before_dump, before_out = tree(dump), tree(out)
     real, calls = Predictor.predict, []
 
     def stop_at_frame_two(self, *a, **k):
         calls.append(1)
-        if len(calls) == 2:
+        if len(calls) % 3 == 2:  # the second frame of a run
             raise KeyboardInterrupt
         return real(self, *a, **k)
 
+    with monkeypatch.context() as m:
+        m.setattr(Predictor, "predict", stop_at_frame_two)
+        assert run(argv, capfd)[0] == 130  # Ctrl-C at frame 2 of 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]  # no half dump, no out
+    assert run(argv, capfd)[0] == 0
+    assert len(list(dump.glob("*.ssraw"))) == 3 and (dump / "metadata.json").is_file()
+    before_dump, before_out = tree(dump), tree(out)
+    calls.clear()
     monkeypatch.setattr(Predictor, "predict", stop_at_frame_two)
-    code, *_ = run([*argv, "--keypoints", "50"], capfd)  # frame 1's dump would differ
-    assert code == 130
+    assert run([*argv, "--keypoints", "50"], capfd)[0] == 130  # frame 1's dump would differ
     assert tree(dump) == before_dump and tree(out) == before_out
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dump", "frames", "out"]
 
