@@ -103,12 +103,14 @@ def user_folder(path: Path, *names: str) -> dict[str, bytes | None]:
 
 
 def frames_folder(path: Path, names: list[str]) -> Path:
-    """Images named ``names`` (PNG/JPEG by suffix), 48x64 blocks of random colours."""
+    """Images named ``names`` (PNG/JPEG by suffix), 120x160 blocks of random colours (ORB
+    keypoints at the corners)."""
     path.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(len(names))
     for name in names:  # blocky noise: ORB finds keypoints in it
         blocks = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
-        cv2.imwrite(str(path / name), cv2.resize(blocks, (64, 48), interpolation=cv2.INTER_NEAREST))
+        big = cv2.resize(blocks, (160, 120), interpolation=cv2.INTER_NEAREST)
+        cv2.imwrite(str(path / name), big)
     return path
 
 
