@@ -21,6 +21,7 @@ from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.ops.letterbox import letterbox_image, letterbox_params
+from slimseg.utils.outputs import MANIFEST
 
 NAMES = ["person", "chair", "car"]
 MOBILITY = [1.0, 0.1, 0.8]
@@ -233,7 +234,8 @@ def test_cli_folder(files, tmp_path, capsys):
     assert predict_cli.run(args) == 0
     assert "images/s" in capsys.readouterr().out
     names = sorted(p.name for p in out.iterdir())
-    assert names == [f"img{i}{s}" for i in range(2) for s in (".json", "_mask.png", "_overlay.png")]
+    expected = [f"img{i}{s}" for i in range(2) for s in (".json", "_mask.png", "_overlay.png")]
+    assert names == [MANIFEST, *expected]  # the manifest: slimseg wrote every file
     for i in range(2):
         record = json.loads((out / f"img{i}.json").read_text())
         assert set(record) == {"image", "size", "detections", "timings_ms"}
@@ -259,8 +261,8 @@ def test_cli_skips_unreadable(files, tmp_path, capsys):
     args.max_det = 3
     assert predict_cli.run(args) == 1
     assert "skipped 1 unreadable file(s)" in capsys.readouterr().err
-    assert sorted(p.name for p in out.glob("*.json")) == ["img0.json", "img1.json"]
-    assert not list(out.glob(".*"))  # no temporary files left behind
+    assert sorted(p.name for p in out.glob("[!.]*.json")) == ["img0.json", "img1.json"]
+    assert list(out.glob(".*")) == [out / MANIFEST]  # no temporary files left behind
 
 
 def test_duplicate_stems_keep_both(tmp_path):
@@ -282,7 +284,8 @@ def test_cli_video(files, tmp_path):
     args = _cli("--model", str(files["onnx"]), "--source", str(video), "--out", str(out))
     args.max_det = 3
     assert predict_cli.run(args) == 0
-    assert sorted(p.name for p in out.glob("*.json")) == ["frame_000000.json", "frame_000001.json"]
+    jsons = sorted(p.name for p in out.glob("[!.]*.json"))
+    assert jsons == ["frame_000000.json", "frame_000001.json"]
     record = json.loads((out / "frame_000001.json").read_text())
     assert record["frame"] == 1 and record["size"] == [100, 150]
 

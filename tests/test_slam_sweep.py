@@ -39,6 +39,7 @@ from slimseg.slam.sweep import (
     slice_through,
     sweep_points,
 )
+from slimseg.utils.outputs import MANIFEST
 
 pytest.importorskip("evo", reason="the [slam] extra (make test installs it)")
 
@@ -265,7 +266,8 @@ def test_outputs_are_atomic(seq: Path, tmp_path: Path, monkeypatch, capsys) -> N
     assert main(args) == 2  # an OSError is one line, exit 2, like any bad path
     assert capsys.readouterr().err.strip().endswith("error: disk full")
     left = sorted(p.name for p in out.iterdir())
-    assert not [n for n in left if n.startswith("sweep") or n.startswith(".")], left
+    stray = [n for n in left if n.startswith("sweep") or n.startswith(".")]
+    assert stray == [MANIFEST], left  # the manifest lists what the sweep writes, before it does
 
 
 @pytest.mark.slow

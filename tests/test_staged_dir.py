@@ -10,6 +10,7 @@ import pytest
 from slimseg.cli.main import main
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import staged_dir
+from slimseg.utils.outputs import MANIFEST
 
 
 def _tree(folder: Path) -> dict[str, str]:
@@ -20,30 +21,46 @@ def _tree(folder: Path) -> dict[str, str]:
 
 
 def _earlier_run(out: Path) -> None:
-    (out / "masks").mkdir(parents=True)
-    (out / "masks" / "1.png").write_text("old 1")
-    (out / "masks" / "9.png").write_text("old 9, a frame the new run does not have")
-    (out / "frames.csv").write_text("old csv")
-    (out / "trajectories").mkdir()
-    (out / "trajectories" / "run1.txt").write_text("old")
-    (out / "notes.txt").write_text("the user's own file")
+    with staged_dir(out, command="test") as stage:
+        (stage / "masks").mkdir(parents=True)
+        (stage / "masks" / "1.png").write_text("old 1")
+        (stage / "masks" / "9.png").write_text("old 9, a frame the new run does not have")
+        (stage / "frames.csv").write_text("old csv")
+        (stage / "trajectories").mkdir()
+        (stage / "trajectories" / "run1.txt").write_text("old")
 
 
 def test_a_finished_run_replaces_its_entries_whole(tmp_path: Path) -> None:
     out = tmp_path / "out"
     _earlier_run(out)
-    with staged_dir(out, owned=("trajectories",)) as stage:
+    with staged_dir(out, command="test") as stage:
         assert stage.parent == tmp_path and stage.name.startswith(".out.")
         (stage / "masks").mkdir()
         (stage / "masks" / "1.png").write_text("new 1")
         (stage / "frames.csv").write_text("new csv")
-    assert _tree(out) == {
+    tree = _tree(out)
+    assert MANIFEST in tree
+    del tree[MANIFEST]
+    assert tree == {
         "frames.csv": "new csv",
         "masks": "/",
         "masks/1.png": "new 1",  # the old 9.png went with the old masks/
-        "notes.txt": "the user's own file",  # not the command's: left alone
-    }  # trajectories/ is owned and this run wrote none: an old one must not mix in
+    }  # trajectories/ of the earlier run must not mix in with this one's
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary left
+
+
+def test_a_folder_with_a_users_file_is_refused_before_anything(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    _earlier_run(out)
+    (out / "notes.txt").write_text("the user's own file")
+    before = _tree(out)
+    with (
+        pytest.raises(SlimsegError, match=r"--out .*out holds files slimseg did not write "
+                                          r"\(notes.txt\)"),
+        staged_dir(out),
+    ):  # fmt: skip
+        pytest.fail("the body must not run")
+    assert _tree(out) == before
 
 
 def test_a_failed_run_leaves_the_folder_as_it_was(tmp_path: Path) -> None:

@@ -39,6 +39,7 @@ from slimseg.cli import data_synth
 from slimseg.data.synth import CATEGORIES, sample_style, walking_pose
 from slimseg.data.synth.presets import PRESETS
 from slimseg.data.synth.shapes import draw
+from slimseg.utils.outputs import MANIFEST
 
 REFERENCE = Path(__file__).parent / "reference" / "synth_digests.json"
 # Seed 1 gives default sequences with 3 and 1 walkers and a standing (static) person, and
@@ -88,10 +89,10 @@ def _draw_digests() -> dict[str, str]:
 
 
 def compute_digests(root: Path) -> dict[str, str]:
-    """Write every run under ``root``; ``relative path -> SHA-256`` of each file, plus the
-    ``draw/...`` patch digests."""
+    """Write every run under ``root``; ``relative path -> SHA-256`` of each file (the output
+    manifests aside: they only list the files), plus the ``draw/...`` patch digests."""
     _write_runs(root)
-    files = sorted(p for p in root.rglob("*") if p.is_file())
+    files = sorted(p for p in root.rglob("*") if p.is_file() and p.name != MANIFEST)
     digests = {p.relative_to(root).as_posix(): _sha(_content(p)) for p in files}
     return digests | _draw_digests()
 

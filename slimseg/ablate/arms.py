@@ -18,17 +18,17 @@ spec is named after the arm, so its checkpoints and exports say which arm they a
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from slimseg.errors import SlimsegError
 from slimseg.models.registry import get_spec, list_models
 from slimseg.models.specs import ModelSpec, SpecError, spec_from_mapping
+from slimseg.utils.outputs import check_folder_name
 
 ARM_FIELDS = ("name", "model", "spec")
-ARM_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
 @dataclass(frozen=True)
@@ -102,10 +102,10 @@ def _parse_arm(item: Any, i: int, path: Path, known: set[str]) -> Arm:
     if unknown:
         raise SpecError(f"{where}: unknown field(s) {unknown}; valid fields: {list(ARM_FIELDS)}")
     name = item.get("name")
-    if not isinstance(name, str) or not ARM_NAME.fullmatch(name):
-        raise SpecError(
-            f"{where}: 'name' must be a folder-safe string (letters, digits, . _ -), got {name!r}"
-        )
+    try:
+        check_folder_name(name, str(where))
+    except SlimsegError as exc:
+        raise SpecError(str(exc)) from None
     model = item.get("model", name)
     if model not in known:
         raise SpecError(

@@ -34,6 +34,7 @@ from slimseg.ablate.metrics import DEFAULT_METRICS, resolve_metrics
 from slimseg.engine.config import TrainConfig, load_train_config
 from slimseg.errors import ConfigError, SlimsegError
 from slimseg.ops.nms import PREDICT_CONF
+from slimseg.utils.outputs import check_folder_name
 from slimseg.utils.shipped import resolve_config, shipped_names
 from slimseg.utils.strict_dataclass import dataclass_from_mapping
 from slimseg.utils.yaml_io import read_yaml
@@ -193,6 +194,7 @@ def config_from_dict(d: dict, config_hash: str, where: str) -> AblationConfig:
 
 def _check(cfg: AblationConfig, path: Path) -> None:
     """Constraints across fields (the types are checked by ``dataclass_from_mapping``)."""
+    check_folder_name(cfg.name, str(path))  # the default --out is runs/ablate/<name>
     if cfg.seeds is not None and (
         not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds) or min(cfg.seeds) < 0
     ):

@@ -60,6 +60,7 @@ from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec
 from slimseg.utils.atomic import write_json, write_text, write_yaml
+from slimseg.utils.outputs import add_to_manifest, claim_folder
 
 if TYPE_CHECKING:
     from lightning import Callback
@@ -83,9 +84,16 @@ def git_sha() -> str:
     return f"{sha}-dirty" if dirty else sha
 
 
+SWEEP_ENTRIES = ("sweep.json", "data", "variants", "state", "results.csv", "summary.csv",
+                 "results.md", "results.png")  # fmt: skip  # the layout above, top level
+
+
 def prepare_sweep_dir(cfg: AblationConfig, out: Path) -> None:
     """Create ``out`` or check that it holds a sweep of this very config, and that this
-    process can write in it (a clear error before any run starts)."""
+    process can write in it (a clear error before any run starts). A folder holding anything
+    a sweep did not write (a user's ``results.csv``) is refused; the manifest
+    (:mod:`slimseg.utils.outputs`) lists :data:`SWEEP_ENTRIES` before any is written."""
+    claim_folder(out, "--out")
     marker = out / "sweep.json"
     if marker.is_file():
         stored = json.loads(marker.read_text())
@@ -97,6 +105,7 @@ def prepare_sweep_dir(cfg: AblationConfig, out: Path) -> None:
         check_writable(out)
         return
     check_writable(out)
+    add_to_manifest(out, "ablate", SWEEP_ENTRIES)
     write_json(marker, {"hash": cfg.hash, "config": cfg.to_dict(), "source": cfg.source})
 
 

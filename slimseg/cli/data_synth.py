@@ -95,8 +95,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace a previous dataset in --out (deletes only its train/, val/, "
-        "sequences/ and data.yaml)",
+        help="replace a previous dataset in --out (deletes only what its manifest "
+        ".slimseg-outputs.json lists; a folder holding anything else is refused)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)

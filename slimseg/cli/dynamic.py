@@ -41,6 +41,7 @@ from slimseg.dynamic.restore_run import (
 from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
+from slimseg.utils.outputs import refuse_inputs
 from slimseg.utils.table import format_table
 
 
@@ -261,11 +262,14 @@ def _staged_output(
     out: Path, seq: Sequence, bag_out: bool, args: argparse.Namespace
 ) -> Iterator[Path]:
     """A staging folder for the run's files; on a clean exit they move into the ``out``
-    folder, or, for a bag ``out``, the masks are written into the bag (the rest dropped)."""
+    folder, or, for a bag ``out``, the masks are written into the bag (the rest dropped).
+    Neither may be or hold an input; a folder ``out`` only replaces slimseg's own."""
+    inputs = {"--sequence": args.sequence, "--model": args.model}
     if not bag_out:
-        with staged_dir(out) as stage:
+        with staged_dir(out, command="dynamic", inputs=inputs) as stage:
             yield stage
         return
+    refuse_inputs(out, "--out", inputs)
     created = [p for p in (out.parent, *out.parent.parents) if not p.exists()]
     out.parent.mkdir(parents=True, exist_ok=True)
     work = out.parent / stage_name(out.name)

@@ -11,9 +11,11 @@ from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
 from slimseg.deploy.onnx_export import export_onnx
+from slimseg.deploy.onnx_io import sidecar_path
 from slimseg.errors import SlimsegError
 from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_model
+from slimseg.utils.outputs import refuse_inputs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -86,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
     int8_suffix = "-int8" if target == DEFAULT_INT8_TARGET else "-int8-ort"
     suffix = "-fp16" if args.half else int8_suffix if args.int8 else ""
     out = Path(args.out) if args.out else Path("export") / f"{model.spec.name}{suffix}.onnx"
+    inputs = {"--weights": args.weights, "--calib": args.calib, "--int8-val": args.int8_val}
+    for written in (out, sidecar_path(out)):  # the graph and its sidecar
+        refuse_inputs(written, "--out", inputs)
     if args.int8:
         return _run_int8(args, model, out, imgsz, names, mobility)
     report = export_onnx(

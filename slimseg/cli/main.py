@@ -35,6 +35,7 @@ from slimseg.cli import (
     val,
 )
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import ALLOW_OUTSIDE_ENV, ALLOW_OUTSIDE_FLAG
 from slimseg.utils.text import printable
 from slimseg.version import __version__
 
@@ -49,9 +50,9 @@ def cli_logging() -> Iterator[None]:
     """While a command runs, the library's INFO lines (``slimseg.*`` loggers) print as plain
     lines on the current stdout (control characters escaped, see :func:`printable`); the
     logger is put back as it was afterwards (no handler outlives the command, so a library
-    caller's logging is never changed for good). OpenCV's own warnings (``[ WARN:0] ... PNG
-    input buffer is incomplete``) are off meanwhile: the readers report an unreadable file
-    themselves, on one line."""
+    caller's logging is never changed for good). OpenCV's own warnings and errors (``[ WARN:0]
+    ... PNG input buffer is incomplete``, ``[ERROR:0] ... IHDR chunk shall be first``) are off
+    meanwhile: the readers report an unreadable file themselves, on one line."""
     logger = logging.getLogger("slimseg")
     handler = logging.StreamHandler(sys.stdout)
     handler.setFormatter(PrintableFormatter("%(message)s"))
@@ -63,7 +64,7 @@ def cli_logging() -> Iterator[None]:
     if level == logging.NOTSET:
         logger.setLevel(logging.INFO)
     cv2_level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         yield
     finally:
@@ -100,6 +101,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help=f"show the traceback of a user error (for bug reports; or set {DEBUG_ENV}=1)",
     )
+    parser.add_argument(
+        ALLOW_OUTSIDE_FLAG,
+        action="store_true",
+        help="read paths from data files (annotations.json file_name, rgb.txt/depth.txt, "
+        "data.yaml splits) that are absolute or climb out of their root with '..' (refused "
+        f"otherwise; or set {ALLOW_OUTSIDE_ENV}=1)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
     for command in COMMANDS:
         command.add_parser(sub)
@@ -111,6 +119,22 @@ def describe_os_error(exc: OSError) -> str:
     what = exc.strerror or str(exc)
     paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
     return f"{what}: {' -> '.join(paths)}" if paths else what
+
+
+@contextmanager
+def _outside_root(allowed: bool) -> Iterator[None]:
+    """``--allow-outside-root``: :data:`ALLOW_OUTSIDE_ENV` set while the command runs (so
+    data-loader workers and DDP ranks inherit it), put back after."""
+    before = os.environ.get(ALLOW_OUTSIDE_ENV)
+    if allowed:
+        os.environ[ALLOW_OUTSIDE_ENV] = "1"
+    try:
+        yield
+    finally:
+        if allowed and before is None:
+            del os.environ[ALLOW_OUTSIDE_ENV]
+        elif allowed:
+            os.environ[ALLOW_OUTSIDE_ENV] = before
 
 
 def _debug(argv: Sequence[str] | None) -> bool:
@@ -130,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         parser.error(str(exc))
     try:
-        with cli_logging():
+        with cli_logging(), _outside_root(args.allow_outside_root):
             return int(args.run(args) or 0)
     except SlimsegError as exc:
         if debug:

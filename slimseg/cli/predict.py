@@ -7,14 +7,17 @@ Per frame, in ``--out``: ``<stem>_overlay.png`` (masks tinted, boxes and class l
 ``<stem>_classes.png`` (``uint8`` class ids, 0 = background, k + 1 = class k) instead of
 detections, a class-colour overlay, the mask of every non-background pixel and a json with
 the pixel count per class. Video frames are named ``frame_000000`` onwards.
-The files are written into a temporary folder beside ``--out`` and moved into it when the
-last frame is done: a run that fails midway leaves ``--out`` as it was.
+The files are written into a temporary folder beside ``--out`` that takes its place when the
+last frame is done: a run that fails midway leaves ``--out`` as it was. An ``--out`` holding
+files slimseg did not write, or one that is (or contains) ``--source``, is refused
+(:mod:`slimseg.utils.outputs`); output stems never collide.
 
 With ``--dump-raw DIR`` (an ``.onnx`` model) every frame's network input and raw outputs, as
 onnxruntime gave them, also go to ``DIR/<stem>.ssraw`` (:mod:`slimseg.deploy.raw_dump`), with
 the frame size and the ORB keypoints ``slimseg dynamic`` would use; the frame itself goes to
 ``DIR/<stem>.ppm`` and the model's metadata to ``DIR/metadata.json``: the input of the C++
-reference consumer's example (``export/cpp``, docs/cpp_consumer.md).
+reference consumer's example (``export/cpp``, docs/cpp_consumer.md). ``DIR`` is staged like
+``--out``: an interrupted run leaves it as it was.
 
 With ``--track [PRESET]`` (a folder of frames, taken in sorted order, or a video; a single
 image is refused) the frames go through the track stage instead and the outputs are
@@ -28,6 +31,7 @@ import argparse
 import sys
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -52,6 +56,7 @@ from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
+from slimseg.utils.outputs import claim_folder, refuse_inputs, unique_stems
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 STAGES = ("preprocess", "inference", "postprocess")
@@ -109,12 +114,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _image_frames(paths: list[Path]) -> Iterator[tuple[str, str, np.ndarray | None]]:
-    """``(stem, source path, RGB)`` per image; duplicate stems get their suffix. An image that
-    cannot be read comes as ``(stem, "<path>: <why>", None)`` (the skip report names both)."""
-    stems = [p.stem for p in paths]
+    """``(stem, source path, RGB)`` per image; stems never collide (a.png and a.jpg: ``a_png``,
+    ``a_jpg``; :func:`slimseg.utils.outputs.unique_stems`). An image that cannot be read comes
+    as ``(stem, "<path>: <why>", None)`` (the skip report names both)."""
+    stems = unique_stems([p.stem for p in paths], [p.suffix for p in paths])
     for path, stem in zip(paths, stems, strict=True):
-        if stems.count(stem) > 1:  # a.png and a.jpg: keep both
-            stem = f"{stem}_{path.suffix[1:].lower()}"
         try:
             image, source = read_rgb(path), str(path)
         except ImageProblem as e:
@@ -231,15 +235,22 @@ def run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     print(f"{predictor} -> {out_dir}")
     dump_dir = None if args.dump_raw is None else Path(args.dump_raw)
-    if dump_dir is not None:
-        if predictor.backend != "onnxruntime":
-            raise SlimsegError(f"--dump-raw needs an exported .onnx model, not {args.model}")
-        write_json(dump_dir / "metadata.json", predictor.metadata)
+    if dump_dir is not None and predictor.backend != "onnxruntime":
+        raise SlimsegError(f"--dump-raw needs an exported .onnx model, not {args.model}")
+    inputs = _inputs(args)
     sums = dict.fromkeys(STAGES, 0.0)
     done, detections, skipped = 0, 0, []
     start = time.perf_counter()
     bar = tqdm(total=total or None, desc="predict", unit="img", disable=args.quiet)
-    with bar, staged_dir(out_dir) as stage:  # the files appear when every frame is done
+    # the files (and --dump-raw's folder) appear when every frame is done, never over a
+    # folder holding files slimseg did not write
+    with (
+        bar,
+        staged_dir(out_dir, command="predict", inputs=inputs) as stage,
+        _dump_stage(dump_dir, inputs | {"--out": out_dir}) as dump_stage,
+    ):
+        if dump_stage is not None:
+            write_json(dump_stage / "metadata.json", predictor.metadata)
         for index, (stem, source, image) in enumerate(frames):
             bar.update(1)
             if image is None:
@@ -249,8 +260,8 @@ def run(args: argparse.Namespace) -> int:
             pred = predictor.predict(
                 image, conf=args.conf, iou=args.iou, max_det=args.max_det, raw=raw
             )
-            if dump_dir is not None and raw is not None:
-                _dump_frame(dump_dir, stem, image, raw, args.keypoints)
+            if dump_stage is not None and raw is not None:
+                _dump_frame(dump_stage, stem, image, raw, args.keypoints)
             save_prediction(
                 stage,
                 stem,
@@ -272,6 +283,23 @@ def run(args: argparse.Namespace) -> int:
         f"end to end; mean ms per image: {stages}"
     )
     return _report_skipped(skipped)
+
+
+def _inputs(args: argparse.Namespace) -> dict[str, str | None]:
+    """The paths predict reads (an output may neither be nor contain one)."""
+    return {"--source": args.source, "--model": args.model}
+
+
+@contextmanager
+def _dump_stage(dump_dir: Path | None, inputs: dict) -> Iterator[Path | None]:
+    """``--dump-raw``'s staged folder (``None`` without it): complete or absent, like --out,
+    and neither an input nor ``--out`` (nor inside it)."""
+    if dump_dir is None:
+        yield None
+        return
+    refuse_inputs(inputs["--out"], "--out", {"--dump-raw": dump_dir}, folder=True)
+    with staged_dir(dump_dir, "--dump-raw", "predict --dump-raw", inputs) as stage:
+        yield stage
 
 
 def _dump_frame(
@@ -303,6 +331,8 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
     )
     out_dir = Path(args.out)
+    claim_folder(out_dir)
+    refuse_inputs(out_dir, "--out", _inputs(args), folder=True)
     if not args.quiet:
         print(f"{predictor} -> {out_dir}")
         print(f"track stage: {plan.describe()}")

@@ -12,6 +12,7 @@ import numpy as np
 from slimseg.cli.arg_types import count
 from slimseg.data.bag_reader import is_bag
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import claim_file, refuse_inputs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -44,16 +45,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     v.set_defaults(run=run_vocab)
 
 
-def expand_images(patterns: list[str], max_images: int) -> list[Path]:
-    """Files named or matched by ``patterns`` (sorted, unique), evenly thinned to at most
-    ``max_images``. Raises ``SlimsegError`` when nothing matches."""
-    files: set[Path] = set()
+def expand_images(patterns: list[str], max_images: int, out: Path | None = None) -> list[Path]:
+    """Files named or matched by ``patterns`` (sorted; unique by the file they resolve to, so a
+    symlink loop under ``**`` adds nothing), evenly thinned to at most
+    ``max_images``. Raises ``SlimsegError`` when nothing matches or the output ``out`` is one
+    of the matches."""
+    files: dict[Path, Path] = {}  # real file -> the first path naming it
     for pat in patterns:
-        matches = [pat] if Path(pat).is_file() else glob.glob(pat, recursive=True)
-        files.update(Path(m) for m in matches if Path(m).is_file())
+        matches = [pat] if Path(pat).is_file() else sorted(glob.glob(pat, recursive=True))
+        for m in matches:
+            if Path(m).is_file():  # a file reached through several links (a loop) counts once
+                files.setdefault(Path(m).resolve(), Path(m))
     if not files:
         raise SlimsegError(f"--images {' '.join(patterns)} matched no file")
-    paths = sorted(files)
+    paths = sorted(files.values())
+    if out is not None:  # every match, not only those kept: none may be overwritten
+        refuse_inputs(out, "--out", {"--images": paths})
     if max_images < 1:
         raise SlimsegError(f"--max-images {max_images} must be at least 1")
     if len(paths) > max_images:
@@ -77,13 +84,24 @@ def bag_frames(bag: str, rgb_topic: str | None, max_images: int) -> list[np.ndar
     return [cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) for _, _, rgb in frames.frames(keep)]
 
 
+def _is_vocabulary(path: Path) -> bool:
+    """``path`` starts with a DBoW2 header line (four integers): a vocabulary to replace."""
+    try:
+        with open(path, "rb") as f:
+            head = f.readline(200).split()
+    except OSError:
+        return False
+    return len(head) == 4 and all(t.isdigit() for t in head)
+
+
 def run_vocab(args: argparse.Namespace) -> int:
     from slimseg.slam.vocab import build_vocabulary
 
     if len(args.images) == 1 and is_bag(args.images[0]):
         paths = bag_frames(args.images[0], args.rgb_topic, args.max_images)
     else:
-        paths = expand_images(args.images, args.max_images)
+        paths = expand_images(args.images, args.max_images, args.out)
+    claim_file(args.out, "--out", _is_vocabulary, "vocabulary")
     info = build_vocabulary(paths, args.out, args.k, args.levels, args.per_image, args.seed)
     print(
         f"vocabulary {info.path}: {len(paths)} images, {info.nodes} nodes, {info.words} words "

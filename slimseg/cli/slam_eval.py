@@ -158,6 +158,12 @@ def _restore_list(text: str | None, names: list[str]) -> tuple[str, ...]:
     return tuple(wanted)
 
 
+def _inputs(args: argparse.Namespace) -> dict:
+    """The paths slam-eval reads (``--out`` may neither be nor contain one)."""
+    return {"--sequence": args.sequence, "--masks": args.masks, "--model": args.model,
+            "--vocab": args.vocab}  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
     from slimseg.data.bag_poses import ground_truth
     from slimseg.data.sequence_source import open_sequence
@@ -206,9 +212,9 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     out = args.out
-    # every file appears when the session is done; masks/, restore/, trajectories/ of an
-    # earlier session are replaced whole (never mixed into the new table)
-    with staged_dir(out, owned=session.OWNED) as stage:
+    # every file appears when the session is done, replacing an earlier session's folder
+    # whole (never mixed into the new table); a folder holding a user's files is refused
+    with staged_dir(out, command="slam-eval", inputs=_inputs(args)) as stage:
         rows, info = session.run_plan(plan, stage, say)
     from slimseg.slam.report import as_json_rows, table_lines
 

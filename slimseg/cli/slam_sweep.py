@@ -11,6 +11,7 @@ from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import refuse_inputs
 
 DEFAULT_SWEEP_MODE = "fusion"
 
@@ -43,7 +44,7 @@ def run_sweep_command(
     from slimseg.data.tum import TumSequence
     from slimseg.slam.sweep import parse_sweep
     from slimseg.slam.sweep_report import table, write_sweep
-    from slimseg.slam.sweep_run import SweepPlan, run_sweep
+    from slimseg.slam.sweep_run import SweepPlan, claim_sweep_out, run_sweep
 
     spec = parse_sweep(args.sweep)
     mode = sweep_mode(args.modes)
@@ -78,6 +79,9 @@ def run_sweep_command(
         track=track,
         dropout=dropout,
     )
+    inputs = {"--sequence": args.sequence, "--model": args.model, "--vocab": args.vocab}
+    refuse_inputs(args.out, "--out", inputs, folder=True)
+    claim_sweep_out(plan, args.out)  # a user's files in --out are never replaced
     sweeps = run_sweep(plan, args.out, say)
     model = "ground-truth instances" if args.gt_instances else f"model {args.model}"
     rows = write_sweep(args.out, plan, sweeps, model)

@@ -15,7 +15,7 @@ from torch import nn
 
 from slimseg.cli.arg_types import FRACTION, count, multiple_of
 from slimseg.data.coco import CocoDataset
-from slimseg.data.config import load_data_config
+from slimseg.data.config import DataConfig, load_data_config
 from slimseg.data.dataset import ZooDataset
 from slimseg.deploy.metadata import precision_label
 from slimseg.deploy.onnx_model import OnnxModel
@@ -32,6 +32,7 @@ from slimseg.eval.semantic_metrics import format_semantic_table
 from slimseg.eval.validation import SEMANTIC_CONF, is_semantic, validate_dataset
 from slimseg.models.checkpoint import load_weights
 from slimseg.ops.nms import EVAL_CONF, NMS_IOU
+from slimseg.utils.outputs import claim_file, json_with, refuse_inputs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -142,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
             f"--mask-quality scores instance masks: not available for "
             f"{'mIoU/MPA' if semantic else f'the detector {model.spec.name}'}"
         )
+    if args.save_json:  # before the work: never over an input or a file val did not write
+        _claim_save_json(args, data_cfg)
     conf = args.conf if args.conf is not None else (SEMANTIC_CONF if semantic else EVAL_CONF)
     base = CocoDataset.from_config(data_cfg, args.split)
     result, evaluator = validate_dataset(
@@ -186,6 +189,17 @@ def run(args: argparse.Namespace) -> int:
             print("mask quality (mask AP and Boundary AP at three band widths):")
             print(format_mask_quality_table(result["mask_quality"]))
     return 0
+
+
+def _claim_save_json(args: argparse.Namespace, data_cfg: DataConfig) -> None:
+    """``--save-json`` is neither an input (the data yaml, the weights, any split's
+    annotations) nor an existing file other than a COCO results list."""
+    inputs: dict = {"--data": args.data, "--weights": args.weights}
+    for name, split in (("train", data_cfg.train), ("val", data_cfg.val)):
+        if split is not None:
+            inputs[f"the {name} split's annotations"] = [p.annotations for p in split.parts]
+    refuse_inputs(args.save_json, "--save-json", inputs)
+    claim_file(args.save_json, "--save-json", lambda p: json_with(p, list), "COCO results file")
 
 
 def _run_ceiling(args: argparse.Namespace) -> int:

@@ -50,7 +50,7 @@ def bag_to_tum(
     seq = BagSequence(bag, options or BagOptions())
     poses = read_poses(seq.root, pose_topic, pose_frame) if pose_topic else None
     rgb_lines, depth_lines = [], []
-    with staged_dir(Path(out), "--out") as stage:
+    with staged_dir(Path(out), "--out", "data bag2tum", {"--bag": bag}) as stage:
         for i in tqdm(range(len(seq)), desc="bag2tum", disable=not progress):
             rgb, depth, t = seq.load(i)
             (_, rgb_name), (t_depth, depth_name) = seq.frames[i]

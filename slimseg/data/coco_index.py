@@ -17,6 +17,7 @@ from pycocotools import mask as mask_utils
 
 from slimseg.data.problems import LoadReport
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import escapes_root
 
 
 @dataclass(slots=True)
@@ -261,6 +262,9 @@ def build_index(
             continue
         if im["id"] in by_id:
             report.add("duplicate_image_id", f"{im['file_name']} (id {im['id']})")
+            continue
+        if escapes_root(im["file_name"]):  # never read from outside the images folder
+            report.add("path_outside_root", im["file_name"])
             continue
         rec = ImageRecord(im["id"], im["file_name"], im["width"], im["height"])
         by_id[rec.id] = rec

@@ -26,6 +26,10 @@ Schema::
                           # --sequence' read), named by their folder name, or a mapping
                           # {name: DIR}. Written by 'slimseg data synth --sequences N'.
 
+Every path below ``path`` must lie inside the root (relative without climbing out with ``..``,
+or absolute inside it; ``slimseg --allow-outside-root`` lifts this,
+:func:`slimseg.utils.outputs.inside_root`).
+
 A yaml needs a train or val split, or sequences; without a split, ``names`` is required (no
 json to take them from) and ``split()`` says the file has none. Default names and mobility come
 from the val json (usually the smaller one), else train. Every problem (unknown key, missing
@@ -43,6 +47,7 @@ from typing import Any
 
 from slimseg.data.sequence_split import SEQUENCE_ANNOTATIONS, SplitPart
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import inside_root
 from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
@@ -121,9 +126,13 @@ def _err(src: Path, field: str, msg: str) -> SlimsegError:
     return SlimsegError(f"{src}: '{field}': {msg}")
 
 
-def _resolve(base: Path, value: Any, src: Path, field: str) -> Path:
+def _resolve(base: Path, value: Any, src: Path, field: str, confined: bool = True) -> Path:
+    """``value`` against ``base``, resolved; ``confined`` (every field but ``path``, which
+    names the root): refused when it lies outside ``base`` (:func:`inside_root`)."""
     if not isinstance(value, str) or not value.strip():
         raise _err(src, field, f"expected a path string, got {value!r}")
+    if confined:
+        return inside_root(base, value, f"{src}: '{field}'").resolve()
     p = Path(value).expanduser()
     return (p if p.is_absolute() else base / p).resolve()
 
@@ -245,7 +254,7 @@ def load_data_config(path: str | Path) -> DataConfig:
         )
     root = src.parent
     if raw.get("path") is not None:
-        root = _resolve(src.parent, raw["path"], src, "path")
+        root = _resolve(src.parent, raw["path"], src, "path", confined=False)
         if not root.is_dir():
             raise _err(src, "path", f"folder {root} not found")
     splits = {s: _split(raw[s], root, src, s) for s in SPLITS if raw.get(s) is not None}

@@ -21,6 +21,11 @@ KINDS: dict[str, tuple[str, str]] = {
     "duplicate_image_id": (ERROR, "image id used twice (later entries ignored)"),
     "duplicate_annotation_id": (ERROR, "annotation id used twice (breaks COCO evaluation)"),
     "bad_image_entry": (ERROR, "image entry without int id / file_name / width / height"),
+    "path_outside_root": (
+        ERROR,
+        "file_name absolute or climbing out of the images folder with ..: not read "
+        "(slimseg --allow-outside-root reads it)",
+    ),
     "bad_annotation": (ERROR, "annotation without id / image_id / category_id / usable box"),
     "orphan_annotation": (ERROR, "annotation image_id not among the images (dropped)"),
     "unknown_category": (ERROR, "category_id not among the json categories (dropped)"),

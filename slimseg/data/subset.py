@@ -20,12 +20,14 @@ a ``coco_id`` absent from the json falls back to matching by name (with a warnin
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_json
+from slimseg.utils.outputs import claim_file
 from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
 
@@ -201,6 +203,16 @@ def build_subset(
     return out, stats
 
 
+def _is_subset(path: Path) -> bool:
+    """``path`` is a subset this module wrote (its ``info`` records ``slimseg_subset``)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    info = data.get("info") if isinstance(data, dict) else None
+    return isinstance(info, dict) and "slimseg_subset" in info
+
+
 def coco_subset(
     ann: str | Path,
     classes_file: str | Path,
@@ -220,6 +232,7 @@ def coco_subset(
         raise SlimsegError(
             f"--out {out_dir}: would overwrite the source {ann}; pick another folder"
         )
+    claim_file(out_path, "--out", _is_subset, "subset json")  # an earlier subset only
     data = load_coco_json(ann)
     subset, stats = build_subset(data, classes, keep_unlabeled, images_dir, source=str(ann))
     del data

@@ -45,6 +45,7 @@ import yaml
 from slimseg.data.images import decode_file
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
+from slimseg.utils.outputs import inside_root
 
 log = logging.getLogger(__name__)
 
@@ -138,6 +139,7 @@ def read_list(path: str | Path) -> list[Stamped]:
             raise SlimsegError(
                 f"{path}:{no}: expected 'timestamp filename', got {line!r}"
             ) from None
+        inside_root(path.parent, parts[1], f"{path}:{no}")  # never a file outside the sequence
         out.append((t, parts[1]))
     return out
 

@@ -21,6 +21,7 @@ import onnx
 
 from slimseg.deploy.metadata import to_metadata_props
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import claim_file, json_with
 
 log = logging.getLogger(__name__)
 
@@ -30,16 +31,30 @@ def sidecar_path(out: Path) -> Path:
     return out.with_suffix(".json")
 
 
+def owned_export(out: Path) -> bool:
+    """``out`` (a ``.onnx`` path) and its sidecar are an earlier slimseg export: both exist
+    and the sidecar is slimseg's metadata (it records ``slimseg_version``)."""
+    out = out.with_suffix(".onnx")
+    return out.is_file() and json_with(sidecar_path(out), dict, "slimseg_version")
+
+
 def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
     """A temporary folder beside ``out`` (created with its parents), removed on exit with
     whatever is left in it. Use as ``with staging_dir(out) as tmp:``. ``SlimsegError`` first
-    (before any export work) when ``out`` or its sidecar is an existing folder."""
+    (before any export work) when ``out`` or its sidecar is an existing folder, when ``out``
+    does not end in ``.onnx`` (its sidecar would be itself), or when either is an existing
+    file slimseg did not write (:func:`owned_export`): an export replaces an earlier export
+    only, never a user's ``annotations.json`` that happens to share the stem."""
+    if out.suffix.lower() != ".onnx":
+        raise SlimsegError(f"--out {out}: give a file name ending in .onnx")
     for path in (out, sidecar_path(out)):
         if path.is_dir():
             raise SlimsegError(
                 f"--out {out}: {path} is a folder; give the file to write, e.g. "
                 f"{out / 'model.onnx'}"
             )
+    claim_file(out, "--out", owned_export, "ONNX graph")
+    claim_file(sidecar_path(out), "--out", lambda p: owned_export(out), "metadata sidecar")
     out.parent.mkdir(parents=True, exist_ok=True)
     return tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.stem}.")
 

@@ -139,7 +139,7 @@ def track_predict(
     previous: PreviousFrame | None = None
     hw: tuple[int, int] | None = None
     gif: list[Image.Image] = []
-    with staged_dir(out) as folder:  # the files appear complete or not at all
+    with staged_dir(out, command="predict --track") as folder:  # complete or not at all
         video = _Video(folder / "tracks.mp4", fps)
         try:
             for stem, source, rgb in tqdm(

@@ -15,8 +15,10 @@ import csv
 import dataclasses
 import logging
 import os
+import shutil
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import lightning as L
@@ -156,6 +158,32 @@ def next_run_dir(base: Path) -> Path:
 RUN_DIR_ENV = "SLIMSEG_RUN_DIR"
 
 
+@contextmanager
+def unfinished_run_removed(out: Path, own: bool, existed: bool) -> Iterator[None]:
+    """On any exception (a corrupt image, Ctrl-C: Lightning's ``SystemExit``) before the
+    first checkpoint, remove what this run wrote in ``out`` (the folder too when ``existed``
+    is False), so no run folder stays without a checkpoint; a run with ``last.ckpt`` is kept
+    for ``--resume``. ``own``: the folder is this run's (not a resumed one, not a DDP child)."""
+    try:
+        yield
+    except BaseException:
+        if own and not (out / "checkpoints" / "last.ckpt").is_file() and out.is_dir():
+            if existed:  # the user's empty folder: emptied again
+                for entry in out.iterdir():
+                    _remove(entry)
+            else:
+                shutil.rmtree(out, ignore_errors=True)
+            logger.info("removed the unfinished run folder %s (no checkpoint yet)", out)
+        raise
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
 def _is_launcher_process() -> bool:
     """True in the process a user started (not a DDP child re-launched by Lightning)."""
     return os.environ.get("LOCAL_RANK", "0") == "0" and os.environ.get("NODE_RANK", "0") == "0"
@@ -279,73 +307,76 @@ def _train(
         callbacks = [*(callbacks or []), FreezeModules(freeze)]
     if resume:
         check_resume_checkpoint(last_ckpt, module)  # before the run folder is touched
+    fresh = not resume and _is_launcher_process()
+    existed = (out if resume else next_run_dir(out)).exists()
     out = resolve_run_dir(out, resume)
-    if weights and not resume:
-        logger.info(transfer_weights(module, weights))
-    dm = SegDataModule(
-        data_cfg,
-        cfg.imgsz,
-        cfg.batch,
-        cfg.workers,
-        augment or AugmentConfig(),
-        cfg.seed,
-        mask_ratio=target_mask_ratio(spec),
-        semantic=module.semantic,
-        mosaic_epochs=cfg.epochs - cfg.close_mosaic,
-    )
-    if _is_launcher_process():
-        os.environ[RUN_DIR_ENV] = str(out)  # DDP child ranks inherit the folder chosen here
-        (out / "args.yaml").write_text(
-            yaml.safe_dump(
-                {
-                    "model": spec.name if isinstance(model, ModelSpec) else model,
-                    "data": str(data),
-                    "spec": spec.to_dict(),
-                    "train": dataclasses.asdict(cfg),
-                    **({"freeze": list(freeze)} if freeze else {}),
-                },
-                sort_keys=False,
+    with unfinished_run_removed(out, fresh, existed):
+        if weights and not resume:
+            logger.info(transfer_weights(module, weights))
+        dm = SegDataModule(
+            data_cfg,
+            cfg.imgsz,
+            cfg.batch,
+            cfg.workers,
+            augment or AugmentConfig(),
+            cfg.seed,
+            mask_ratio=target_mask_ratio(spec),
+            semantic=module.semantic,
+            mosaic_epochs=cfg.epochs - cfg.close_mosaic,
+        )
+        if _is_launcher_process():
+            os.environ[RUN_DIR_ENV] = str(out)  # DDP child ranks inherit the folder chosen here
+            (out / "args.yaml").write_text(
+                yaml.safe_dump(
+                    {
+                        "model": spec.name if isinstance(model, ModelSpec) else model,
+                        "data": str(data),
+                        "spec": spec.to_dict(),
+                        "train": dataclasses.asdict(cfg),
+                        **({"freeze": list(freeze)} if freeze else {}),
+                    },
+                    sort_keys=False,
+                )
             )
-        )
-    multi = num_nodes > 1 or (devices not in ("auto", 1, "1"))
-    with quiet_device_banners():  # never before a data error's one line
-        trainer = L.Trainer(
-            max_epochs=cfg.epochs,
-            accelerator=accelerator,
-            devices=devices,
-            num_nodes=num_nodes,
-            strategy="ddp" if multi else "auto",
-            precision=lightning_precision,
-            gradient_clip_val=cfg.grad_clip or None,
-            sync_batchnorm=cfg.sync_bn and multi,
-            logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),
-            callbacks=[
-                # checkpoints/last.ckpt after every epoch, so a killed run loses one epoch at most
-                ModelCheckpoint(
-                    dirpath=out / "checkpoints",
-                    filename="last",
-                    save_top_k=1,
-                    every_n_epochs=1,
-                    save_on_train_epoch_end=True,  # Lightning's default waits for validation
-                    enable_version_counter=False,
-                ),
-                RunWriter(out),
-                *(callbacks or []),
-                *([TQDMProgressBar(refresh_rate=1)] if progress else []),
-            ],
-            check_val_every_n_epoch=cfg.val_every,
-            num_sanity_val_steps=0,
-            log_every_n_steps=5,
-            enable_progress_bar=progress,
-            enable_model_summary=False,
-            default_root_dir=str(out),
-            plugins=[AtomicCheckpointIO()],
-        )
-    with warnings.catch_warnings():
-        for message in QUIET_WARNINGS:
-            warnings.filterwarnings("ignore", message=message)
-        trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if resume else None)
-        if module.validated_epoch != cfg.epochs - 1 and not trainer.interrupted:
-            # epochs is not a multiple of val_every: score the final weights anyway
-            trainer.validate(module, datamodule=dm, verbose=False)
+        multi = num_nodes > 1 or (devices not in ("auto", 1, "1"))
+        with quiet_device_banners():  # never before a data error's one line
+            trainer = L.Trainer(
+                max_epochs=cfg.epochs,
+                accelerator=accelerator,
+                devices=devices,
+                num_nodes=num_nodes,
+                strategy="ddp" if multi else "auto",
+                precision=lightning_precision,
+                gradient_clip_val=cfg.grad_clip or None,
+                sync_batchnorm=cfg.sync_bn and multi,
+                logger=TensorBoardLogger(str(out), name="", version="tb", default_hp_metric=False),
+                callbacks=[
+                    # checkpoints/last.ckpt every epoch: a killed run loses one epoch at most
+                    ModelCheckpoint(
+                        dirpath=out / "checkpoints",
+                        filename="last",
+                        save_top_k=1,
+                        every_n_epochs=1,
+                        save_on_train_epoch_end=True,  # Lightning's default waits for validation
+                        enable_version_counter=False,
+                    ),
+                    RunWriter(out),
+                    *(callbacks or []),
+                    *([TQDMProgressBar(refresh_rate=1)] if progress else []),
+                ],
+                check_val_every_n_epoch=cfg.val_every,
+                num_sanity_val_steps=0,
+                log_every_n_steps=5,
+                enable_progress_bar=progress,
+                enable_model_summary=False,
+                default_root_dir=str(out),
+                plugins=[AtomicCheckpointIO()],
+            )
+        with warnings.catch_warnings():
+            for message in QUIET_WARNINGS:
+                warnings.filterwarnings("ignore", message=message)
+            trainer.fit(module, datamodule=dm, ckpt_path=str(last_ckpt) if resume else None)
+            if module.validated_epoch != cfg.epochs - 1 and not trainer.interrupted:
+                # epochs is not a multiple of val_every: score the final weights anyway
+                trainer.validate(module, datamodule=dm, verbose=False)
     return module, out

@@ -39,6 +39,7 @@ from slimseg.slam.session import (
 )
 from slimseg.slam.sweep import SweepPoint, check_mode, sweep_points
 from slimseg.utils.atomic import write_text
+from slimseg.utils.outputs import add_to_manifest, claim_folder
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +104,19 @@ def sequence_labels(sequences: list[TumSequence]) -> list[str]:
 
 def _slug(label: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
+
+
+SWEEP_TABLES = ("sweep.md", "sweep.csv", "sweep.png")  # written beside the sequence folders
+
+
+def claim_sweep_out(plan: SweepPlan, out: Path) -> None:
+    """Refuse an ``out`` holding anything slimseg did not write (``SlimsegError``), then list
+    what the sweep will write there (one folder per sequence, the tables) in its manifest
+    (:mod:`slimseg.utils.outputs`), before any of it is written."""
+    claim_folder(out, "--out")
+    out.mkdir(parents=True, exist_ok=True)
+    folders = [_slug(label) for label in sequence_labels(plan.sequences)]
+    add_to_manifest(out, "slam-eval --sweep", [*folders, *SWEEP_TABLES])
 
 
 def run_sweep(plan: SweepPlan, out: Path, say: Callable[[str], None]) -> list[SequenceSweep]:

@@ -5,18 +5,21 @@ A reader never sees a half-written file, and an interrupted write leaves the pre
 (or nothing) in place. ``atomic_path`` serves writers that take a path (``torch.save``,
 ``Figure.savefig``, ``cv2.imwrite``); the ``write_*`` helpers cover the common formats;
 ``staged_dir`` serves commands whose output is a folder (``slimseg dynamic``'s ``masks/`` and
-``frames.csv``, ``predict``'s files, ``slam-eval``'s ``trajectories/``): a command that fails
-midway leaves its output folder as it was.
+``frames.csv``, ``predict``'s files, ``slam-eval``'s ``trajectories/``): the folder appears
+complete or not at all, replaces only a folder slimseg wrote (:mod:`slimseg.utils.outputs`),
+and a command that fails midway leaves it as it was.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import json
 import os
 import secrets
 import shutil
 import socket
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -25,6 +28,7 @@ import numpy as np
 import yaml
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import claim_folder, foreign_entries, refuse_inputs, write_manifest
 
 
 @contextmanager
@@ -55,35 +59,38 @@ def stage_name(name: str) -> str:
 
 @contextmanager
 def staged_dir(
-    path: str | Path, option: str = "--out", owned: tuple[str, ...] = ()
+    path: str | Path,
+    option: str = "--out",
+    command: str = "",
+    inputs: Mapping[str, str | Path | Iterable[str | Path] | None] | None = None,
 ) -> Iterator[Path]:
-    """A folder output that appears complete or not at all.
+    """A folder output that appears complete or not at all, and replaces only slimseg's own.
 
-    Yields a fresh temporary folder beside ``path`` (``.NAME.<host.pid.token>.tmp``); the
-    caller writes everything there. On a clean exit each top-level entry moves into ``path``
-    (created), replacing the entry of the same name whole (a ``masks/`` folder of an earlier
-    run is swapped, not merged, so no stale file stays). Entries of ``path`` the command did
-    not write are left alone, except those named in ``owned`` (a command's own subfolders),
-    which are deleted so an earlier run's never mix with this one's. On an exception the
-    temporary folder (and any parent folder this call created) is removed and ``path`` is as
-    before. ``SlimsegError`` naming ``option`` when ``path`` exists and is not a folder."""
+    Before anything: ``SlimsegError`` naming ``option`` when ``path`` is a file, holds entries
+    slimseg did not write (:func:`slimseg.utils.outputs.claim_folder`) or is or contains one
+    of ``inputs`` (``{option: path(s)}``, :func:`~slimseg.utils.outputs.refuse_inputs`).
+    Then yields a fresh temporary folder beside ``path`` (``.NAME.<host.pid.token>.tmp``);
+    the caller writes everything there. On a clean exit the manifest
+    (:data:`~slimseg.utils.outputs.MANIFEST`, naming ``command``) is added and the whole
+    folder takes ``path``'s place in one rename (an atomic exchange with an earlier run's
+    folder where the kernel offers one), so no file of an earlier run stays and no reader
+    sees half a run. A file a user dropped into ``path`` while the command ran is carried
+    over, never deleted. A run that wrote nothing changes nothing. On an exception the
+    temporary folder (and any parent folder this call created) is removed and ``path`` is
+    as before."""
     path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise SlimsegError(f"{option} {path} is a file, not a folder: give a folder path")
+    if path.is_symlink():
+        path = path.resolve()  # replace the folder the link points at, keep the link
+    refuse_inputs(path, option, inputs or {}, folder=True)
+    claim_folder(path, option)
     created = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
     path.parent.mkdir(parents=True, exist_ok=True)
-    stage = path.with_name(f".{path.name}.{_tag()}.tmp")
+    stage = path.with_name(stage_name(path.name))
     try:
         stage.mkdir()
         yield stage
-        entries = sorted(stage.iterdir())
-        if entries:  # a run that wrote nothing leaves no folder behind
-            path.mkdir(exist_ok=True)
-        for entry in entries:
-            _move_replacing(entry, path / entry.name)
-        for name in set(owned) - {e.name for e in entries}:
-            if (path / name).is_dir():
-                shutil.rmtree(path / name)
+        if any(stage.iterdir()):  # a run that wrote nothing leaves no folder behind
+            _publish(stage, path, command or "command")
     finally:
         shutil.rmtree(stage, ignore_errors=True)
         for p in created:  # innermost first; only folders this call made and left empty
@@ -91,19 +98,46 @@ def staged_dir(
                 p.rmdir()
 
 
-def _move_replacing(src: Path, dst: Path) -> None:
-    """Rename ``src`` to ``dst``; an existing folder at ``dst`` (or anything where a folder
-    goes) is moved aside first and deleted once ``src`` is in place."""
-    if not os.path.lexists(dst) or not (dst.is_dir() or src.is_dir()):
-        os.replace(src, dst)
-        return
-    old = dst.with_name(f".{dst.name}.{_tag()}.old")
-    os.replace(dst, old)
-    os.replace(src, dst)
-    if old.is_dir() and not old.is_symlink():
-        shutil.rmtree(old)
-    else:
-        old.unlink()
+def _publish(stage: Path, path: Path, command: str) -> None:
+    """Move the finished ``stage`` to ``path``; an earlier folder there ends up in ``stage``
+    (deleted by the caller) after its foreign entries (a race) moved into the new one."""
+    foreign = foreign_entries(path) if path.is_dir() else []  # appeared while it ran
+    taken = [name for name in foreign if os.path.lexists(stage / name)]
+    if taken:  # the user's entry would be replaced: keep it, and --out as it was
+        raise SlimsegError(
+            f"{path}: {', '.join(taken)} appeared while the command ran and would be "
+            "replaced; move it and run again"
+        )
+    write_manifest(stage, command)  # lists what the command wrote, nothing else
+    for name in foreign:  # the user's: carried into the new folder
+        os.replace(path / name, stage / name)
+    if not path.exists():
+        os.rename(stage, path)
+    elif not _exchange(stage, path):
+        old = path.with_name(f".{path.name}.{_tag()}.old")
+        os.replace(path, old)
+        os.replace(stage, path)
+        os.replace(old, stage)
+
+
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); ``False``
+    where the C library or the file system does not offer it."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EXDEV):
+        return False
+    raise OSError(err, os.strerror(err), str(a), None, str(b))
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -24,8 +25,9 @@ from slimseg.data.synth.world_frames import (
 )
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png, write_text
+from slimseg.utils.outputs import claim_folder, read_manifest, write_manifest
 
-_OWNED = ("train", "val", "sequences", *FOLDER.values(), "data.yaml")  # what --overwrite may delete
+_WRITES = ("train", "val", "sequences", *FOLDER.values(), "data.yaml")  # every entry it makes
 
 
 @dataclass
@@ -107,6 +109,8 @@ def _check(
         raise SlimsegError(f"--out {out} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise SlimsegError(f"--out {out} is not empty (pass --overwrite to replace the dataset)")
+    if overwrite:  # only a folder data synth wrote (its manifest lists every entry)
+        claim_folder(out, "--out")
 
 
 def generate(
@@ -130,12 +134,13 @@ def generate(
     Layout: ``out/{train,val}/{images,depth}/NNNNNN.png`` (RGB PNG; uint16 TUM depth),
     ``out/{train,val}/annotations.json`` (COCO, RLE), ``out/sequences/seq_KKK/`` (TUM layout,
     see :mod:`slimseg.data.synth.sequence`) and ``out/data.yaml``, written last. Every file is
-    written atomically. ``overwrite`` first deletes only what this function writes
-    (``train/``, ``val/``, ``sequences/``, ``data.yaml``). ``preset``: the sequences' camera
-    path and walkers (:mod:`slimseg.data.synth.presets`); ``exposure_ms``: the sequences'
-    motion-blur shutter time (None: the preset's default; 0: none). ``train = val = 0`` with
-    sequences writes a sequences-only dataset (no image splits in data.yaml). ``worlds``:
-    training/validation frames rendered from the sequence world
+    written atomically, and a manifest (:data:`slimseg.utils.outputs.MANIFEST`) lists them.
+    ``overwrite`` first deletes what that manifest lists, and refuses a folder holding anything
+    else (a folder that was never a synthetic dataset is never deleted). ``preset``: the
+    sequences' camera path and walkers (:mod:`slimseg.data.synth.presets`); ``exposure_ms``:
+    the sequences' motion-blur shutter time (None: the preset's default; 0: none).
+    ``train = val = 0`` with sequences writes a sequences-only dataset (no image splits in
+    data.yaml). ``worlds``: training/validation frames rendered from the sequence world
     (:mod:`slimseg.data.synth.world_frames`, ``out/{train,val}_sequences/``), the splits'
     ``sequences`` in data.yaml, alone or beside the still images. Raises ``SlimsegError`` on
     bad input.
@@ -147,14 +152,15 @@ def generate(
         out, train, val, imgsz, seed, sequences, frames, seq_size, overwrite, exposure_ms, worlds
     )
     start = time.perf_counter()
-    if overwrite and out.is_dir():
-        for name in _OWNED:
+    if overwrite and out.is_dir():  # claimed by _check: every entry is an earlier synth's
+        for name in sorted(read_manifest(out) or ()):
             p = out / name
-            if p.is_dir():
+            if p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p)
-            elif p.exists():
+            elif os.path.lexists(p):
                 p.unlink()
     out.mkdir(parents=True, exist_ok=True)
+    write_manifest(out, "data synth", _WRITES)  # so an interrupted run can be overwritten
     report = SynthReport(data_yaml=out / "data.yaml", sequences=sequences, frames=frames)
     total = train + val + sequences * frames + (worlds.train + worlds.val) * worlds.per_world
     world_folders: dict[str, list[str]] = {}
@@ -193,6 +199,7 @@ def generate(
         worlds=worlds,
     )
     _write_data_yaml(out, command, train > 0, sequences, world_folders)
+    write_manifest(out, "data synth")  # what --overwrite may delete next time
     report.seconds = time.perf_counter() - start
     return report
 
