@@ -3,8 +3,10 @@
     python benchmarks/masking_logic.py
 
 Five detections (two persons, a dog, a chair, a tv) with instance masks, 1000 keypoints, a
-depth image with people at 2 m before a wall at 4 m; median of 50 calls per mode, plus ORB
-detection of 1000 features on a textured frame for scale. One run, one process.
+depth image with people at 2 m before a wall at 4 m; median of 50 calls per mode, then
+``fusion`` under each masking preset (the ``slimseg`` preset's degrading rule with its static
+support, the FAST corners of ORB-SLAM3's pyramid, counted in), plus ORB detection of 1000
+features on a textured frame for scale. One run, one process.
 """
 
 from __future__ import annotations
@@ -12,8 +14,11 @@ from __future__ import annotations
 import statistics
 import time
 
+import cv2
 import numpy as np
 
+from slimseg.dynamic.degrade import support_points
+from slimseg.dynamic.masking_settings import PRESETS
 from slimseg.dynamic.pipeline import (
     MODES,
     FrameInputs,
@@ -66,6 +71,25 @@ def main() -> None:
         base = base or ms
         print(f"  {mode:18s} {ms:7.2f} ms  ({ms / base:.2f} of seg)")
     frame = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    # a textured frame with a rendered frame's corner count (pure noise has 80k: a worst case)
+    textured = cv2.GaussianBlur(frame, (0, 0), 1.5)
+    print(f"fusion per masking preset (the degrading rule's support corners included: "
+          f"{len(support_points(textured))} on a blurred-noise frame):")  # fmt: skip
+    scores = np.array([0.9, 0.8, 0.3, 0.2, 0.15], np.float32)
+    ref = None
+    for name, preset in PRESETS.items():
+        rules = FrameRules.from_masking(mobility, "fusion", preset)
+        times = []
+        for _ in range(30):
+            t = time.perf_counter()
+            corners = support_points(textured) if preset.rule == "degrade" else None
+            inputs = FrameInputs(kps, boxes, classes, masks, (H, W), depth_m=depth,
+                                 scores=scores, support=corners)  # fmt: skip
+            process_frame(inputs=inputs, settings=rules)
+            times.append(time.perf_counter() - t)
+        ms = 1000 * statistics.median(times)
+        ref = ref or ms
+        print(f"  {name:18s} {ms:7.2f} ms  ({ms / ref:.2f} of papers): {preset.describe()}")
     times = []
     for _ in range(20):
         t = time.perf_counter()

@@ -51,8 +51,8 @@ def support_points(image: np.ndarray) -> np.ndarray:
         if min(size) < 8:
             break
         img = gray if level == 0 else cv2.resize(gray, size, interpolation=cv2.INTER_LINEAR)
-        pts = [k.pt for k in fast.detect(img, None)]
-        out.append(np.array(pts, np.float32).reshape(-1, 2) * np.float32(scale))
+        pts = cv2.KeyPoint_convert(fast.detect(img, None))  # float32 [n, 2], or empty
+        out.append(np.asarray(pts, np.float32).reshape(-1, 2) * np.float32(scale))
     return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
 
 
