@@ -1,5 +1,5 @@
 """Lightning's device banners (``GPU available: False, used: False``, ``TPU available: ...``)
-held back while a Trainer is built, so that they never stand before slimseg's own one-line
+and tips held back while a Trainer is built, so that they never stand before slimseg's own one-line
 error: a run that fails on its data prints that line alone. What the banners say is logged
 by slimseg once, at DEBUG."""
 
@@ -12,7 +12,13 @@ from contextlib import contextmanager
 log = logging.getLogger(__name__)
 
 BANNER_LOGGERS = ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero")
-BANNER_PREFIXES = ("GPU available:", "TPU available:", "HPU available:", "IPU available:")
+BANNER_PREFIXES = (
+    "GPU available:",
+    "TPU available:",
+    "HPU available:",
+    "IPU available:",
+    "💡 Tip:",  # Lightning's advertisement of its add-ons (litlogger, ...)
+)
 
 
 class _HoldBanners(logging.Filter):
