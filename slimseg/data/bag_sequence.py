@@ -42,6 +42,7 @@ from slimseg.data.tum import (
     Associations,
     Camera,
     associate,
+    frame_rate,
     mask_name,
     read_camera,
 )
@@ -209,8 +210,7 @@ class BagSequence:
     @property
     def fps(self) -> float:
         """Frame rate from the median colour-frame interval (30 for a single frame)."""
-        stamps = np.array([t for (t, _), _ in self.frames])
-        return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
+        return frame_rate(self.frames)
 
     def __len__(self) -> int:
         return len(self.frames)

@@ -297,6 +297,13 @@ def read_camera(path: Path) -> dict[str, float]:
     return vals
 
 
+def frame_rate(frames: list) -> float:
+    """Frames per second from the median interval of the colour stamps of ``frames``
+    (``[((t_rgb, rgb), (t_depth, depth)), ...]``, a sequence's associations); 30 for one."""
+    stamps = np.array([t for (t, _), _ in frames])
+    return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
+
+
 class TumSequence:
     """A TUM-layout RGB-D sequence folder.
 
@@ -354,8 +361,7 @@ class TumSequence:
     @property
     def fps(self) -> float:
         """Frame rate from the median colour-frame interval (30 for a single frame)."""
-        stamps = np.array([t for (t, _), _ in self.frames])
-        return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
+        return frame_rate(self.frames)
 
     def __len__(self) -> int:
         return len(self.frames)
