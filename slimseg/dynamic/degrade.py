@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from slimseg.dynamic.threshold import inside
+
 # ORB-SLAM3's extractor (its example settings' ORBextractor.iniThFAST, nLevels, scaleFactor):
 # the FAST corners it starts from, on every level of its image pyramid. One home:
 # slimseg.slam.orbslam3_config writes these into the settings it generates.
@@ -54,18 +56,6 @@ def support_points(image: np.ndarray) -> np.ndarray:
         pts = cv2.KeyPoint_convert(fast.detect(img, None))  # float32 [n, 2], or empty
         out.append(np.asarray(pts, np.float32).reshape(-1, 2) * np.float32(scale))
     return np.concatenate(out) if out else np.zeros((0, 2), np.float32)
-
-
-def inside(points: np.ndarray, masks: np.ndarray) -> np.ndarray:
-    """``bool [M, N]``: which of ``masks bool [M, H, W]`` hold each of ``points [N, 2]`` (x, y)
-    px (rounded, clipped to the frame, as :func:`~slimseg.dynamic.threshold.keypoint_mobility`
-    samples them)."""
-    if len(masks) == 0 or len(points) == 0:
-        return np.zeros((len(masks), len(points)), bool)
-    h, w = masks.shape[1:]
-    x = np.clip(np.round(points[:, 0]).astype(int), 0, w - 1)
-    y = np.clip(np.round(points[:, 1]).astype(int), 0, h - 1)
-    return masks[:, y, x]
 
 
 @dataclass(frozen=True)

@@ -14,26 +14,20 @@ from __future__ import annotations
 import numpy as np
 
 from slimseg.dynamic.seg_box import box_spans
-
-# pixels sampled for an object's median depth (a person's thousands of pixels are not needed)
-DEPTH_SAMPLES = 400
+from slimseg.dynamic.track_geometry import sampled_median_depth
 
 
 def reference_depths(masks: np.ndarray, boxes: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
     """Median valid depth (m) under each of ``masks bool [M, H, W]`` inside its box
-    ``boxes [M, 4]`` xyxy px, in ``depth_m float32 [H, W]`` (0 or NaN: no depth) →
-    ``float32 [M]``, NaN where a mask has no valid depth."""
+    ``boxes [M, 4]`` xyxy px, in ``depth_m float32 [H, W]`` (0 or NaN: no depth), sampled as
+    the track stage samples it (:func:`~slimseg.dynamic.track_geometry.sampled_median_depth`)
+    → ``float32 [M]``, NaN where a mask has no valid depth."""
     out = np.full(len(masks), np.nan, np.float32)
     for k, (y0, y1, x0, x1) in enumerate(box_spans(boxes, masks.shape[1:])):
         m = masks[k, y0:y1, x0:x1]
         area = int(m.sum())
-        if area == 0:
-            continue
-        step = max(1, int(np.sqrt(area / DEPTH_SAMPLES)))
-        d = depth_m[y0:y1:step, x0:x1:step][m[::step, ::step]]
-        d = d[np.isfinite(d) & (d > 0)]
-        if len(d):
-            out[k] = np.median(d)
+        if area:
+            out[k] = sampled_median_depth(depth_m[y0:y1, x0:x1], m, area)
     return out
 
 

@@ -256,7 +256,6 @@ def _one_mode(
                                     settings.cut_behind_m)  # fmt: skip
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
-    candidates = mob > settings.m_th_start + 1e-9
     if settings.rule == "degrade":
         scores = np.ones(len(mob), np.float32) if inputs.scores is None else inputs.scores
         out = degrade(
@@ -277,6 +276,7 @@ def _one_mode(
     else:
         kept = mob > result.m_th
         region = regions[kept].any(0) if len(regions) else np.zeros(hw, bool)
+    candidates = mob > settings.m_th_start + 1e-9  # those above Eq. 1's first threshold
     dropped = np.flatnonzero(candidates & ~kept).tolist()
     return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg,
                        dropped=dropped)  # fmt: skip

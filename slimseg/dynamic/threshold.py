@@ -15,6 +15,17 @@ DYNAMIC_FRAME_M_TH = 0.5
 DYNAMIC_FRAME_RATIO = 0.05
 
 
+def inside(points: np.ndarray, masks: np.ndarray) -> np.ndarray:
+    """``bool [K, N]``: which of ``masks bool [K, H, W]`` hold each of ``points [N, 2]`` (x, y)
+    px, each point's pixel rounded (half to even) and clipped to the frame."""
+    if len(masks) == 0 or len(points) == 0:
+        return np.zeros((len(masks), len(points)), bool)
+    h, w = masks.shape[1:]
+    x = np.clip(np.round(points[:, 0]).astype(int), 0, w - 1)
+    y = np.clip(np.round(points[:, 1]).astype(int), 0, h - 1)
+    return masks[:, y, x]
+
+
 def keypoint_mobility(keypoints: np.ndarray, masks: np.ndarray, mobility: np.ndarray) -> np.ndarray:
     """Mobility under each keypoint: the highest prior of the masks containing it, else 0.
 
@@ -23,11 +34,8 @@ def keypoint_mobility(keypoints: np.ndarray, masks: np.ndarray, mobility: np.nda
     n = len(keypoints)
     if n == 0 or len(masks) == 0:
         return np.zeros(n, np.float32)
-    h, w = masks.shape[1:]
-    x = np.clip(np.round(keypoints[:, 0]).astype(int), 0, w - 1)
-    y = np.clip(np.round(keypoints[:, 1]).astype(int), 0, h - 1)
-    inside = masks[:, y, x]  # [K, N]
-    return np.where(inside, np.asarray(mobility, np.float32)[:, None], 0.0).max(0)
+    hits = inside(keypoints, masks)  # [K, N]
+    return np.where(hits, np.asarray(mobility, np.float32)[:, None], 0.0).max(0)
 
 
 @dataclass(frozen=True)

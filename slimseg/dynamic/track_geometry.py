@@ -54,11 +54,18 @@ def outside_share(box: np.ndarray, hw: tuple[int, int]) -> float:
 
 
 def median_depth(patch: Patch, depth_m: np.ndarray | None, fallback: float) -> float:
-    """Median valid depth under the mask on a regular grid of about :data:`DEPTH_SAMPLES` of
-    its pixels (the median of a person's thousands of pixels does not need them all)."""
+    """:func:`sampled_median_depth` under the patch's mask, ``fallback`` without any."""
     if depth_m is None or patch.area == 0:
         return fallback
-    k = max(1, int(math.sqrt(patch.area / DEPTH_SAMPLES)))
-    d = patch_depth(patch, depth_m)[::k, ::k][patch.mask[::k, ::k]]
-    d = d[d > 0]
-    return float(np.median(d)) if len(d) else fallback
+    d = sampled_median_depth(patch_depth(patch, depth_m), patch.mask, patch.area)
+    return fallback if math.isnan(d) else d
+
+
+def sampled_median_depth(depth: np.ndarray, mask: np.ndarray, area: int) -> float:
+    """Median valid depth (finite, > 0; metres) of ``depth [h, w]`` under ``mask bool [h, w]``
+    (``area`` pixels set) on a regular grid of about :data:`DEPTH_SAMPLES` of its pixels (a
+    person's thousands of pixels are not needed); NaN without any valid one."""
+    k = max(1, int(math.sqrt(area / DEPTH_SAMPLES)))
+    d = depth[::k, ::k][mask[::k, ::k]]
+    d = d[np.isfinite(d) & (d > 0)]
+    return float(np.median(d)) if len(d) else math.nan
