@@ -164,24 +164,7 @@ def test_train_failing_on_a_corrupt_image_leaves_no_run_folder(
     for img in (data / "train" / "images").iterdir():
         img.write_bytes(b"\x89PNG\r\n\x1a\n not a png")
     run_dir = tmp_path / "runs" / "r"
-    argv = [
-        "train",
-        "--model",
-        "yolov8n-seg",
-        "--data",
-        str(data / "data.yaml"),
-        "--out",
-        str(run_dir),
-        "--epochs",
-        "1",
-        "--batch",
-        "2",
-        "--imgsz",
-        "64",
-        "--workers",
-        "0",
-        "--quiet",
-    ]
+    argv = _train(data / "data.yaml", run_dir)
     code, err, _ = run(argv, capfd)
     assert code == 2 and len(err) == 1, err  # no Lightning banner before the one line
     assert not run_dir.exists()
@@ -197,24 +180,14 @@ def test_train_interrupted_before_a_checkpoint_leaves_no_run_folder(
 
     monkeypatch.setattr(ZooModule, "training_step", interrupt)
     run_dir = tmp_path / "r"
-    argv = [
-        "train",
-        "--model",
-        "yolov8n-seg",
-        "--data",
-        str(env.data),
-        "--out",
-        str(run_dir),
-        "--epochs",
-        "1",
-        "--batch",
-        "2",
-        "--imgsz",
-        "64",
-        "--workers",
-        "0",
-        "--quiet",
-    ]
+    argv = _train(env.data, run_dir)
     code, *_ = run(argv, capfd)
     assert code != 0
     assert not run_dir.exists()
+
+
+def _train(data: Path, out: Path) -> list[str]:
+    """One tiny epoch of ``slimseg train`` on ``data`` into ``out``."""
+    return ["train", "--model", "yolov8n-seg", "--data", str(data), "--out", str(out),
+            "--epochs", "1", "--batch", "2", "--imgsz", "64", "--workers", "0",
+            "--quiet"]  # fmt: skip
