@@ -25,6 +25,7 @@ from slimseg.dynamic.mask_patch import (
 )
 from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import FrameDets, Tracker
+from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
 from slimseg.errors import SlimsegError
@@ -106,7 +107,7 @@ def test_settings_refuse_bad_values() -> None:
     with pytest.raises(TrackSettingsError, match="low"):
         COAST.with_values(low=0.5, high=0.25)
     with pytest.raises(SlimsegError, match="needs --track"):
-        TrackPlan(None, 3)
+        TrackPlan(None, ModelRate.every_n(3))
 
 
 def test_dropout_schedule() -> None:
@@ -249,7 +250,7 @@ def test_segment_every_runs_the_model_on_every_nth_frame(sequence: Path, tmp_pat
     inst = AnnotationInstances(sequence)
     rep = run_sequence(inst, sequence, tmp_path / "x", "seg", progress=False)
     every3 = run_sequence(inst, sequence, tmp_path / "e3", "seg", progress=False,
-                          track=TrackPlan(COAST, 3))  # fmt: skip
+                          track=TrackPlan(COAST, ModelRate.every_n(3)))  # fmt: skip
     assert every3.model_frames == 15 and rep.model_frames == 45
     assert every3.scores["seg"].recall > 0.8 * rep.scores["seg"].recall
 
@@ -272,7 +273,7 @@ def test_carried_frames_keep_what_the_model_frames_found(
     weak = _WeakInstances(sequence)
     per = run_sequence(weak, sequence, tmp_path / "p", "seg", progress=False)
     carried = run_sequence(weak, sequence, tmp_path / f"e{every}", "seg", progress=False,
-                           track=TrackPlan(COAST, every))  # fmt: skip
+                           track=TrackPlan(COAST, ModelRate.every_n(every)))  # fmt: skip
     r_per, r_car = per.scores["seg"].recall, carried.scores["seg"].recall
     assert r_per > 0.9 and r_car >= kept * r_per, (r_per, r_car)
     assert carried.scores["seg"].precision >= per.scores["seg"].precision - 0.05
@@ -310,7 +311,7 @@ def test_cached_sweep_loop_gives_the_same_tracked_masks(
     from slimseg.dynamic.masking_settings import DEFAULT
 
     inst = AnnotationInstances(sequence, Dropout(0.2, 3, seed=2))
-    plan = TrackPlan(COAST, every)
+    plan = TrackPlan(COAST, ModelRate.every_n(every))
     run_sequence(inst, sequence, tmp_path / "dyn", mode, DEFAULT, progress=False, track=plan)
     seq = TumSequence(sequence)
     cache = build_cache(inst, seq, plan.floor(DEFAULT.conf), progress=False)

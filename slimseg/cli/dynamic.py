@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
     masking = masking_from_args(args)
     track = track_plan_from_args(args)
-    if args.fps is not None and not track.model_thread:
+    if args.fps is not None and not track.rate.thread:
         raise SlimsegError("--fps sets the real-time replay of --model-thread: add --model-thread")
     if args.fps is not None and not (args.fps >= 0 and math.isfinite(args.fps)):
         raise SlimsegError(f"--fps {args.fps}: expected frames per second >= 0")
@@ -180,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
               f"ms per frame in all (model + masking logic); {out / 'tracks.csv'}")  # fmt: skip
         parts = ", ".join(f"{k} {v:.2f}" for k, v in report.stage_parts_ms.items())
         print(f"track stage per frame by part (ms): {parts}")
-    _print_latency(report, track.model_thread)
+    _print_latency(report, track.rate.thread)
     _print_scores(report)
     _print_recall_loss(report)
     if report.skipped:

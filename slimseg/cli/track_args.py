@@ -6,11 +6,13 @@
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 from typing import TypeVar
 
 from slimseg.cli.arg_types import count, number
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import (
     DEFAULT_TRACK_PRESET,
@@ -122,13 +124,23 @@ def track_settings_from_args(args: argparse.Namespace) -> TrackSettings | None:
 
 
 def track_plan_from_args(args: argparse.Namespace) -> TrackPlan:
-    """The validated stage (``SlimsegError`` names a bad option)."""
-    return TrackPlan(
-        track_settings_from_args(args),
-        getattr(args, "segment_every", 1),
-        getattr(args, "budget_ms", 0.0),
-        getattr(args, "model_thread", False),
-    )
+    """The validated stage and model rate (``SlimsegError`` names a bad option)."""
+    every = getattr(args, "segment_every", 1)
+    budget = getattr(args, "budget_ms", 0.0)
+    thread = getattr(args, "model_thread", False)
+    chosen = [f for f, on in (("--segment-every", every > 1), ("--budget-ms", budget > 0),
+                              ("--model-thread", thread)) if on]  # fmt: skip
+    if len(chosen) > 1:
+        raise SlimsegError(f"{' and '.join(chosen)}: give one way to set the model's rate")
+    settings = track_settings_from_args(args)
+    if chosen and settings is None:
+        raise SlimsegError(
+            f"{chosen[0]} needs --track (the tracks carry the masks over the frames the model "
+            "skips)"
+        )
+    if not math.isfinite(budget):
+        raise SlimsegError(f"--budget-ms {budget}: expected a positive number")
+    return TrackPlan(settings, ModelRate(every=every, budget_ms=budget, thread=thread))
 
 
 def dropout_from_args(args: argparse.Namespace) -> Dropout | None:

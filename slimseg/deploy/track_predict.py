@@ -1,10 +1,10 @@
 """``slimseg predict --track``: a folder of frames or a video → tracks, instance maps, a CSV and
 an animation.
 
-Per frame the model runs at the track stage's low threshold (``TrackPlan.floor``; with
-``--segment-every N`` on frames 0, N, 2N, ... only) and the stage
-(:class:`~slimseg.dynamic.track_run.TrackedSequence` in mode ``seg``: no epipolar check, no
-depth gate) matches its detections to the tracks. It emits every detection scoring above
+Per frame the chain (:class:`~slimseg.dynamic.frame_masker.FrameMasker` in mode ``seg``: no
+epipolar check, no depth gate) runs the model at the track stage's low threshold (with
+``--segment-every N`` on frames 0, N, 2N, ... only) and its stage matches the detections to
+the tracks. It emits every detection scoring above
 ``conf`` and, besides, the predicted masks of tracks the model just lost (``coast``) or did not
 run on (``carried``). Classes whose mobility prior is at most the masking threshold
 (``m_th_start`` of the ``slimseg`` masking preset) are not tracked: they pass through as
@@ -35,7 +35,6 @@ import csv
 import io
 import itertools
 import os
-import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,10 +46,11 @@ from tqdm import tqdm
 
 from slimseg.data.visualize import class_color
 from slimseg.deploy.predictor import Predictor
-from slimseg.dynamic.epipolar import PreviousFrame, orb_features
+from slimseg.detections import Prediction
+from slimseg.dynamic.frame_masker import FrameError, FrameMasker
 from slimseg.dynamic.masking_settings import DEFAULT
 from slimseg.dynamic.track import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
-from slimseg.dynamic.track_run import TrackedSequence, TrackPlan, frame_dets
+from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU
 from slimseg.utils.atomic import atomic_path, staged_dir, write_png, write_text
@@ -130,16 +130,21 @@ def track_predict(
     if not plan.on:
         raise ValueError("track_predict needs a TrackPlan with settings (the stage on)")
     out = Path(out)
-    stage = TrackedSequence(
-        plan.settings, np.asarray(predictor.mobility, np.float32), "seg", DEFAULT.m_th_start, fps
-    )
+
+    def segment(rgb: np.ndarray, stamp: float, floor: float) -> Prediction:
+        return predictor.predict(rgb, conf=floor, iou=iou, max_det=max_det)
+
+    masker = FrameMasker(
+        segment, class_mobility=predictor.mobility, mode="seg",
+        masking=DEFAULT.with_values(conf=conf), track=plan.settings, rate=plan.rate,
+        keypoints=keypoints, fps=fps,
+    )  # fmt: skip
     names = list(predictor.names)
     report, rows, ids = TrackReport(), [], set()
     last_det: dict[int, int] = {}  # track id -> last frame it was detected in
-    previous: PreviousFrame | None = None
     hw: tuple[int, int] | None = None
     gif: list[Image.Image] = []
-    with staged_dir(out, command="predict --track") as folder:  # complete or not at all
+    with staged_dir(out, command="predict --track") as folder, masker:  # complete or not at all
         video = _Video(folder / "tracks.mp4", fps)
         try:
             for stem, source, rgb in tqdm(
@@ -148,26 +153,16 @@ def track_predict(
                 if rgb is None:
                     report.skipped.append(source)
                     continue
-                if hw is None:
-                    hw = rgb.shape[:2]
-                elif rgb.shape[:2] != hw:
-                    raise SlimsegError(
-                        f"{source}: {rgb.shape[1]}x{rgb.shape[0]}, the sequence's first frame is "
-                        f"{hw[1]}x{hw[0]}; tracked frames must share one size"
-                    )
                 i = report.frames
-                t0 = time.perf_counter()
-                dets = None
-                if plan.runs_model(i):
-                    pred = predictor.predict(rgb, conf=plan.floor(conf), iou=iou, max_det=max_det)
-                    dets = frame_dets(pred, hw)
-                    report.model_frames += 1
-                t1 = time.perf_counter()
-                feats = orb_features(rgb, keypoints)
-                _, tracked = stage.inputs(feats, dets, conf, None, previous)
-                previous = PreviousFrame(feats)
-                report.model_s += t1 - t0
-                report.track_s += time.perf_counter() - t1
+                try:
+                    f = masker.step(rgb)
+                except FrameError as e:
+                    raise SlimsegError(f"{source}: {e}") from None
+                hw = f.mask.shape
+                tracked = f.tracked
+                report.model_frames += f.model_ran
+                report.model_s += f.timing.model / 1000
+                report.track_s += (f.timing.features + f.timing.track) / 1000
                 report.frames += 1
 
                 tids = tracked.track_ids

@@ -27,13 +27,12 @@ from tqdm import tqdm
 
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
-from slimseg.dynamic.annotations import AnnotationInstances
-from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
+from slimseg.detections import Prediction
+from slimseg.dynamic.epipolar import OrbFeatures, orb_features
+from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.masking_settings import MaskingSettings
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_modes
 from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
-from slimseg.dynamic.track import FrameDets
-from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan, frame_dets
+from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan, frame_dets
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
@@ -85,6 +84,12 @@ class CachedDetections:
         if with_scores:
             return self.boxes[keep], self.classes[keep], masks, self.scores[keep]
         return self.boxes[keep], self.classes[keep], masks
+
+
+    def prediction(self, conf: float) -> Prediction:
+        """The detections scoring above ``conf`` as the model's result (names left empty)."""
+        boxes, classes, masks, scores = self.select(conf, with_scores=True)
+        return Prediction(boxes, scores, classes, [], [], masks, self.hw)
 
 
 def _crop(mask: np.ndarray) -> tuple[int, int, np.ndarray]:
@@ -142,14 +147,11 @@ def build_cache(
     ``sequence`` at score threshold ``conf_floor`` and keep everything a setting needs."""
     gt_dir = sequence.root / "dynamic"
     cache = DetectionCache(sequence, conf_floor, np.asarray(predictor.mobility, np.float32))
-    gt_instances = isinstance(predictor, AnnotationInstances)
+    segment = segmenter_for(predictor)
     for i in tqdm(range(len(sequence)), desc="detections", disable=not progress):
         rgb, _, stamp = sequence.load(i)
         t0 = time.perf_counter()
-        if gt_instances:
-            pred = predictor.for_stamp(stamp)
-        else:
-            pred = predictor.predict(rgb, conf=conf_floor)
+        pred = segment(rgb, stamp, conf_floor)
         cache.calls += 1
         t1 = time.perf_counter()
         feats = orb_features(rgb, keypoints, corners=True)  # corners: any setting's rule
@@ -191,50 +193,42 @@ def mask_with(
 ) -> SettingMasks:
     """Apply ``mode`` under ``masking`` to every cached frame; write ``out/<rgb ts>.png``
     (uint8, 255 = dynamic), exactly what ``slimseg dynamic --mode mode`` writes for these
-    settings (the epipolar modes get the previous frame's features, without depth). ``track``:
-    the track stage (the cache must hold detections down to its ``low`` threshold); with
-    ``segment_every`` N the model's time counts once per N frames."""
-    settings = FrameRules.from_masking(cache.mobility, mode, masking)
+    settings: the same :class:`~slimseg.dynamic.frame_masker.FrameMasker`, its model replaced
+    by the cache and its ORB by the cached features. ``track``: the track stage (the cache must
+    hold detections down to its ``low`` threshold) at a fixed rate (every N: the model's time
+    counts once per N frames)."""
     if track.on and cache.conf_floor > track.floor(masking.conf) + 1e-9:
         raise ValueError(f"the cache holds detections from conf {cache.conf_floor}; the track "
                          f"stage needs them from {track.floor(masking.conf)}")  # fmt: skip
-    stage = None
-    if track.on:
-        stage = TrackedSequence(track.settings, cache.mobility, mode, settings.mover_prior,
-                                cache.sequence.fps)  # fmt: skip
-    rng = np.random.default_rng(0)  # as slimseg dynamic: depth-RANSAC's sampling
+    if not track.rate.fixed:
+        raise ValueError(f"a cached sweep replays a fixed model rate, not {track.rate.name}")
+    seq = cache.sequence
     have_truth = all(f.truth is not None for f in cache.frames)
     score = ModeScore() if have_truth and cache.frames else None
-    previous: PreviousFrame | None = None
     t_logic = 0.0
     digest = hashlib.sha1()
     out.mkdir(parents=True, exist_ok=True)
-    for i, f in enumerate(cache.frames):
-        depth = None
-        if mode == "box+depth-ransac" or stage is not None or masking.cut_behind_m > 0:
-            depth = cache.sequence.load(i)[1]  # reading is not the logic's time
-        t0 = time.perf_counter()
-        kps = f.features.keypoints
-        if stage is None:
-            boxes, classes, masks, scores = f.detections.select(masking.conf, with_scores=True)
-            inputs = FrameInputs(kps, boxes, classes, masks, f.detections.hw, depth,
-                                 f.features.descriptors, previous, scores=scores,
-                                 support=f.features.corners)  # fmt: skip
-        else:
-            dets = None
-            if track.runs_model(i):
-                boxes, classes, masks, scores = f.detections.select(track.floor(masking.conf),
-                                                                    with_scores=True)  # fmt: skip
-                dets = FrameDets(boxes, scores, classes, masks, f.detections.hw)
-            inputs, _ = stage.inputs(f.features, dets, masking.conf, depth, previous)
-        res = process_modes(inputs=inputs, settings=settings, modes=(mode,), rng=rng)[mode]
-        t_logic += time.perf_counter() - t0
-        write_png(out / mask_name(f.stamp), res.mask)
-        digest.update(np.ascontiguousarray(res.mask).tobytes())
-        if score is not None:
-            score.add(res.dynamic, f.truth)
-        previous = PreviousFrame(f.features)
+    frames = {f.stamp: f for f in cache.frames}
+
+    def cached(rgb: np.ndarray, stamp: float, conf: float) -> Prediction:
+        return frames[stamp].detections.prediction(conf)
+
+    masker = FrameMasker(
+        cached, class_mobility=cache.mobility, mode=mode, masking=masking,
+        track=track.settings, rate=track.rate, fps=seq.fps,
+    )  # fmt: skip
+    with masker:
+        for i, f in enumerate(cache.frames):
+            _, depth, _ = seq.load(i)  # reading is not the logic's time
+            h, w = f.detections.hw
+            blank = np.zeros((h, w, 3), np.uint8)  # the cache stands in for the model and ORB
+            res = masker.step(blank, depth, f.stamp, features=f.features)
+            t_logic += res.timing.masking / 1000
+            write_png(out / mask_name(f.stamp), res.mask)
+            digest.update(np.ascontiguousarray(res.mask).tobytes())
+            if score is not None:
+                score.add(res.dynamic, f.truth)
     n = max(len(cache.frames), 1)
     logic_ms = 1000 * t_logic / n + cache.prep_ms
     return SettingMasks(score, logic_ms, len(cache.frames), digest.hexdigest(),
-                        1.0 / track.segment_every)  # fmt: skip
+                        1.0 / track.rate.every)  # fmt: skip

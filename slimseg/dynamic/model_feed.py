@@ -1,43 +1,45 @@
-"""When the model runs in a sequence loop, and on which thread (docs/tracking.md §6).
+"""When the model runs in a frame loop, and on which thread (docs/tracking.md §6).
 
-Three ways, one interface (:class:`ModelFeed`): each frame asks :meth:`ModelFeed.frame` for
+One interface (:class:`ModelFeed`) for the three rates of
+:class:`~slimseg.dynamic.model_rate.ModelRate`: each frame asks :meth:`ModelFeed.frame` for
 detections and gets this frame's, an older frame's, or none (the track stage carries the masks
 over frames without).
 
-- **every N** (``--segment-every N``): the model runs, on the loop's thread, on frames 0, N,
-  2N, ...
-- **budget** (``--budget-ms B``): as every N, with N chosen while running so that the mean time
-  per frame (model share + everything else) stays within B ms: after each model frame
+- **every N**: the model runs, on the loop's thread, on frames 0, N, 2N, ...
+- **budget B**: as every N, with N chosen while running so that the mean time per frame
+  (model share + everything else) stays within B ms: after each model frame
   ``N = ceil(model_ms / (B - other_ms))`` from running means, between 1 and :data:`MAX_EVERY`.
-- **own thread** (``--model-thread``): the model runs on a worker thread as a runtime would run
-  it. A frame is handed to the worker whenever it is idle; every frame is masked as it arrives
-  with the newest finished result, which belongs to an older frame (its *lag* in frames) and is
-  moved into the current frame by the camera motion in between
-  (:meth:`~slimseg.dynamic.track_run.TrackedSequence.inputs`). The first frame waits for its
-  own result (nothing can be masked before one exists).
+- **own thread**: the model runs on a worker thread as a runtime would run it. A frame is
+  handed to the worker whenever it is idle; every frame is masked as it arrives with the
+  newest finished result, which belongs to an older frame (its *lag* in frames) and is moved
+  into the current frame (:meth:`~slimseg.dynamic.track_run.TrackedSequence.inputs`). The
+  first frame waits for its own result (nothing can be masked before one exists).
+
+``clock``: the loop's clock (``time.perf_counter`` by default). A loop that spends time a
+runtime would not (scoring other modes) pauses its clock for it; a result of the worker is
+then used only once the loop's clock has advanced by the run's own duration since it was
+handed over, as if the pause had not happened.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from slimseg.detections import Prediction
+from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 
 MAX_EVERY = 10  # the budget never lets the model skip more frames than this
 BUDGET_WARMUP = 2  # model frames measured before the budget picks N (the model runs on each)
 
 
-class Segmenter(Protocol):
-    """What the feed calls: a slimseg ``Predictor`` (``predict``) or ground-truth instances
-    (``for_stamp``) wrapped as ``run(rgb, stamp)``."""
-
-    def __call__(self, rgb: np.ndarray, stamp: float) -> Prediction: ...
+RunModel = Callable[[np.ndarray, float], Prediction]
+"""The model as the feed calls it: ``(rgb uint8 [H, W, 3], stamp) -> Prediction``."""
 
 
 @dataclass(frozen=True)
@@ -57,17 +59,13 @@ class ModelFeed:
 
     def __init__(
         self,
-        segmenter: Segmenter,
-        every: int = 1,
-        budget_ms: float = 0.0,
-        thread: bool = False,
+        run: RunModel,
+        rate: ModelRate = EVERY_FRAME,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
-        if thread and (every > 1 or budget_ms > 0):
-            raise ValueError("a model on its own thread sets its own rate: no every/budget")
-        self.segmenter = segmenter
-        self.every = every
-        self.budget_ms = budget_ms
-        self.thread = thread
+        self.run = run
+        self.rate = rate
+        self.clock = clock
         self.model_runs = 0
         self.model_s = 0.0
         """seconds of model runs (on whichever thread)"""
@@ -76,18 +74,18 @@ class ModelFeed:
         self._next = 0  # inline: the next frame the model runs on
         self._other_s: list[float] = []
         self._pool: ThreadPoolExecutor | None = None
-        self._job: tuple[int, Future] | None = None
+        self._job: tuple[int, float, Future] | None = None  # (frame, clock at hand-over, run)
 
     # -- the loop's calls ---------------------------------------------------------------------
 
     def frame(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections:
         """Detections for frame ``i`` (0-based, in order)."""
-        if self.thread:
+        if self.rate.thread:
             return self._threaded(i, rgb, stamp)
         if i < self._next:
             return FedDetections(None)
         t0 = time.perf_counter()
-        pred = self.segmenter(rgb, stamp)
+        pred = self.run(rgb, stamp)
         dt = time.perf_counter() - t0
         self.model_runs += 1
         self.model_s += dt
@@ -101,13 +99,14 @@ class ModelFeed:
 
     def gap(self) -> int:
         """Frames from one inline model frame to the next."""
-        if self.budget_ms <= 0:
-            return self.every
+        budget_ms = self.rate.budget_ms
+        if budget_ms <= 0:
+            return self.rate.every
         if self.model_runs < BUDGET_WARMUP or not self._other_s:
             return 1
         model_ms = 1000 * self.model_s / self.model_runs
         other_ms = 1000 * float(np.mean(self._other_s[-30:]))
-        room = self.budget_ms - other_ms
+        room = budget_ms - other_ms
         if room <= 0:
             return MAX_EVERY
         return int(min(max(math.ceil(model_ms / room), 1), MAX_EVERY))
@@ -122,8 +121,13 @@ class ModelFeed:
 
     def _timed(self, rgb: np.ndarray, stamp: float) -> tuple[Prediction, float]:
         t0 = time.perf_counter()
-        pred = self.segmenter(rgb, stamp)
+        pred = self.run(rgb, stamp)
         return pred, time.perf_counter() - t0
+
+    def _ready(self) -> bool:
+        """The worker's job is done, and the loop's clock has moved on by its duration."""
+        _, handed, future = self._job
+        return future.done() and self.clock() - handed >= future.result()[1]
 
     def _threaded(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections:
         if self._pool is None:
@@ -131,12 +135,13 @@ class ModelFeed:
         waited = 0.0
         got = None
         if self._job is None and i == 0:  # the first frame waits for its own result
-            self._job = (i, self._pool.submit(self._timed, rgb, stamp))
+            self._job = (i, self.clock(), self._pool.submit(self._timed, rgb, stamp))
             t0 = time.perf_counter()
-            self._job[1].result()
+            self._job[2].result()
             waited = time.perf_counter() - t0
-        if self._job is not None and self._job[1].done():
-            index, future = self._job
+            self._job = (i, -math.inf, self._job[2])
+        if self._job is not None and self._ready():
+            index, _, future = self._job
             pred, seconds = future.result()  # a model error surfaces here, in the loop
             self._job = None
             self.model_runs += 1
@@ -144,12 +149,8 @@ class ModelFeed:
             self.lags.append(i - index)
             got = FedDetections(pred, index, i - index, waited)
         if self._job is None and i > 0:  # idle: it takes this frame (frame 0 is done)
-            self._job = (i, self._pool.submit(self._timed, rgb.copy(), stamp))
+            self._job = (i, self.clock(), self._pool.submit(self._timed, rgb.copy(), stamp))
         return got or FedDetections(None, seconds=waited)
 
     def describe(self) -> str:
-        if self.thread:
-            return "model on its own thread (newest result, moved by the camera motion)"
-        if self.budget_ms > 0:
-            return f"model rate from a budget of {self.budget_ms:g} ms per frame"
-        return "model on every frame" if self.every == 1 else f"model on every {self.every}"
+        return self.rate.describe()

@@ -201,7 +201,7 @@ def process_modes(
             raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
         if mode in EPIPOLAR_MODES:
             if check is None:
-                check = _epipolar_priors(inputs, mob, settings.mover_prior)
+                check = epipolar_priors(inputs, mob, settings.mover_prior)
             priors, epi, checked = check
             res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng)
             res.epipolar, res.checked = epi, list(checked)
@@ -282,7 +282,7 @@ def _one_mode(
                        dropped=dropped)  # fmt: skip
 
 
-def _epipolar_priors(
+def epipolar_priors(
     inputs: FrameInputs, mob: np.ndarray, dynamic_mobility: float
 ) -> tuple[np.ndarray, EpipolarResult | None, list[int]]:
     """Mobility priors with the detections the epipolar check finds static set to 0."""

@@ -1,8 +1,9 @@
 """Run the reference masking logic over a TUM RGB-D sequence, optionally scoring it.
 
-Per frame: model → detections in frame pixels → ORB keypoints → ``process_modes`` for the
-chosen mode → ``masks/<rgb timestamp>.png`` (uint8, 255 = dynamic; the offline mask-cache
-convention of DynaSLAM-style runtimes) and a CSV row. When the sequence has ground-truth
+Per frame, :class:`~slimseg.dynamic.frame_masker.FrameMasker` (model → detections in frame
+pixels → ORB keypoints → track stage → the chosen mode) → ``masks/<rgb timestamp>.png``
+(uint8, 255 = dynamic; the offline mask-cache convention of DynaSLAM-style runtimes) and a
+CSV row. When the sequence has ground-truth
 ``dynamic/`` masks (the synthetic generator writes them), every mode is scored on the same
 detections and keypoints: precision and recall of dynamic keypoints.
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import csv
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,24 +32,13 @@ from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
-from slimseg.dynamic.epipolar import PreviousFrame, orb_features
+from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.model_feed import ModelFeed
-from slimseg.dynamic.pipeline import (
-    EPIPOLAR_MODES,
-    MODES,
-    FrameInputs,
-    FrameResult,
-    FrameRules,
-    process_modes,
-)
+from slimseg.dynamic.pipeline import EPIPOLAR_MODES, MODES, FrameResult
 from slimseg.dynamic.recall_loss import RecallLoss
-from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track import TrackedFrame
-from slimseg.dynamic.track_run import TRACK_OFF, TrackedSequence, TrackPlan, frame_dets
+from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.utils.atomic import write_png
-
-BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
 
 
 @dataclass
@@ -115,6 +106,31 @@ class SequenceReport:
     """frames in which the rule left out a candidate scoring at least ``keep_score``"""
 
 
+def sequence_masker(
+    predictor: object,
+    seq: Sequence,
+    mode: str = "fusion",
+    masking: MaskingSettings = DEFAULT,
+    keypoints: int = 1000,
+    epipolar_depth: bool = False,
+    track: TrackPlan = TRACK_OFF,
+) -> FrameMasker:
+    """The chain ``slimseg dynamic`` runs over ``seq``: ``predictor`` (a slimseg ``Predictor``
+    or ``AnnotationInstances``) at the ``track`` plan's rate; with ground-truth ``dynamic/``
+    masks every other mode is scored on the same inputs (ground-truth instances: the epipolar
+    check too, for its tally)."""
+    score = MODES if (seq.root / "dynamic").is_dir() else ()
+    if isinstance(predictor, AnnotationInstances) and "semantic+epipolar" not in score:
+        score = (*score, "semantic+epipolar")
+    cam = seq.camera
+    return FrameMasker(
+        segmenter_for(predictor), class_mobility=predictor.mobility, mode=mode,
+        masking=masking, track=track.settings, rate=track.rate, keypoints=keypoints,
+        camera=(cam.fx, cam.fy, cam.cx, cam.cy) if epipolar_depth else None, fps=seq.fps,
+        score_modes=score,
+    )  # fmt: skip
+
+
 def run_sequence(
     predictor: object,
     sequence: Path | Sequence,
@@ -132,133 +148,98 @@ def run_sequence(
     dilation, Eq. 1/3/4); write masks, ``frames.csv`` and ``overlay.png`` under ``out``.
     ``epipolar_depth``: give the epipolar check the previous depth and the intrinsics
     (depth-aided residual, see ``epipolar``). ``sequence``: the folder, or it opened.
-    ``track``: the track stage (off by default: every frame judged alone); with it on,
-    ``tracks.csv`` lists every emitted object with its track id and source. With the model on
-    its own thread (``track.model_thread``) the frames are replayed in real time at ``fps``
-    (None: the sequence's own timestamps; 0: as fast as the loop goes) and only the chosen
-    mode is scored (the others would delay the next frame)."""
+    ``track``: the track stage and the model's rate (off by default: every frame judged
+    alone); with it on, ``tracks.csv`` lists every emitted object with its track id and
+    source. With the model on its own thread the frames are replayed in real time at ``fps``
+    (None: the sequence's own timestamps; 0: as fast as the loop goes). A loop over
+    :class:`~slimseg.dynamic.frame_masker.FrameMasker` (:func:`sequence_masker`)."""
     seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
+    with sequence_masker(predictor, seq, mode, masking, keypoints, epipolar_depth, track) as m:
+        gt = predictor if isinstance(predictor, AnnotationInstances) else None
+        return _loop(m, seq, out, gt, progress, fps)
+
+
+def _loop(
+    masker: FrameMasker,
+    seq: Sequence,
+    out: Path,
+    gt_instances: AnnotationInstances | None,
+    progress: bool,
+    fps: float | None,
+) -> SequenceReport:
     gt_dir = seq.root / "dynamic"
-    mobility = np.asarray(predictor.mobility, np.float32)
+    mode = masker.mode
     (out / "masks").mkdir(parents=True, exist_ok=True)
     report = SequenceReport(scores={m: ModeScore() for m in MODES} if gt_dir.is_dir() else {})
-    rows, panels = [], []
+    report.rate = masker.rate.describe()
+    rows, panels, track_rows, stamps = [], [], [], []
     t_model = t_logic = 0.0
-    rng = np.random.default_rng(0)
     step = max(len(seq.frames) // 6, 1)
-    gt_instances = isinstance(predictor, AnnotationInstances)
-    previous: PreviousFrame | None = None
-    settings = FrameRules.from_masking(mobility, mode, masking)
-    conf = masking.conf
-    support = masking.rule == "degrade"  # FAST corners: the rule's static support
-    stage = None
-    if track.on:
-        stage = TrackedSequence(track.settings, mobility, mode, settings.mover_prior, seq.fps)
     losses = RecallLoss() if gt_dir.is_dir() and (seq.root / "annotations.json").is_file() else None
-    instances = _instances(predictor, seq.root) if losses is not None else None
-    track_rows: list[dict] = []
-    floor = track.floor(conf)
-
-    def segment(rgb: np.ndarray, stamp: float):
-        return predictor.for_stamp(stamp) if gt_instances else predictor.predict(rgb, conf=floor)
-
-    feed = ModelFeed(segment, track.segment_every, track.budget_ms, track.model_thread)
-    report.rate = feed.describe()
-    live = track.model_thread  # frames replayed in real time, only the chosen mode scored
-    clock = _Replay(fps if live else 0.0)
-    try:
-        for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
-            rgb, depth, stamp = seq.load(i)
-            arrival = clock.arrive(i, stamp)
-            t0 = time.perf_counter()
-            got = feed.frame(i, rgb, stamp)
-            pred = got.pred
-            report.model_frames += pred is not None
-            t1 = time.perf_counter()
-            # same keypoints as orb_keypoints, + descriptors (+ the degrading rule's corners)
-            feats = orb_features(rgb, keypoints, corners=support)
-            kps = feats.keypoints
-            hw = rgb.shape[:2]
-            tracked = None
-            if stage is None:
-                # semantic maps: one object per component (no scores)
-                boxes, classes, masks = instances_of(pred)
-                scores = pred.scores if pred.class_map is None else None
-                inputs = FrameInputs(kps, boxes, classes, masks, hw, depth, feats.descriptors,
-                                     previous, scores=scores, support=feats.corners)  # fmt: skip
+    instances = _instances(gt_instances, seq.root) if losses is not None else None
+    live = masker.rate.thread  # frames replayed in real time
+    clock = _Replay(fps if live else 0.0, masker.clock)
+    keep = masker.masking.keep_score
+    for i in tqdm(range(len(seq.frames)), desc="dynamic", disable=not progress):
+        rgb, depth, stamp = seq.load(i)
+        arrival = clock.arrive(i, stamp)
+        taken = masker.clock()
+        f = masker.step(rgb, depth, stamp)
+        report.model_frames += f.model_ran
+        report.latency_ms.append(f.timing.latency)
+        if live:
+            report.late_ms.append(1000 * max(taken - arrival, 0.0))
+        t_logic += f.timing.masking / 1000  # the chosen mode only, not the scoring of the rest
+        t_model += f.timing.model / 1000  # the loop's time in the model (inline), or waiting
+        result, tracked, kps, hw = f.result, f.tracked, f.keypoints, f.mask.shape
+        masks = f.objects.masks
+        if tracked is not None:
+            report.coasted += int(tracked.coasted.sum())
+            track_rows += _track_rows(stamp, tracked)
+        name = mask_name(stamp)
+        write_png(out / "masks" / name, result.mask)
+        confident = _confident(result.dropped, f.inputs.scores, keep)
+        report.gave_up += result.m_th is None and bool(result.dropped)
+        report.dropped += len(result.dropped)
+        report.dropped_confident_frames += confident > 0
+        rows.append(
+            {
+                "timestamp": f"{stamp:.6f}",
+                **result.counts,
+                "m_th": result.m_th,
+                "support": result.support,
+                "dropped": len(result.dropped),
+                "dropped_confident": confident,
+                "dynamic_frame": result.dynamic_frame,
+                "used_seg": result.used_seg,
+                "detections": len(f.objects),
+                "model_ms": round(f.timing.model, 2),
+                **({} if tracked is None else {"coasted": int(tracked.coasted.sum())}),
+            }
+        )
+        if report.scores:
+            gt = decode_file(gt_dir / name, cv2.IMREAD_GRAYSCALE)
+            if gt is None:
+                report.skipped.append(str(gt_dir / name))
             else:
-                dets = None if pred is None else frame_dets(pred, hw)
-                inputs, tracked = stage.inputs(feats, dets, conf, depth, previous, got.lag)
-                boxes, classes, masks = inputs.boxes, inputs.classes, inputs.masks
-                scores = inputs.scores
-                report.coasted += int(tracked.coasted.sum())
-                track_rows += _track_rows(stamp, tracked)
-            t_prep = time.perf_counter() - t1
-            modes = [mode]
-            if report.scores and not live:  # every mode on the same detections and keypoints
-                modes += [m for m in MODES if m != mode and (masks is not None or m in BOX_MODES)]
-            count_epi = gt_instances and previous is not None and masks is not None and not live
-            if count_epi and mode not in EPIPOLAR_MODES and "semantic+epipolar" not in modes:
-                modes.append("semantic+epipolar")
-            results = process_modes(inputs=inputs, settings=settings, modes=modes, rng=rng)
-            result = results[mode]
-            # the mask is ready after the chosen mode (the others run only to score them)
-            ready = t1 + t_prep + result.seconds
-            report.latency_ms.append(1000 * (ready - t0))
-            if live:
-                report.late_ms.append(1000 * max(t0 - arrival, 0.0))
-            feed.other_time(ready - t1)
-            t_logic += t_prep + result.seconds  # the chosen mode only, not the scoring of the rest
-            t_model += t1 - t0  # the loop's time in the model (inline), or waiting for it
-            name = mask_name(stamp)
-            write_png(out / "masks" / name, result.mask)
-            confident = _confident(result.dropped, scores, masking.keep_score)
-            report.gave_up += result.m_th is None and bool(result.dropped)
-            report.dropped += len(result.dropped)
-            report.dropped_confident_frames += confident > 0
-            rows.append(
-                {
-                    "timestamp": f"{stamp:.6f}",
-                    **result.counts,
-                    "m_th": result.m_th,
-                    "support": result.support,
-                    "dropped": len(result.dropped),
-                    "dropped_confident": confident,
-                    "dynamic_frame": result.dynamic_frame,
-                    "used_seg": result.used_seg,
-                    "detections": len(boxes),
-                    "model_ms": round(1000 * (t1 - t0), 2),
-                    **({} if tracked is None else {"coasted": int(tracked.coasted.sum())}),
-                }
-            )
-            if report.scores:
-                gt = decode_file(gt_dir / name, cv2.IMREAD_GRAYSCALE)
-                if gt is None:
-                    report.skipped.append(str(gt_dir / name))
-                else:
-                    truth = at_keypoints(gt > 0, kps)
-                    for m, res in results.items():
-                        report.scores[m].add(res.dynamic, truth)
-                    if losses is not None:
-                        only = _coasted_only(tracked, masks, hw)
-                        losses.add(
-                            instances, stamp, kps, result.dynamic, truth, result.mask > 0, only
-                        )
-            if count_epi:
-                epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
-                _count_epipolar(report, predictor, stamp, results[epi_mode], tracked)
-            if epipolar_depth:
-                cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
-                previous = PreviousFrame(feats, depth, cam)
-            else:
-                previous = PreviousFrame(feats)
-            if i % step == 0 and len(panels) < 6:
-                ghost = None if tracked is None else _coasted_only(tracked, masks, hw)
-                panels.append(_overlay(rgb, result.mask, kps, result.dynamic, ghost))
-            report.frames += 1
-    finally:
-        feed.close()
+                truth = at_keypoints(gt > 0, kps)
+                for m, res in f.results.items():
+                    report.scores[m].add(res.dynamic, truth)
+                if losses is not None:
+                    only = _coasted_only(tracked, masks, hw)
+                    losses.add(instances, stamp, kps, result.dynamic, truth, result.mask > 0, only)
+        epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
+        stamps.append(stamp)
+        if gt_instances is not None and i > 0 and epi_mode in f.results:
+            # the detections' own frame (a late result's is older than this one)
+            seen = stamps[i - f.lag] if f.model_ran else stamp
+            _count_epipolar(report, gt_instances, seen, f.results[epi_mode], tracked)
+        if i % step == 0 and len(panels) < 6:
+            ghost = None if tracked is None else _coasted_only(tracked, masks, hw)
+            panels.append(_overlay(rgb, result.mask, kps, result.dynamic, ghost))
+        report.frames += 1
     _write_csv(out / "frames.csv", rows)
+    stage, feed = masker.stage, masker.feed
     if stage is not None:
         _write_csv(out / "tracks.csv", track_rows)
     if losses is not None:
@@ -286,15 +267,17 @@ def _confident(dropped: list[int], scores: np.ndarray | None, keep_score: float)
 
 class _Replay:
     """Frame arrival times: the sequence's timestamps (``fps`` None) or ``i / fps`` from the
-    first frame, in real time; ``fps`` 0: each frame arrives when the loop asks for it."""
+    first frame, in real time on ``clock`` (the masker's: scoring pauses it); ``fps`` 0: each
+    frame arrives when the loop asks for it."""
 
-    def __init__(self, fps: float | None) -> None:
+    def __init__(self, fps: float | None, clock: Callable[[], float]) -> None:
         self.fps = fps
+        self.clock = clock
         self.first: tuple[float, float] | None = None  # (clock, stamp) of frame 0
 
     def arrive(self, i: int, stamp: float) -> float:
-        """Wait until frame ``i`` arrives; return its arrival time (``perf_counter`` s)."""
-        now = time.perf_counter()
+        """Wait until frame ``i`` arrives; return its arrival time (on ``clock``, s)."""
+        now = self.clock()
         if self.fps == 0:
             return now
         if self.first is None:
@@ -307,10 +290,10 @@ class _Replay:
         return due
 
 
-def _instances(predictor: object, root: Path) -> AnnotationInstances:
+def _instances(gt: AnnotationInstances | None, root: Path) -> AnnotationInstances:
     """The sequence's complete ground-truth instances (never a dropout-injected copy)."""
-    if isinstance(predictor, AnnotationInstances) and predictor.dropout is None:
-        return predictor
+    if gt is not None and gt.dropout is None:
+        return gt
     return AnnotationInstances(root)
 
 

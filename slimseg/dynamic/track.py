@@ -109,6 +109,27 @@ class TrackedFrame:
         return np.array([s != SOURCE_DETECTION for s in self.source], bool)
 
 
+@dataclass(frozen=True)
+class Emitted:
+    """One object the stage emits this frame (a row of :class:`TrackedFrame`): ``box [4]``
+    xyxy px, class ``cls``, its mask ``patch``, the ``mobility`` Eq. 1 uses, ``track_id`` (-1:
+    untracked), ``source`` (det / coast / carried), ``misses``, detection ``score`` (0 for
+    predicted masks), ``det_index`` among the frame's input detections (-1: predicted), and
+    ``moved``: a late detection moved on from where the model saw it (its full-frame mask no
+    longer applies)."""
+
+    box: np.ndarray
+    cls: int
+    patch: Patch
+    mobility: float
+    track_id: int
+    source: str
+    misses: int = 0
+    score: float = 0.0
+    det_index: int = -1
+    moved: bool = False
+
+
 @dataclass
 class Track:
     """One object over time (see the module docstring)."""
@@ -166,7 +187,6 @@ class Tracker:
         self.coasted = 0
         """predicted masks emitted so far (coasted or carried)"""
         self.frame_no = -1
-        self._moved: set[int] = set()  # this frame's detections moved on by their track's velocity
         self.parts: dict[str, float] = dict.fromkeys(STAGE_PARTS, 0.0)
         """seconds spent per part of the stage (see :data:`STAGE_PARTS`), summed over frames"""
 
@@ -205,8 +225,6 @@ class Tracker:
             t.p = float(t.prior + relax * (t.p - t.prior))
         t1 = time.perf_counter()
         self.parts["predict"] += t1 - t0
-        # objs: (box, cls, patch, mobility, id, source, misses, score, detection index)
-        self._moved = set()
         if dets is None:
             objs = self._carry(depth_m, emit_conf)
         else:
@@ -218,7 +236,7 @@ class Tracker:
 
     # -- model frames ------------------------------------------------------------------------
 
-    def _associate(self, dets: FrameDets, emit_conf: float, depth_m, lag: int) -> list[tuple]:
+    def _associate(self, dets: FrameDets, emit_conf: float, depth_m, lag: int) -> list[Emitted]:
         s, hw = self.s, dets.hw
         self._hw, self._box_only = hw, dets.masks is None
         boxes = np.array(dets.boxes, np.float64).reshape(-1, 4)  # a copy: moved below
@@ -242,8 +260,8 @@ class Tracker:
                 matched[d] = t
             used = {id(t) for _, t in pairs}
             free = [t for t in free if id(t) not in used]
-        objs = []
-        self._moved = set()
+        objs: list[Emitted] = []
+        moved = set()
         for d in range(len(boxes)):
             t = matched.get(d)
             if t is not None and lag > 0 and t.hits > 1:  # a late result: the object moved on
@@ -252,7 +270,7 @@ class Tracker:
                     p = patches[d]
                     patches[d] = clip_patch(p.moved(int(dy), int(dx)), hw)
                     boxes[d] = boxes[d] + [dx, dy, dx, dy]
-                    self._moved.add(d)
+                    moved.add(d)
             if t is not None:
                 self._observe(t, patches[d], boxes[d], depth_m, scores[d])
             elif (emitted[d] or scores[d] >= s.new) and movers[d]:
@@ -263,8 +281,10 @@ class Tracker:
                 continue
             mob = float(self.priors[classes[d]]) if t is None else t.mobility(s.coast_decay)
             tid = -1 if t is None else t.id
-            objs.append((boxes[d], classes[d], patches[d], mob, tid, SOURCE_DETECTION, 0,
-                         scores[d], d))  # fmt: skip
+            objs.append(Emitted(box=boxes[d], cls=int(classes[d]), patch=patches[d],
+                                mobility=mob, track_id=tid, source=SOURCE_DETECTION,
+                                score=float(scores[d]), det_index=d,
+                                moved=d in moved))  # fmt: skip
         for t in free:
             t.misses += 1
             t.dead = t.dead or not t.confirmed  # a tentative track ends at its first miss
@@ -359,14 +379,14 @@ class Tracker:
         t.depth_frame = None
         return t.depth_m
 
-    def _carry(self, depth_m, emit_conf) -> list[tuple]:
+    def _carry(self, depth_m, emit_conf) -> list[Emitted]:
         """A frame the model skipped: every live track is carried (tentative tracks are only
         alive until the next model frame misses them; confirmed ones coast up to K misses)."""
         objs = self._coast(list(self.tracks), depth_m, SOURCE_CARRIED)
         self.tracks = [t for t in self.tracks if not t.dead]
         return objs
 
-    def _coast(self, tracks: list[Track], depth_m, source: str) -> list[tuple]:
+    def _coast(self, tracks: list[Track], depth_m, source: str) -> list[Emitted]:
         """Emit the predicted masks of ``tracks`` that pass the guards (the rest are ended)."""
         s, hw, objs = self.s, self._hw, []
         t0, w0 = time.perf_counter(), self.parts["warp"]
@@ -393,8 +413,9 @@ class Tracker:
             if patch.area == 0:
                 continue
             self.coasted += 1
-            objs.append((patch.box if t.patch is not None else box, t.cls, patch,
-                         t.mobility(s.coast_decay), t.id, source, t.misses, 0.0, -1))  # fmt: skip
+            objs.append(Emitted(box=patch.box if t.patch is not None else box, cls=t.cls,
+                                patch=patch, mobility=t.mobility(s.coast_decay), track_id=t.id,
+                                source=source, misses=t.misses))  # fmt: skip
         self.parts["coast"] += time.perf_counter() - t0 - (self.parts["warp"] - w0)
         return objs
 
@@ -420,24 +441,24 @@ class Tracker:
             mob[k] = t.mobility(self.s.coast_decay)
         return mob
 
-    def _frame(self, objs: list[tuple], hw, t0: float, det_masks) -> TrackedFrame:
+    def _frame(self, objs: list[Emitted], hw, t0: float, det_masks) -> TrackedFrame:
         n = len(objs)
-        boxes = np.array([o[0] for o in objs], np.float32).reshape(n, 4)
+        boxes = np.array([o.box for o in objs], np.float32).reshape(n, 4)
         masks = None
         if not self._box_only:
             masks = np.zeros((n, *hw), bool)
             for k, o in enumerate(objs):  # a detection's own full mask needs no pasting
-                own = o[8] >= 0 and o[8] not in self._moved
-                masks[k] = det_masks[o[8]] if own else o[2].paste(hw)
+                own = o.det_index >= 0 and not o.moved
+                masks[k] = det_masks[o.det_index] if own else o.patch.paste(hw)
         return TrackedFrame(
             boxes=boxes,
-            classes=np.array([o[1] for o in objs], np.int64),
+            classes=np.array([o.cls for o in objs], np.int64),
             masks=masks,
-            mobility=np.array([o[3] for o in objs], np.float32),
-            track_ids=np.array([o[4] for o in objs], np.int64),
-            source=[o[5] for o in objs],
-            misses=np.array([o[6] for o in objs], np.int64),
-            scores=np.array([o[7] for o in objs], np.float32),
-            det_index=np.array([o[8] for o in objs], np.int64),
+            mobility=np.array([o.mobility for o in objs], np.float32),
+            track_ids=np.array([o.track_id for o in objs], np.int64),
+            source=[o.source for o in objs],
+            misses=np.array([o.misses for o in objs], np.int64),
+            scores=np.array([o.score for o in objs], np.float32),
+            det_index=np.array([o.det_index for o in objs], np.int64),
             seconds=time.perf_counter() - t0,
         )

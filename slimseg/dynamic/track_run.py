@@ -10,7 +10,6 @@ gives the same masks in either.
 
 from __future__ import annotations
 
-import math
 import time
 from collections import deque
 from dataclasses import dataclass, replace
@@ -21,6 +20,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.mask_patch import patch_from_mask, warp_patch
+from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track import FrameDets, TrackedFrame, Tracker
@@ -31,42 +31,22 @@ from slimseg.errors import SlimsegError
 @dataclass(frozen=True)
 class TrackPlan:
     """The track stage of a run: ``settings`` (None: off, the per-frame output) and the
-    model's rate (:mod:`~slimseg.dynamic.model_feed`): ``segment_every`` N (frames 0, N, 2N,
-    ...), or ``budget_ms`` (N chosen to keep the mean ms per frame within it), or
-    ``model_thread`` (the model on its own thread, the newest result used). Any of them needs
-    ``settings``: the tracks carry the masks over the frames without a result."""
+    model's ``rate`` (:class:`~slimseg.dynamic.model_rate.ModelRate`). A rate other than every
+    frame needs ``settings``: the tracks carry the masks over the frames without a result."""
 
     settings: TrackSettings | None = None
-    segment_every: int = 1
-    budget_ms: float = 0.0
-    model_thread: bool = False
+    rate: ModelRate = EVERY_FRAME
 
     def __post_init__(self) -> None:
-        if self.segment_every < 1:
-            raise SlimsegError(f"--segment-every {self.segment_every}: expected 1 or more")
-        if not (self.budget_ms >= 0 and math.isfinite(self.budget_ms)):
-            raise SlimsegError(f"--budget-ms {self.budget_ms}: expected a positive number")
-        chosen = [f for f, on in (("--segment-every", self.segment_every > 1),
-                                  ("--budget-ms", self.budget_ms > 0),
-                                  ("--model-thread", self.model_thread)) if on]  # fmt: skip
-        if len(chosen) > 1:
-            raise SlimsegError(f"{' and '.join(chosen)}: give one way to set the model's rate")
-        if chosen and self.settings is None:
+        if self.settings is None and not self.rate.every_frame:
             raise SlimsegError(
-                f"{chosen[0]} needs --track (the tracks carry the masks over the frames the "
-                "model skips)"
+                f"model rate '{self.rate.name}' needs --track (the tracks carry the masks over "
+                "the frames the model skips)"
             )
 
     @property
     def on(self) -> bool:
         return self.settings is not None
-
-    def runs_model(self, i: int) -> bool:
-        """Does the model run on frame ``i`` (0-based) of a fixed schedule (every N frames;
-        ``slimseg predict`` and the cached sweeps, which take no budget or thread)?"""
-        if self.budget_ms > 0 or self.model_thread:
-            raise ValueError("a budget or a model thread sets the rate while running (ModelFeed)")
-        return i % self.segment_every == 0
 
     def floor(self, conf: float) -> float:
         """The score threshold the model must run at: the masking one, or BYTE's ``low``."""
@@ -75,13 +55,7 @@ class TrackPlan:
     def describe(self) -> str:
         if self.settings is None:
             return "off (per-frame)"
-        rate = ""
-        if self.segment_every > 1:
-            rate = f", model on every {self.segment_every} frames"
-        elif self.budget_ms > 0:
-            rate = f", model rate from a budget of {self.budget_ms:g} ms per frame"
-        elif self.model_thread:
-            rate = ", model on its own thread"
+        rate = "" if self.rate.every_frame else f", {self.rate.describe()}"
         return f"{self.settings.describe()}{rate}"
 
 

@@ -171,8 +171,8 @@ def _mode_condition(
         tags.append(f"dropout {plan.dropout.rate:g}:{plan.dropout.burst}")
         note += f", --gt-dropout {plan.dropout.rate:g}:{plan.dropout.burst}"
     if plan.track.on:
-        every = plan.track.segment_every
-        tags.append("tracked" + (f", model every {every}" if every > 1 else ""))
+        rate = plan.track.rate
+        tags.append("tracked" + ("" if rate.every_frame else f", model {rate.name}"))
         note += f", --track ({plan.track.describe()})"
     name = f"{mode} ({', '.join(tags)})" if tags else mode
     return Condition(name, "masked", masks=folder / "masks", masking_ms=ms, note=note)

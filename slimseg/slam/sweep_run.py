@@ -181,7 +181,7 @@ def _one_sequence(
     by_digest: dict[str, str] = {}
     for p in points:
         where = folder / "masks" / _slug(p.label)
-        stage = plan.track if p.track is None else TrackPlan(p.track, plan.track.segment_every)
+        stage = plan.track if p.track is None else TrackPlan(p.track, plan.track.rate)
         sm = mask_with(cache, plan.mode, p.settings, where, stage)
         result.masks[p.label] = sm
         ms = cache.model_ms * sm.model_share + sm.logic_ms
