@@ -1,18 +1,21 @@
 """Masks in real time on a CPU: what each model rate costs per frame and what it keeps.
 
     python benchmarks/realtime_masks.py --sequence S --model fp32.onnx --model int8.onnx \\
-        --rates per-frame,1,3,budget:25,thread --threads 1
+        --rates per-frame,3,budget:25,thread,thread-camera --threads 1
 
-For every model file and rate, ``slimseg dynamic``'s loop (``fusion``, the ``slimseg``
-masking preset) runs over the sequence, side by side in one process, models and rates
-alternating over ``--repeats``. Rates: ``per-frame`` (no track stage: every frame judged
-alone), ``N`` (``--track --segment-every N``), ``budget:MS`` (``--track --budget-ms MS``),
-``thread`` (``--track --model-thread``: replayed in real time at the sequence's rate). Per
-row: the loop's ms per frame in the model (inline runs; the thread's runs are shown apart),
-in the masking logic and in the track stage, the total, its ratio to the first model's
-per-frame total, the per-frame latency (median / p95), the model results' lag in frames, and
-keypoint recall / precision against the sequence's ``dynamic/`` masks. ``--json`` prints the
-rows. The model's own split (preprocess, inference, post-processing) is printed per file.
+Every row is a loop over the public per-frame object (``slimseg.Masker``, mode ``fusion``,
+the export's recommended masking settings), side by side in one process, models and rates
+alternating over ``--repeats``. The frames (and their ground-truth ``dynamic/`` masks) are
+read into memory first, so the loop pays only what a SLAM front end would. Rates:
+``per-frame`` (no track stage: every frame judged alone), ``N`` (track stage, model on every
+N-th frame), ``budget:MS``, ``thread`` (the model on its own thread, frames arriving at the
+sequence's timestamps, late results moved by each object's own ORB matches) and
+``thread-camera`` (the same, late results moved by the camera motion and the track's velocity
+only: ``late_matches`` 0, the mechanism before). Per row: the loop's ms per frame in the
+model (inline runs; the thread's runs are shown apart), in ORB + track stage + masking logic,
+of which the stage, the total and its ratio to the first row's total, the latency per frame
+(median / p95), the results' lag in frames, keypoint recall / precision against ``dynamic/``
+and recall as a share of the per-frame row of the same model. ``--json`` prints the rows.
 """
 
 from __future__ import annotations
@@ -20,113 +23,120 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import tempfile
+import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from slimseg.data.tum import TumSequence
+from slimseg import Masker, ModelRate
+from slimseg.data.images import decode_file
+from slimseg.data.tum import TumSequence, mask_name
 from slimseg.deploy.predictor import Predictor
-from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
 from slimseg.dynamic.track_settings import COAST
 from slimseg.utils.table import format_table
 
 
-def parse_rate(text: str) -> TrackPlan:
-    """``per-frame`` | ``N`` | ``budget:MS`` | ``thread`` → the run's plan."""
-    if text == "per-frame":
-        return TRACK_OFF
-    if text == "thread":
-        return TrackPlan(COAST, model_thread=True)
-    if text.startswith("budget:"):
-        return TrackPlan(COAST, budget_ms=float(text.split(":", 1)[1]))
-    return TrackPlan(COAST, int(text))
+def masker_for(predictor: Predictor, rate: str, fps: float) -> Masker:
+    """The row's object: ``per-frame`` without the stage, the rest with it."""
+    if rate == "per-frame":
+        return Masker.from_predictor(predictor, fps=fps)
+    track = COAST.with_values(late_matches=0) if rate == "thread-camera" else COAST
+    parsed = ModelRate.own_thread() if rate == "thread-camera" else ModelRate.parse(rate)
+    return Masker.from_predictor(predictor, track=track, rate=parsed, fps=fps)
 
 
-def model_split(predictor: Predictor, seq: TumSequence, frames: int, conf: float) -> dict:
-    """Mean ms per frame of the predictor's stages on ``frames`` frames spread over ``seq``."""
-    acc: dict[str, float] = {}
-    idx = np.linspace(0, len(seq.frames) - 1, frames).round().astype(int)
-    for i in idx:
-        pred = predictor.predict(seq.load(int(i))[0], conf=conf)
-        for k, v in pred.timings.items():
-            acc[k] = acc.get(k, 0.0) + v
-        acc["detections"] = acc.get("detections", 0.0) + len(pred.scores)
-    return {k: v / len(idx) for k, v in acc.items()}
+def run(masker: Masker, frames: list, truths: list, stamps: list[float]) -> dict:
+    """One pass over the in-memory frames; frames arrive at their timestamps when the model
+    has its own thread (the loop waits for each), at once otherwise."""
+    score = ModeScore()
+    lat, model, masking, late = [], [], [], []
+    live = masker.rate.thread
+    with masker:
+        start = None
+        for (rgb, depth), truth, stamp in zip(frames, truths, stamps, strict=True):
+            if live:
+                start = start or (masker.clock(), stamp)
+                due = start[0] + stamp - start[1]
+                now = masker.clock()
+                if due > now:
+                    time.sleep(due - now)
+                late.append(1000 * max(masker.clock() - due, 0.0))
+            out = masker.step(rgb, depth, stamp)
+            score.add(out.dynamic, at_keypoints(truth, out.keypoints))
+            lat.append(out.timing.latency)
+            model.append(out.timing.model)
+            masking.append(out.timing.masking)
+        feed, n = masker.feed, len(frames)
+        stage = masker.stage
+    lags = np.asarray(feed.lags or [0])
+    return {
+        "model_ms": float(np.mean(model)),
+        "logic_ms": float(np.mean(masking)),
+        "stage_ms": 0.0 if stage is None else stage.ms_per_frame,
+        "total_ms": float(np.mean(model) + np.mean(masking)),
+        "thread_model_ms": 1000 * feed.model_s / n if live else 0.0,
+        "latency_median_ms": float(np.median(lat)),
+        "latency_p95_ms": float(np.percentile(lat, 95)),
+        "late_max_ms": float(max(late, default=0.0)),
+        "lag_median": float(np.median(lags)),
+        "lag_max": int(lags.max()),
+        "model_frames": feed.model_runs,
+        "recall_pct": 100 * score.recall,
+        "precision_pct": 100 * score.precision,
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sequence", type=Path, required=True)
     ap.add_argument("--model", action="append", required=True, help="repeat for each file")
-    ap.add_argument("--rates", default="per-frame,1,2,3,5,budget:25,thread")
+    ap.add_argument("--rates", default="per-frame,1,2,3,5,budget:25,thread,thread-camera")
+    ap.add_argument("--frames", type=int, default=0, help="first N frames (0: all)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     seq = TumSequence(args.sequence)
+    count = len(seq) if args.frames <= 0 else min(args.frames, len(seq))
+    frames, truths, stamps = [], [], []
+    for i in range(count):
+        rgb, depth, stamp = seq.load(i)
+        gt = decode_file(seq.root / "dynamic" / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
+        if gt is None:
+            raise SystemExit(f"{seq.root / 'dynamic'}: no ground-truth mask for {stamp:.6f}")
+        frames.append((rgb, depth))
+        truths.append(gt > 0)
+        stamps.append(stamp)
     models = {Path(m).name: Predictor.from_path(m, threads=args.threads) for m in args.model}
     rates = args.rates.split(",")
     runs: dict[tuple[str, str], list[dict]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for r in range(args.repeats):
-            for name, predictor in models.items():
-                for rate in rates:
-                    rep = run_sequence(predictor, seq, Path(tmp) / f"{r}", progress=False,
-                                       track=parse_rate(rate))  # fmt: skip
-                    runs.setdefault((name, rate), []).append(_row(rep))
+    for _ in range(args.repeats):
+        for name, predictor in models.items():
+            for rate in rates:
+                row = run(masker_for(predictor, rate, seq.fps), frames, truths, stamps)
+                runs.setdefault((name, rate), []).append(row)
     rows = [{"model": m, "rate": rate, **_median(v)} for (m, rate), v in runs.items()]
     base = rows[0]["total_ms"]
+    per_frame = {r["model"]: r["recall_pct"] for r in rows if r["rate"] == "per-frame"}
     for row in rows:
         row["x_first"] = row["total_ms"] / base
+        ref = per_frame.get(row["model"], rows[0]["recall_pct"])
+        row["recall_share_pct"] = 100 * row["recall_pct"] / ref if ref else float("nan")
     if args.json:
         print(json.dumps(rows, indent=1))
         return
-    print(f"{seq.root}: {len(seq.frames)} frames, {args.threads} model thread(s), median of "
+    print(f"{seq.root}: {count} frames, {args.threads} model thread(s), median of "
           f"{args.repeats} alternating run(s)")  # fmt: skip
-    for name, predictor in models.items():
-        for conf in (0.1, 0.05):
-            split = model_split(predictor, seq, 10, conf)
-            print(f"{name} at score >= {conf}: " + ", ".join(f"{k} {v:.1f}" for k, v in
-                                                              split.items()))  # fmt: skip
-    head = ["model", "rate", "model ms", "logic ms", "stage ms", "total ms", "x first",
+    head = ["model", "rate", "model ms", "masking ms", "of which stage", "total ms", "x first",
             "thread model ms", "latency med / p95", "lag med (max)", "recall %",
-            "precision %"]  # fmt: skip
+            "precision %", "recall / per-frame %"]  # fmt: skip
     print(format_table(head, [_cells(r) for r in rows], markdown=True))
 
 
-def _row(rep) -> dict:
-    ms = rep.ms_per_frame
-    sc = rep.scores.get("fusion")
-    lat = np.asarray(rep.latency_ms)
-    lags = np.asarray(rep.model_lags) if rep.model_lags else np.zeros(1)
-    return {
-        "model_ms": ms["model"],
-        "logic_ms": ms["masking_logic"],
-        "stage_ms": ms.get("track_stage", 0.0),
-        "total_ms": ms["model"] + ms["masking_logic"],
-        "thread_model_ms": ms.get("model_thread", 0.0),
-        "latency_median_ms": float(np.median(lat)),
-        "latency_p95_ms": float(np.percentile(lat, 95)),
-        "late_max_ms": float(max(rep.late_ms, default=0.0)),
-        "lag_median": float(np.median(lags)),
-        "lag_max": int(lags.max()),
-        "model_frames": rep.model_frames,
-        "recall_pct": 100 * sc.recall if sc else float("nan"),
-        "precision_pct": 100 * sc.precision if sc else float("nan"),
-        "stage_parts_ms": rep.stage_parts_ms,
-    }
-
-
 def _median(runs: list[dict]) -> dict:
-    out = {}
-    for k, v in runs[0].items():
-        if isinstance(v, dict):
-            out[k] = {p: statistics.median(r[k][p] for r in runs) for p in v}
-        else:
-            out[k] = statistics.median(r[k] for r in runs)
-    return out
+    return {k: statistics.median(r[k] for r in runs) for k in runs[0]}
 
 
 def _cells(r: dict) -> list[str]:
@@ -135,7 +145,7 @@ def _cells(r: dict) -> list[str]:
             f"{r['thread_model_ms']:.1f}" if r["thread_model_ms"] else "-",
             f"{r['latency_median_ms']:.0f} / {r['latency_p95_ms']:.0f}",
             f"{r['lag_median']:g} ({r['lag_max']})", f"{r['recall_pct']:.1f}",
-            f"{r['precision_pct']:.1f}"]  # fmt: skip
+            f"{r['precision_pct']:.1f}", f"{r['recall_share_pct']:.0f}"]  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ from pathlib import Path
 from slimseg.data.tum import TumSequence
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.masking_settings import DEFAULT
+from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.dynamic.track_settings import COAST, NO_COAST
@@ -78,9 +79,14 @@ def ladder(name: str) -> list[Rung]:
     if name == "segment-every":
         return [
             Rung("per-frame", "fusion"),
-            *[Rung(f"every {n}", "fusion", TrackPlan(COAST, n)) for n in (1, 2, 3, 5)],
-            Rung(f"budget {BUDGET_MS:g} ms", "fusion", TrackPlan(COAST, budget_ms=BUDGET_MS)),
-            Rung("own thread", "fusion", TrackPlan(COAST, model_thread=True)),
+            *[
+                Rung(f"every {n}", "fusion", TrackPlan(COAST, ModelRate.every_n(n)))
+                for n in (1, 2, 3, 5)
+            ],
+            Rung(
+                f"budget {BUDGET_MS:g} ms", "fusion", TrackPlan(COAST, ModelRate.budget(BUDGET_MS))
+            ),
+            Rung("own thread", "fusion", TrackPlan(COAST, ModelRate.own_thread())),
         ]
     raise SystemExit(f"unknown ladder {name!r}: track, dropout, segment-every")
 

@@ -23,9 +23,9 @@ from slimseg.dynamic.mask_patch import (
     patch_iou,
     warp_patch,
 )
+from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import FrameDets, Tracker
-from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
 from slimseg.errors import SlimsegError

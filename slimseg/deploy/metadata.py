@@ -150,12 +150,22 @@ def slam_masking_entry() -> dict[str, Any]:
     }
 
 
-def masking_from_metadata(meta: dict[str, Any]) -> MaskingSettings:
+def masking_from_metadata(meta: dict[str, Any], preset: str | None = None) -> MaskingSettings:
     """The recommended SLAM-facing settings of an export: ``slam_masking`` where present;
     exports older than that key give the ``papers`` preset with their ``mobility_threshold``
     and ``recommended_mask_dilation_px`` (input pixels, converted back to frame pixels at a
-    ``DILATION_REFERENCE_PX``-wide frame). :class:`SlimsegError` on a malformed entry."""
+    ``DILATION_REFERENCE_PX``-wide frame). ``preset``: one of ``slam_masking.presets`` by name
+    instead. :class:`SlimsegError` on a malformed entry or an unknown preset."""
     entry = meta.get("slam_masking")
+    if preset is not None:
+        presets = entry.get("presets") if isinstance(entry, dict) else None
+        if not isinstance(presets, dict) or preset not in presets:
+            have = ", ".join(presets) if isinstance(presets, dict) else "none"
+            raise SlimsegError(f"export metadata slam_masking.presets: no preset {preset!r} "
+                               f"(it has: {have})")  # fmt: skip
+        entry = presets[preset]
+        if not isinstance(entry, dict):
+            raise SlimsegError(f"export metadata slam_masking.presets.{preset}: not an object")
     try:
         if isinstance(entry, dict):
             names = MaskingSettings.__dataclass_fields__

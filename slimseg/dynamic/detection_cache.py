@@ -85,7 +85,6 @@ class CachedDetections:
             return self.boxes[keep], self.classes[keep], masks, self.scores[keep]
         return self.boxes[keep], self.classes[keep], masks
 
-
     def prediction(self, conf: float) -> Prediction:
         """The detections scoring above ``conf`` as the model's result (names left empty)."""
         boxes, classes, masks, scores = self.select(conf, with_scores=True)

@@ -279,9 +279,8 @@ class FrameMasker:
     ) -> tuple[int, int]:
         """The frame's ``(h, w)``; a :class:`FrameError` names what is wrong."""
         i = self.frames
-        if not isinstance(rgb, np.ndarray) or rgb.dtype != np.uint8 or rgb.ndim != 3 or (
-            rgb.shape[2] != 3
-        ):
+        shape = rgb.shape if isinstance(rgb, np.ndarray) else ()
+        if len(shape) != 3 or shape[2] != 3 or rgb.dtype != np.uint8:
             what = f"{rgb.dtype} {list(rgb.shape)}" if isinstance(rgb, np.ndarray) else type(rgb)
             raise FrameError(f"frame {i}: rgb is {what}, expected uint8 [H, W, 3] (RGB order)")
         hw = (int(rgb.shape[0]), int(rgb.shape[1]))

@@ -75,13 +75,16 @@ SHIFT_TOLERANCE_PX = 1.0  # a predicted mask is shifted, not warped, when no cor
 @dataclass
 class FrameDets:
     """One frame's detections in frame pixels: ``boxes float [M, 4]`` xyxy, ``scores [M]``,
-    ``classes int [M]``, ``masks bool [M, H, W]`` (None: a box-only model), frame ``hw``."""
+    ``classes int [M]``, ``masks bool [M, H, W]`` (None: a box-only model), frame ``hw``;
+    ``own_motion bool [M]`` (None: none): a late result already moved into this frame by
+    the object's own measured motion (the tracker does not push it on by its velocity)."""
 
     boxes: np.ndarray
     scores: np.ndarray
     classes: np.ndarray
     masks: np.ndarray | None
     hw: tuple[int, int]
+    own_motion: np.ndarray | None = None
 
 
 @dataclass
@@ -262,9 +265,11 @@ class Tracker:
             free = [t for t in free if id(t) not in used]
         objs: list[Emitted] = []
         moved = set()
+        own = dets.own_motion
         for d in range(len(boxes)):
             t = matched.get(d)
-            if t is not None and lag > 0 and t.hits > 1:  # a late result: the object moved on
+            pushed = own is None or not own[d]  # moved by its own motion already: no push
+            if t is not None and lag > 0 and t.hits > 1 and pushed:  # late: the object moved on
                 dx, dy = np.round(t.kf.velocity * lag).astype(int)
                 if dx or dy:
                     p = patches[d]

@@ -21,6 +21,7 @@ from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.mask_patch import patch_from_mask, warp_patch
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
+from slimseg.dynamic.object_motion import object_shifts
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track import FrameDets, TrackedFrame, Tracker
@@ -67,16 +68,22 @@ def frame_dets(pred: Prediction, hw: tuple[int, int]) -> FrameDets:
     return FrameDets(boxes, scores, classes, masks, hw)
 
 
-def move_dets(dets: FrameDets, h: np.ndarray) -> FrameDets:
-    """``dets`` of an older frame moved by ``h float [3, 3]`` (older → current pixels): each
-    box to the bounds of its moved corners, each mask warped on its crop (nearest neighbour);
-    what leaves the frame is cut."""
+def move_dets(dets: FrameDets, h: np.ndarray, shifts: np.ndarray | None = None) -> FrameDets:
+    """``dets`` of an older frame moved into the current one: by ``h float [3, 3]`` (older →
+    current pixels), or by their own ``shifts float [M, 2]`` (dx, dy) px where finite (the
+    result's ``own_motion``). Each box goes to the bounds of its moved corners, each mask is
+    warped on its crop (nearest neighbour); what leaves the frame is cut."""
     hw = dets.hw
     boxes = np.asarray(dets.boxes, np.float32).reshape(-1, 4)
-    if np.allclose(h, np.eye(3)) or len(boxes) == 0:
+    own = np.zeros(len(boxes), bool) if shifts is None else np.isfinite(shifts).all(1)
+    if (np.allclose(h, np.eye(3)) and not own.any()) or len(boxes) == 0:
         return dets
+    hs = np.repeat(np.asarray(h, np.float64)[None], len(boxes), 0)
+    if own.any():
+        hs[own, :2, 2] = np.round(shifts[own])  # whole pixels: masks shift without a warp
+        hs[own, :2, :2] = np.eye(2)
     corners = boxes[:, [0, 1, 2, 1, 2, 3, 0, 3]].reshape(-1, 4, 2).astype(np.float64)
-    moved = corners @ h[:2, :2].T + h[:2, 2]
+    moved = np.einsum("mij,mkj->mki", hs[:, :2, :2], corners) + hs[:, None, :2, 2]
     out = np.concatenate([moved.min(1), moved.max(1)], 1)
     out[:, [0, 2]] = out[:, [0, 2]].clip(0, hw[1])
     out[:, [1, 3]] = out[:, [1, 3]].clip(0, hw[0])
@@ -84,9 +91,9 @@ def move_dets(dets: FrameDets, h: np.ndarray) -> FrameDets:
     if dets.masks is not None:
         masks = np.zeros((len(boxes), *hw), bool)
         for k, (m, b) in enumerate(zip(dets.masks, boxes, strict=True)):
-            p = warp_patch(patch_from_mask(m, b), h, hw)
+            p = warp_patch(patch_from_mask(m, b), hs[k], hw)
             masks[k, p.y0 : p.y0 + p.mask.shape[0], p.x0 : p.x0 + p.mask.shape[1]] = p.mask
-    return FrameDets(out.astype(np.float32), dets.scores, dets.classes, masks, hw)
+    return FrameDets(out.astype(np.float32), dets.scores, dets.classes, masks, hw, own)
 
 
 class TrackedSequence:
@@ -104,6 +111,8 @@ class TrackedSequence:
         self.motion_ok = 0
         self._motions: deque[np.ndarray] = deque(maxlen=MAX_LAG)
         """the last frames' camera motions (previous → current pixels), newest last"""
+        self._features: deque[OrbFeatures] = deque(maxlen=MAX_LAG + 1)
+        """the last frames' ORB features, newest last (a late result's own motion)"""
 
     def inputs(
         self,
@@ -131,12 +140,18 @@ class TrackedSequence:
         self.motion_ok += motion.ok
         self._motions.append(motion.H if motion.ok else np.eye(3))
         self.tracker.parts["motion"] += time.perf_counter() - t0
+        self._features.append(features)
         if dets is not None and lag > 0:
             t1 = time.perf_counter()
             h = np.eye(3)
             for m in list(self._motions)[-lag:]:
                 h = m @ h
-            dets = move_dets(dets, h)
+            shifts = None
+            if self.tracker.s.late_matches > 0 and lag < len(self._features):
+                old = self._features[-1 - lag]
+                shifts = object_shifts(old, features, dets.masks, dets.boxes,
+                                       self.tracker.s.late_matches)  # fmt: skip
+            dets = move_dets(dets, h, shifts)
             self.tracker.parts["lag"] += time.perf_counter() - t1
         frame = self.tracker.step(dets, motion, emit_conf, depth_m, lag)
         hw = frame.masks.shape[1:] if frame.masks is not None else self.tracker.hw

@@ -1,0 +1,101 @@
+"""``slimseg.Masker``: the per-frame masking chain configured from an exported model.
+
+    with slimseg.Masker.from_onnx("m.onnx", track=True, rate="thread") as masker:
+        for rgb, depth in frames:                       # RGB uint8 [H, W, 3], depth metres
+            out = masker.step(rgb, depth)               # out.mask: uint8 [H, W], 255 = dynamic
+
+The chain is :class:`~slimseg.dynamic.frame_masker.FrameMasker` (what every slimseg command
+runs); this class adds its construction from a model file: the class mobility priors and the
+recommended masking settings (``slam_masking``, or one of its named presets) come from the
+export's metadata, explicit arguments override them. docs/runtime_api.md.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from slimseg.deploy.metadata import masking_from_metadata
+from slimseg.deploy.predictor import Predictor
+from slimseg.detections import Prediction
+from slimseg.dynamic.frame_masker import FrameMasker
+from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
+from slimseg.dynamic.track_settings import DEFAULT_TRACK_PRESET, TrackSettings, track_preset
+from slimseg.errors import SlimsegError
+
+
+class Masker(FrameMasker):
+    """:class:`FrameMasker` around a :class:`~slimseg.deploy.predictor.Predictor`; build it
+    with :meth:`from_onnx` (any model file :meth:`Predictor.from_path` loads) or
+    :meth:`from_predictor`. ``predictor``: the model it runs; ``names``: its class names."""
+
+    predictor: Predictor
+
+    @classmethod
+    def from_onnx(
+        cls,
+        path: str | Path,
+        *,
+        threads: int | None = None,
+        backend: str = "auto",
+        **options: Any,
+    ) -> Masker:
+        """Load ``path`` (``.onnx``; ``.pt`` / ``.ckpt`` weights work too) on ``threads``
+        intra-op threads and build the chain; ``options``: those of :meth:`from_predictor`."""
+        return cls.from_predictor(Predictor.from_path(path, backend, threads=threads), **options)
+
+    @classmethod
+    def from_predictor(
+        cls,
+        predictor: Predictor,
+        *,
+        mode: str = "fusion",
+        preset: str | None = None,
+        track: bool | str | TrackSettings = False,
+        rate: ModelRate | str = EVERY_FRAME,
+        keypoints: int = 1000,
+        camera: tuple[float, float, float, float] | None = None,
+        fps: float = 30.0,
+        depth_scale: float | None = None,
+        **masking: Any,
+    ) -> Masker:
+        """The chain for ``predictor``: ``mode`` (``fusion``, ``seg``, ``box``, ...);
+        ``preset``: a named entry of the export's ``slam_masking.presets`` (default: its
+        recommended settings); ``masking``: explicit overrides (``conf=0.2``, ``t_o=0.25``,
+        ...); ``track``: the track stage (True: the default preset, a preset name, or
+        settings); ``rate``: a :class:`ModelRate` or its text (``"3"``, ``"budget:25"``,
+        ``"thread"``); the rest as :class:`FrameMasker`."""
+        settings = masking_from_metadata(predictor.metadata, preset)
+        if masking:
+            settings = settings.with_values(**masking)
+        stage = _track_settings(track)
+        if isinstance(rate, str):
+            rate = ModelRate.parse(rate)
+
+        def segment(rgb, stamp: float, conf: float) -> Prediction:
+            return predictor.predict(rgb, conf=conf)
+
+        masker = cls(
+            segment, class_mobility=predictor.mobility, mode=mode, masking=settings,
+            track=stage, rate=rate, keypoints=keypoints, camera=camera, fps=fps,
+            depth_scale=depth_scale,
+        )  # fmt: skip
+        masker.predictor = predictor
+        return masker
+
+    @property
+    def names(self) -> list[str]:
+        """Class names (``objects.classes`` index them)."""
+        return self.predictor.names
+
+
+def _track_settings(track: bool | str | TrackSettings) -> TrackSettings | None:
+    if isinstance(track, TrackSettings):
+        return track
+    if track is True:
+        return track_preset(DEFAULT_TRACK_PRESET)
+    if track is False or track is None:
+        return None
+    if isinstance(track, str):
+        return track_preset(track)
+    raise SlimsegError(f"track={track!r}: expected True/False, a preset name or TrackSettings")
