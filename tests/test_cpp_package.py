@@ -19,6 +19,8 @@ from conftest import have_cpp_toolchain
 from slimseg import __version__
 
 ROOT = Path(__file__).resolve().parents[1]
+# CMake versions are numeric: export/cpp takes __version__'s leading x.y.z (0.2.0rc1 -> 0.2.0)
+VERSION = re.match(r"[0-9]+(\.[0-9]+)*", __version__).group()
 
 pytestmark = pytest.mark.skipif(not have_cpp_toolchain(), reason="needs cmake and a C++ compiler")
 
@@ -112,20 +114,20 @@ def test_cpp_package_builds_tests_installs_and_is_found(tmp_path: Path) -> None:
     assert (prefix / "bin" / "slimseg_masks").is_file()
     configs = list(prefix.glob("lib*/cmake/slimseg_consumer/slimseg_consumerConfigVersion.cmake"))
     assert len(configs) == 1, sorted(p.relative_to(prefix) for p in prefix.rglob("*"))
-    assert f'set(PACKAGE_VERSION "{__version__}")' in configs[0].read_text()
+    assert f'set(PACKAGE_VERSION "{VERSION}")' in configs[0].read_text()
 
     # only the prefix is searched (not the user's package registry)
     found = [f"-DCMAKE_PREFIX_PATH={prefix}", "-DCMAKE_FIND_PACKAGE_NO_PACKAGE_REGISTRY=ON"]
-    done = _consumer(tmp_path, "app_build", *found, f"-DWANT={__version__}")
+    done = _consumer(tmp_path, "app_build", *found, f"-DWANT={VERSION}")
     assert done.returncode == 0, done.stdout + done.stderr
     _run(["cmake", "--build", str(tmp_path / "app_build"), "-j", "2"])
     out = _run([str(tmp_path / "app_build" / "uses_slimseg")]).splitlines()
-    assert out == [*EXPECTED, f"version {__version__}"]
+    assert out == [*EXPECTED, f"version {VERSION}"]
 
     # the version file is what find_package checks: a later major version is refused
     done = _consumer(tmp_path, "app_build_99", *found, "-DWANT=99.0")
     assert done.returncode != 0
-    assert "slimseg_consumer" in done.stderr and __version__ in done.stderr, done.stderr
+    assert "slimseg_consumer" in done.stderr and VERSION in done.stderr, done.stderr
 
 
 def test_cpp_add_subdirectory_keeps_the_plain_target_name(tmp_path: Path) -> None:
