@@ -47,7 +47,7 @@ def build_example(build: Path) -> Path:
     subprocess.run(
         ["cmake", "-S", str(ROOT / "export" / "cpp"), "-B", str(build),
          "-DCMAKE_BUILD_TYPE=Release", "-DCMAKE_CXX_FLAGS_RELEASE=-O2",
-         "-DCMAKE_UNITY_BUILD=ON"],
+         "-DCMAKE_UNITY_BUILD=ON", "-DSLIMSEG_TESTS=OFF"],
         check=True, capture_output=True,
     )  # fmt: skip
     subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True, capture_output=True)

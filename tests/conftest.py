@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -56,6 +58,13 @@ def open_class_bias(model: nn.Module) -> nn.Module:
         for branch in model.detect.cls:
             branch[-1].bias.fill_(0.0)
     return model
+
+
+def have_cpp_toolchain() -> bool:
+    """cmake and a C++ compiler on PATH (the export/cpp tests build the C++ consumer)."""
+    return shutil.which("cmake") is not None and (
+        shutil.which("c++") is not None or shutil.which("g++") is not None
+    )
 
 
 @pytest.fixture(autouse=True)

@@ -21,7 +21,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import batchnorm_from, disc_scene, open_class_bias
+from conftest import batchnorm_from, disc_scene, have_cpp_toolchain, open_class_bias
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
@@ -56,13 +56,7 @@ SIZES = [(160, 160), (120, 200), (200, 120), (97, 131), (50, 70)]
 KEYPOINTS = 200  # caller-given keypoints per frame (uniform, a quarter on half-pixel ties)
 
 
-def _have_toolchain() -> bool:
-    return shutil.which("cmake") is not None and (
-        shutil.which("c++") is not None or shutil.which("g++") is not None
-    )
-
-
-pytestmark = pytest.mark.skipif(not _have_toolchain(), reason="needs cmake and a C++ compiler")
+pytestmark = pytest.mark.skipif(not have_cpp_toolchain(), reason="needs cmake and a C++ compiler")
 
 
 @pytest.fixture(scope="session")
@@ -72,6 +66,7 @@ def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
     configure = [
         "cmake", "-S", str(ROOT / "export" / "cpp"), "-B", str(build),
         "-DCMAKE_BUILD_TYPE=Release", "-DCMAKE_CXX_FLAGS_RELEASE=-O2", "-DCMAKE_UNITY_BUILD=ON",
+        "-DSLIMSEG_TESTS=OFF",  # the library's ctest suite: tests/test_cpp_package.py
     ]  # fmt: skip
     subprocess.run(configure, check=True, capture_output=True)
     subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True, capture_output=True)

@@ -1,5 +1,5 @@
 // The small JSON reader behind slimseg::Json (metadata sidecars and ONNX metadata_props).
-#include "slimseg/consumer.hpp"
+#include "slimseg/json.hpp"
 
 #include <charconv>
 #include <cstring>

@@ -1,6 +1,7 @@
 // Metadata: the export's JSON (sidecar or ONNX metadata_props) -> slimseg::Metadata, checked.
-#include "slimseg/consumer.hpp"
+#include "slimseg/metadata.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <sstream>

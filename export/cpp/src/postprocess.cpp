@@ -5,7 +5,7 @@
 // slimseg.ops.letterbox.boxes_to_frame) operation by operation, in float32 where it is float32,
 // so boxes and scores come out bit-identical and masks differ at most on pixels whose
 // probability is within float rounding of 0.5.
-#include "slimseg/consumer.hpp"
+#include "slimseg/postprocess.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -432,12 +432,6 @@ FramePrediction Postprocessor::semantic(const TensorView& logits, const Letterbo
         }
     }
     return out;
-}
-
-std::int64_t WindowMask::area() const {
-    std::int64_t n = 0;
-    for (auto p : pixels) n += p != 0;
-    return n;
 }
 
 }  // namespace slimseg

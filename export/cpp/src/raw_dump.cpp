@@ -1,6 +1,6 @@
 // Raw dumps: named tensors in one little-endian file (the format of `slimseg predict
 // --dump-raw`; the example program writes its results in it too).
-#include "slimseg/consumer.hpp"
+#include "slimseg/raw_dump.hpp"
 
 #include <cstdio>
 #include <cstring>

@@ -1,0 +1,64 @@
+// The export's metadata (export/CONTRACT.md "Metadata keys"), read from the sidecar NAME.json
+// or the ONNX metadata_props and checked field by field.
+#pragma once
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "slimseg/error.hpp"
+#include "slimseg/json.hpp"
+
+namespace slimseg {
+
+struct NmsSettings {
+    double conf = 0.25;   // keep scores strictly above it
+    double iou = 0.7;     // suppress overlaps strictly above it (within a class)
+    int max_det = 300;    // detections kept per frame
+    bool class_aware = true;
+};
+
+struct MaskingSettings {  // slam_masking: the SLAM-facing defaults
+    double conf = 0.25;
+    int dilation_px = 0;
+    int min_static = 100;
+    double m_th_start = 0.25;
+    double m_th_step = 0.1;
+    double frame_ratio = 0.05;
+    double t_o = 0.25;
+    int dilation_reference_px = 640;
+    std::string rule = "eq1";  // eq1 | degrade (what happens when static support runs short)
+    double keep_score = 0.5;   // degrade: a candidate scoring this or more is never given up
+    double cut_behind_m = 0.0; // with depth: mask pixels this far behind the object are cut
+};
+
+struct Metadata {
+    std::string model, family, task, precision = "fp32";
+    std::vector<std::string> names;
+    std::vector<float> mobility;          // per class (float32, as the Python rules use it)
+    std::vector<int> dynamic_classes;
+    int input_h = 0, input_w = 0;         // imgsz
+    std::vector<int> strides;
+    int num_masks = 0, proto_stride = 0;  // segmenters
+    bool dynamic_shapes = false;
+    NmsSettings nms;
+    MaskingSettings slam_masking;                                 // the default preset
+    std::map<std::string, MaskingSettings> masking_presets;       // slam_masking.presets
+    double recommended_mask_dilation_px = 0.0;
+
+    // The sidecar NAME.json (one JSON object).
+    static Metadata from_json(const std::string& text);
+    static Metadata from_file(const std::string& path);
+    // ONNX metadata_props: every value a JSON string.
+    static Metadata from_props(const std::map<std::string, std::string>& props);
+    static Metadata from_object(const Json& root);
+
+    int num_classes() const { return static_cast<int>(names.size()); }
+    bool semantic() const { return task == "semantic"; }
+    bool darknet() const { return family == "darknet-yolov3"; }
+    bool segmenter() const { return num_masks > 0; }
+    // The named masking preset ("" = the default); Error naming the preset if unknown.
+    const MaskingSettings& masking(const std::string& preset = "") const;
+};
+
+}  // namespace slimseg
