@@ -11,7 +11,7 @@ read into memory first, so the loop pays only what a SLAM front end would. Rates
 N-th frame), ``budget:MS``, ``thread`` (the model on its own thread, frames arriving at the
 sequence's timestamps, late results moved by each object's own ORB matches) and
 ``thread-camera`` (the same, late results moved by the camera motion and the track's velocity
-only: ``late_matches`` 0, the mechanism before). Per row: the loop's ms per frame in the
+only: ``own_matches`` 0, the mechanism before). Per row: the loop's ms per frame in the
 model (inline runs; the thread's runs are shown apart), in ORB + track stage + masking logic,
 of which the stage, the total and its ratio to the first row's total, the latency per frame
 (median / p95), the results' lag in frames, keypoint recall / precision against ``dynamic/``
@@ -42,7 +42,7 @@ def masker_for(predictor: Predictor, rate: str, fps: float) -> Masker:
     """The row's object: ``per-frame`` without the stage, the rest with it."""
     if rate == "per-frame":
         return Masker.from_predictor(predictor, fps=fps)
-    track = COAST.with_values(late_matches=0) if rate == "thread-camera" else COAST
+    track = COAST.with_values(own_matches=0) if rate == "thread-camera" else COAST
     parsed = ModelRate.own_thread() if rate == "thread-camera" else ModelRate.parse(rate)
     return Masker.from_predictor(predictor, track=track, rate=parsed, fps=fps)
 

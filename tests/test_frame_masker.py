@@ -16,7 +16,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker, segmenter_for
-from slimseg.dynamic.object_motion import object_shifts
+from slimseg.dynamic.object_motion import inside_boxes, inside_masks, object_shifts
 from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import FrameDets
 from slimseg.dynamic.track_run import TrackedSequence
@@ -117,16 +117,17 @@ def test_object_shifts_follow_the_objects_own_matches() -> None:
     masks[0, 80:144, 100:164] = True
     flat = np.zeros((2, 4), np.float32)
     flat[0], flat[1] = [100, 80, 164, 144], [0, 0, 2, 2]
-    shifts = object_shifts(fo, fn, masks, flat, min_matches=6)
+    on = inside_masks(masks, fo.keypoints)
+    shifts = object_shifts(fo, fn, on, min_matches=6)
     assert shifts[0] == pytest.approx([9, -4], abs=1.0) and np.isnan(shifts[1]).all()
-    boxes = object_shifts(fo, fn, None, flat, min_matches=6)  # box-only models: the box
+    boxes = object_shifts(fo, fn, inside_boxes(flat, fo.keypoints), 6)  # box-only: the box
     assert boxes[0] == pytest.approx([9, -4], abs=1.0)
-    assert np.isnan(object_shifts(fo, fn, masks, flat, min_matches=10_000)).all()
+    assert np.isnan(object_shifts(fo, fn, on, min_matches=10_000)).all()
 
 
 def test_a_late_result_lands_where_the_object_is_now() -> None:
     """Frame 0's detection delivered on frame 3 (lag 3) of a block moving (+6, 0) px per frame
-    with a still camera: moved by its own matches it lands on the block; with ``late_matches``
+    with a still camera: moved by its own matches it lands on the block; with ``own_matches``
     0 (camera motion and a track velocity it does not have yet) it stays 18 px behind."""
     rng = np.random.default_rng(1)
     bg = np.kron(rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), np.ones((8, 8, 1), np.uint8))
@@ -138,7 +139,7 @@ def test_a_late_result_lands_where_the_object_is_now() -> None:
                     np.zeros(1, np.int64), mask, (240, 320))  # fmt: skip
     centres = {}
     for late in (6, 0):
-        stage = TrackedSequence(COAST.with_values(late_matches=late), np.array([1.0]), "seg", 0.5)
+        stage = TrackedSequence(COAST.with_values(own_matches=late), np.array([1.0]), "seg", 0.5)
         previous = None
         for k, img in enumerate(frames):
             feats = orb_features(img, 1000)

@@ -51,6 +51,16 @@ class BoxKalman:
         """Centre velocity ``[2]`` px/frame (the object's own, after camera compensation)."""
         return self.x[4:6].copy()
 
+    @property
+    def centre(self) -> np.ndarray:
+        """The box centre ``[2]`` (x, y) px."""
+        return self.x[:2].copy()
+
+    def place(self, centre: np.ndarray) -> None:
+        """Put the (predicted) box centre at ``centre [2]``: a measured position of the object
+        replaces the constant-velocity step (size, velocity and covariance are kept)."""
+        self.x[:2] = centre
+
     def predict(self, motion: CameraMotion, scale: float | None = None) -> None:
         """Move the state through the camera's motion, then one constant-velocity step.
         ``scale``: the motion's local scale when the caller knows it is the same everywhere

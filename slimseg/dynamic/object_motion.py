@@ -1,55 +1,68 @@
 """Each object's own motion between two frames, from the ORB matches inside its mask.
 
-A model on its own thread delivers results a few frames late (docs/tracking.md §6). Moving a
-late result by the camera motion and then by its track's box-filter velocity fails when the
-camera circles a walker: the walker's image motion is neither the background's nor a constant
-velocity. The frame the result was computed on has its ORB features already (the loop
-computed them when it masked that frame): matching those inside each detection's mask to the
-current frame's features measures where the object itself went, whatever moved it.
+A model on its own thread delivers results a few frames late, and between its results the
+track stage carries every mask (docs/tracking.md §6). Moving a mask by the camera motion and
+then by its track's box-filter velocity fails when the camera circles a walker: the walker's
+image motion is neither the background's nor a constant velocity. Both frames have their ORB
+features already (the loop computed them when it masked each frame): matching the earlier
+frame's keypoints inside the object's mask to the later frame's measures where the object
+itself went, whatever moved it. The track stage uses it for late results (the detection's
+frame → now) and for every track from one frame to the next.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from slimseg.dynamic.epipolar import OrbFeatures, match_features
+from slimseg.dynamic.mask_patch import Patch
+
+
+def inside_masks(masks: np.ndarray, kps: np.ndarray) -> np.ndarray:
+    """``bool [M, N]``: keypoint ``kps [N, 2]`` (x, y px, rounded) on ``masks bool [M, H, W]``."""
+    h, w = masks.shape[1:]
+    x = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
+    y = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)
+    return masks[:, y, x]
+
+
+def inside_boxes(boxes: np.ndarray, kps: np.ndarray) -> np.ndarray:
+    """``bool [M, N]``: keypoint ``kps [N, 2]`` inside ``boxes [M, 4]`` xyxy (box-only)."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    x, y = kps[:, 0][None], kps[:, 1][None]
+    return (x >= b[:, :1]) & (x < b[:, 2:3]) & (y >= b[:, 1:2]) & (y < b[:, 3:4])
+
+
+def inside_patches(patches: Sequence[Patch], kps: np.ndarray) -> np.ndarray:
+    """``bool [M, N]``: keypoint ``kps [N, 2]`` on each mask patch."""
+    out = np.zeros((len(patches), len(kps)), bool)
+    for k, p in enumerate(patches):
+        out[k] = p.contains(kps)
+    return out
 
 
 def object_shifts(
-    old: OrbFeatures,
-    new: OrbFeatures,
-    masks: np.ndarray | None,
-    boxes: np.ndarray,
-    min_matches: int,
+    old: OrbFeatures, new: OrbFeatures, inside: np.ndarray, min_matches: int
 ) -> np.ndarray:
     """``float64 [M, 2]`` (dx, dy) px from the ``old`` frame to the ``new`` one, per object:
-    the median displacement of the ratio-test matches of ``old``'s keypoints inside the
-    object's mask (``masks bool [M, H, W]`` of the old frame; None: inside ``boxes [M, 4]``
-    xyxy); NaN where fewer than ``min_matches`` matched (the caller falls back)."""
-    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
-    out = np.full((len(boxes), 2), np.nan)
+    the median displacement of the ratio-test matches of ``old``'s keypoints that lie on the
+    object (``inside bool [M, N]`` over ``old.keypoints``, :func:`inside_masks` and
+    friends); NaN where fewer than ``min_matches`` matched (the caller falls back)."""
+    out = np.full((len(inside), 2), np.nan)
     kps = old.keypoints
-    if len(boxes) == 0 or len(kps) == 0 or min_matches < 1:
+    if len(inside) == 0 or len(kps) == 0 or min_matches < 1:
         return out
-    if masks is None:
-        x, y = kps[:, 0][None], kps[:, 1][None]
-        inside = (x >= boxes[:, :1]) & (x < boxes[:, 2:3]) & (y >= boxes[:, 1:2]) & (
-            y < boxes[:, 3:4])  # fmt: skip
-    else:
-        h, w = masks.shape[1:]
-        xi = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
-        yi = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)
-        inside = masks[:, yi, xi]  # [M, N]
     on_objects = np.flatnonzero(inside.any(0))
     if len(on_objects) < min_matches:
         return out
-    sub = OrbFeatures(kps[on_objects], old.descriptors[on_objects])
-    pairs = match_features(sub, new)
+    pairs = match_features(OrbFeatures(kps[on_objects], old.descriptors[on_objects]), new)
     if len(pairs) < min_matches:
         return out
     src = on_objects[pairs[:, 0]]
     moved = new.keypoints[pairs[:, 1]].astype(np.float64) - kps[src]
-    for k in range(len(boxes)):
+    for k in range(len(inside)):
         mine = inside[k, src]
         if mine.sum() >= min_matches:
             out[k] = np.median(moved[mine], axis=0)

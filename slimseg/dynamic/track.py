@@ -205,21 +205,33 @@ class Tracker:
         emit_conf: float,
         depth_m: np.ndarray | None = None,
         lag: int = 0,
+        own: dict[int, np.ndarray] | None = None,
     ) -> TrackedFrame:
         """Advance one frame. ``dets``: this frame's detections at a threshold at or below
         ``low`` (None: the model did not run on this frame); ``emit_conf``: the masking score
         threshold (detections above it are always emitted); ``depth_m [H, W]`` metres (0 =
         invalid) for the coasting depth gate (None: no gate); ``lag``: ``dets`` were computed
         that many frames ago (already moved by the camera motion since): a detection matched
-        to a track is moved on by the track's own velocity times ``lag``."""
+        to a track is moved on by the track's own velocity times ``lag``; ``own``: track id
+        → its object's measured ``(dx, dy)`` px since the previous frame (those tracks move
+        by it instead of the camera motion and their velocity)."""
         t0 = time.perf_counter()
         if dets is None and self._hw is None:
             raise ValueError("the first frame of a sequence needs detections (the model runs)")
         self.frame_no += 1
         relax = 0.0 if self.s.p_relax_s <= 0 else math.exp(-self.dt / self.s.p_relax_s)
         scale = motion_scale(motion)
+        own = own or {}
         for t in self.tracks:
+            shift = own.get(t.id)
+            centre = t.kf.centre
             t.kf.predict(motion, scale)
+            if shift is not None:  # measured: where its ORB matches went
+                t.kf.place(centre + shift)
+                t.transform[:2] += np.outer(shift, t.transform[2])
+                t.since_seen += 1
+                t.p = float(t.prior + relax * (t.p - t.prior))
+                continue
             if motion.ok:
                 t.transform = motion.H @ t.transform
             v = t.kf.velocity
@@ -339,6 +351,18 @@ class Tracker:
         return t
 
     # -- predictions -------------------------------------------------------------------------
+
+    def previous_patches(self) -> tuple[list[Track], list[Patch]]:
+        """The tracks with a mask in the previous frame (observed, or emitted as predicted
+        there) and those masks, before :meth:`step` moves anything."""
+        tracks, patches = [], []
+        for t in self.tracks:
+            p = t.patch if t.since_seen == 0 else t.predicted
+            if p is None or (t.since_seen > 0 and t.predicted_at != self.frame_no):
+                continue
+            tracks.append(t)
+            patches.append(p)
+        return tracks, patches
 
     @staticmethod
     def _shifted(t: Track) -> Patch:

@@ -21,7 +21,12 @@ from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.mask_patch import patch_from_mask, warp_patch
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
-from slimseg.dynamic.object_motion import object_shifts
+from slimseg.dynamic.object_motion import (
+    inside_boxes,
+    inside_masks,
+    inside_patches,
+    object_shifts,
+)
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track import FrameDets, TrackedFrame, Tracker
@@ -147,18 +152,25 @@ class TrackedSequence:
             for m in list(self._motions)[-lag:]:
                 h = m @ h
             shifts = None
-            if self.tracker.s.late_matches > 0 and lag < len(self._features):
+            if self.tracker.s.own_matches > 0 and lag < len(self._features):
                 old = self._features[-1 - lag]
-                shifts = object_shifts(old, features, dets.masks, dets.boxes,
-                                       self.tracker.s.late_matches)  # fmt: skip
+                kps = old.keypoints
+                on = inside_boxes(dets.boxes, kps) if dets.masks is None else inside_masks(
+                    dets.masks, kps)  # fmt: skip
+                shifts = object_shifts(old, features, on, self.tracker.s.own_matches)
             dets = move_dets(dets, h, shifts)
             self.tracker.parts["lag"] += time.perf_counter() - t1
-        frame = self.tracker.step(dets, motion, emit_conf, depth_m, lag)
+        own = None
+        if previous is not None and self.tracker.s.own_matches > 0 and self.tracker.tracks:
+            t2 = time.perf_counter()
+            own = self._own_motion(previous.features, features)
+            self.tracker.parts["motion"] += time.perf_counter() - t2
+        frame = self.tracker.step(dets, motion, emit_conf, depth_m, lag, own)
         hw = frame.masks.shape[1:] if frame.masks is not None else self.tracker.hw
         inputs = FrameInputs(
             keypoints=features.keypoints, boxes=frame.boxes, classes=frame.classes,
             masks=frame.masks, hw=tuple(hw), depth_m=depth_m, descriptors=features.descriptors,
-            previous=previous, mobility=frame.mobility, predicted=frame.coasted,
+            previous=previous, mobility=frame.mobility, predicted=frame.misses > 0,
             scores=frame.scores, support=features.corners,
         )  # fmt: skip
         if self.mode in EPIPOLAR_MODES and frame.masks is not None:
@@ -171,6 +183,16 @@ class TrackedSequence:
         self.seconds += time.perf_counter() - t0
         self.frames += 1
         return inputs, frame
+
+    def _own_motion(self, old: OrbFeatures, new: OrbFeatures) -> dict[int, np.ndarray]:
+        """Track id → ``(dx, dy)`` px of its object from the previous frame to this one, for
+        the tracks with enough ORB matches on their previous-frame mask."""
+        tracks, patches = self.tracker.previous_patches()
+        if not tracks:
+            return {}
+        on = inside_patches(patches, old.keypoints)
+        shifts = object_shifts(old, new, on, self.tracker.s.own_matches)
+        return {t.id: s for t, s in zip(tracks, shifts, strict=True) if np.isfinite(s).all()}
 
     @property
     def ms_per_frame(self) -> float:

@@ -44,10 +44,11 @@ class TrackSettings:
     ``min_depth_share`` of them remain or more than ``max_outside`` of its predicted box has
     left the image. A track unmatched for ``keep_frames`` model frames is forgotten.
 
-    A late model result (the model on its own thread) is moved into the current frame by
-    each detection's own motion, the median of at least ``late_matches`` ORB matches inside
-    its mask (:mod:`slimseg.dynamic.object_motion`); with fewer (or ``late_matches`` 0) by the
-    camera motion and then its track's velocity.
+    Own motion: a late model result (the model on its own thread) is moved into the current
+    frame, and every track's mask from one frame to the next, by the object's own motion:
+    the median of at least ``own_matches`` ORB matches on its mask
+    (:mod:`slimseg.dynamic.object_motion`); with fewer (or ``own_matches`` 0) by the camera
+    motion and then the track's velocity.
 
     Moving probability: ``p <- (1 - p_alpha) p + p_alpha s`` with ``s`` = 1 (the epipolar
     check says moving) or 0 (static), no update while undecided; between observations ``p``
@@ -70,7 +71,7 @@ class TrackSettings:
     keep_frames: int = 15
     p_alpha: float = 0.3
     p_relax_s: float = 1.0
-    late_matches: int = 6
+    own_matches: int = 6
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -112,13 +113,7 @@ TRACK_RANGES: dict[str, Range] = {
     "keep_frames": (1, 10_000, True, "frames a lost track is remembered, a whole number >= 1"),
     "p_alpha": (0.0, 1.0, False, "moving-probability update weight, 0-1"),
     "p_relax_s": (0.0, 1e6, False, "relaxation time to the class prior in s (0: at once)"),
-    "late_matches": (
-        0,
-        10_000,
-        True,
-        "ORB matches that move a late result by its own "
-        "motion, a whole number >= 0 (0: camera motion and track velocity)",
-    ),
+    "own_matches": (0, 10_000, True, "ORB matches that move a mask by its own motion, >= 0"),
 }
 
 
