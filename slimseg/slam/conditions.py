@@ -4,9 +4,9 @@ Kinds of condition:
 - ``raw``: the sequence's frames;
 - ``masked``: a dynamic mask per frame (``<rgb timestamp>.png``, nonzero = dynamic, as
   ``slimseg dynamic`` writes them, or the ground-truth ``dynamic/``). ORB-SLAM3 has no mask
-  input, so the region is removed from what it sees: the colour is filled by OpenCV's Telea
-  inpainting (no new corners at the mask edge, where a flat fill would create some) and the
-  depth is zeroed (ORB-SLAM3 ignores keypoints without depth for RGB-D). The dense engine also
+  input, so the region is removed from what it sees
+  (:func:`slimseg.dynamic.remove_region.remove_dynamic`: Telea inpainting, depth zeroed).
+  The dense engine also
   gets the complement as its valid-pixel mask. The mask is first dilated by the condition's
   ``dilation_px``: the masking settings' dilation for ground-truth masks, 0 for masks that
   already carry it (made by a mode, or by ``slimseg dynamic`` and read with ``--masks``);
@@ -27,11 +27,10 @@ from tqdm import tqdm
 
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
+from slimseg.dynamic.remove_region import remove_dynamic
 from slimseg.dynamic.seg_box import dilate
 from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EngineFrame
-
-INPAINT_RADIUS_PX = 3
 
 PathsFor = Callable[[int], tuple[Path, Path]]
 
@@ -103,10 +102,7 @@ def condition_frames(
             if m.shape != rgb.shape[:2]:
                 raise SlimsegError(f"mask {path} is {m.shape[::-1]}, frames are {rgb.shape[1::-1]}")
             region = dilate(m > 0, cond.dilation_px).astype(bool)
-            if region.any():
-                m8 = region.astype(np.uint8) * 255
-                rgb = cv2.inpaint(rgb, m8, INPAINT_RADIUS_PX, cv2.INPAINT_TELEA)
-                depth = np.where(region, np.float32(0), depth)
+            rgb, depth = remove_dynamic(rgb, depth, region)
             static = np.where(region, 0, 255).astype(np.uint8)
         elif cond.kind == "replaced":
             rgb, depth = _replacement(seq, cond.frames(i), rgb.shape[:2])
