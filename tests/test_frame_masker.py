@@ -139,7 +139,8 @@ def test_a_late_result_lands_where_the_object_is_now() -> None:
                     np.zeros(1, np.int64), mask, (240, 320))  # fmt: skip
     centres = {}
     for late in (6, 0):
-        stage = TrackedSequence(COAST.with_values(own_matches=late), np.array([1.0]), "seg", 0.5)
+        settings = COAST.with_values(own_matches=late)
+        stage = TrackedSequence(settings, np.array([1.0]), mode="seg", mover_prior=0.5)
         previous = None
         for k, img in enumerate(frames):
             feats = orb_features(img, 1000)

@@ -77,8 +77,9 @@ def add_rate_args(p: argparse.ArgumentParser) -> None:
         "--model-thread",
         action="store_true",
         help="run the model on its own thread, as a runtime would: frames are replayed in real "
-        "time and masked as they arrive with the newest finished model result, moved by the "
-        "camera motion; the report gives the per-frame latency (only the chosen mode is scored)",
+        "time and masked as they arrive with the newest finished model result, moved by each "
+        "object's own ORB matches; the report gives the per-frame latency (the other modes are "
+        "scored on a clock paused meanwhile)",
     )
     g.add_argument(
         "--fps",

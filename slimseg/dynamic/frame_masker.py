@@ -175,7 +175,9 @@ class FrameMasker:
         """the score threshold the model runs at: the masking one, or BYTE's ``low``"""
         self.stage = None
         if track is not None:
-            self.stage = TrackedSequence(track, self.mobility, mode, self.rules.mover_prior, fps)
+            self.stage = TrackedSequence(
+                track, self.mobility, mode=mode, mover_prior=self.rules.mover_prior, fps=fps
+            )
         self.fps = fps
         self.frames = 0
         self._paused = 0.0

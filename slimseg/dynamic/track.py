@@ -174,6 +174,7 @@ class Tracker:
         self,
         settings: TrackSettings,
         class_mobility: np.ndarray,
+        *,
         fps: float = 30.0,
         mover_prior: float = 0.0,
     ) -> None:

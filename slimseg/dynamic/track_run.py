@@ -105,10 +105,15 @@ class TrackedSequence:
     """Per-frame driver of the track stage for one sequence run in ``mode``."""
 
     def __init__(
-        self, settings: TrackSettings, class_mobility: np.ndarray, mode: str,
-        mover_prior: float, fps: float = 30.0,
-    ) -> None:  # fmt: skip
-        self.tracker = Tracker(settings, class_mobility, fps, mover_prior)
+        self,
+        settings: TrackSettings,
+        class_mobility: np.ndarray,
+        *,
+        mode: str,
+        mover_prior: float,
+        fps: float = 30.0,
+    ) -> None:
+        self.tracker = Tracker(settings, class_mobility, fps=fps, mover_prior=mover_prior)
         self.mode = mode
         self.mover_prior = mover_prior
         self.seconds = 0.0
