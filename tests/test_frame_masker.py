@@ -18,9 +18,9 @@ from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker, segmenter_for
 from slimseg.dynamic.object_motion import inside_boxes, inside_masks, object_shifts
 from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track import FrameDets
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.dynamic.track_settings import COAST
+from slimseg.dynamic.track_types import FrameDets
 from slimseg.errors import SlimsegError
 
 

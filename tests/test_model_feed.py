@@ -18,9 +18,10 @@ from slimseg.dynamic.frame_masker import FrameMasker
 from slimseg.dynamic.model_feed import MAX_EVERY, ModelFeed
 from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track import FrameDets, Tracker
+from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_run import TrackPlan, move_dets
 from slimseg.dynamic.track_settings import COAST
+from slimseg.dynamic.track_types import FrameDets
 from slimseg.errors import SlimsegError
 
 HW = (120, 160)

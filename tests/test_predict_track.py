@@ -20,7 +20,7 @@ from slimseg.cli import predict as predict_cli
 from slimseg.cli.main import main
 from slimseg.deploy.track_predict import UNTRACKED_BASE, draw_tracked
 from slimseg.detections import Prediction
-from slimseg.dynamic.track import TrackedFrame
+from slimseg.dynamic.track_types import TrackedFrame
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 
 NAMES = ["person", "chair", "car"]

@@ -25,9 +25,10 @@ from slimseg.dynamic.mask_patch import (
 )
 from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track import FrameDets, Tracker
+from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
+from slimseg.dynamic.track_types import FrameDets
 from slimseg.errors import SlimsegError
 
 HW = (120, 160)

@@ -49,8 +49,8 @@ from slimseg.deploy.predictor import Predictor
 from slimseg.detections import Prediction
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker
 from slimseg.dynamic.masking_settings import DEFAULT
-from slimseg.dynamic.track import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
 from slimseg.dynamic.track_run import TrackPlan
+from slimseg.dynamic.track_types import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU
 from slimseg.utils.atomic import atomic_path, staged_dir, write_png, write_text

@@ -36,9 +36,9 @@ from slimseg.dynamic.pipeline import (
     process_modes,
 )
 from slimseg.dynamic.semantic import instances_of
-from slimseg.dynamic.track import SOURCE_DETECTION, TrackedFrame
 from slimseg.dynamic.track_run import TrackedSequence, frame_dets
 from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.dynamic.track_types import SOURCE_DETECTION, TrackedFrame
 from slimseg.errors import SlimsegError
 
 Segmenter = Callable[[np.ndarray, float, float], Prediction]

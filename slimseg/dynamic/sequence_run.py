@@ -36,8 +36,8 @@ from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, MODES, FrameResult
 from slimseg.dynamic.recall_loss import RecallLoss
-from slimseg.dynamic.track import TrackedFrame
 from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.track_types import TrackedFrame
 from slimseg.utils.atomic import write_png
 
 

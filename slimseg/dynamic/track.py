@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -61,8 +60,16 @@ from slimseg.dynamic.track_geometry import (
     outside_share,
 )
 from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.dynamic.track_types import (
+    SOURCE_CARRIED,
+    SOURCE_COAST,
+    SOURCE_DETECTION,
+    Emitted,
+    FrameDets,
+    Track,
+    TrackedFrame,
+)
 
-SOURCE_DETECTION, SOURCE_COAST, SOURCE_CARRIED = "det", "coast", "carried"
 STAGE_PARTS = ("motion", "lag", "predict", "associate", "warp", "update", "coast", "paste")
 """The stage's parts as timed (``Tracker.parts``): ORB matching + similarity fit and moving a
 late model result into the frame (both timed by the caller), box filters and transforms,
@@ -70,101 +77,6 @@ association (IoU + Hungarian, without the warps), mask warps, track updates (fil
 (dilation, depth gate, without the warps), the output masks."""
 IOU_STRIDE = 2  # association counts mask overlaps on every 2nd row and column
 SHIFT_TOLERANCE_PX = 1.0  # a predicted mask is shifted, not warped, when no corner moves more
-
-
-@dataclass
-class FrameDets:
-    """One frame's detections in frame pixels: ``boxes float [M, 4]`` xyxy, ``scores [M]``,
-    ``classes int [M]``, ``masks bool [M, H, W]`` (None: a box-only model), frame ``hw``;
-    ``own_motion bool [M]`` (None: none): a late result already moved into this frame by
-    the object's own measured motion (the tracker does not push it on by its velocity)."""
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    classes: np.ndarray
-    masks: np.ndarray | None
-    hw: tuple[int, int]
-    own_motion: np.ndarray | None = None
-
-
-@dataclass
-class TrackedFrame:
-    """What the masking logic gets: per object ``boxes [M, 4]`` xyxy, ``classes [M]``,
-    ``masks bool [M, H, W]`` (None: box-only), ``mobility float32 [M]`` (replaces the class
-    prior), ``track_ids int [M]`` (-1: untracked detection), ``source [M]`` (det / coast /
-    carried), ``misses int [M]``; ``seconds`` the stage took."""
-
-    boxes: np.ndarray
-    classes: np.ndarray
-    masks: np.ndarray | None
-    mobility: np.ndarray
-    track_ids: np.ndarray
-    source: list[str]
-    misses: np.ndarray
-    scores: np.ndarray
-    det_index: np.ndarray
-    """``int [M]``: the object's index among this frame's input detections (-1: predicted)"""
-    seconds: float = 0.0
-
-    @property
-    def coasted(self) -> np.ndarray:
-        """``bool [M]``: predicted (coasted or carried), not detected, in this frame."""
-        return np.array([s != SOURCE_DETECTION for s in self.source], bool)
-
-
-@dataclass(frozen=True)
-class Emitted:
-    """One object the stage emits this frame (a row of :class:`TrackedFrame`): ``box [4]``
-    xyxy px, class ``cls``, its mask ``patch``, the ``mobility`` Eq. 1 uses, ``track_id`` (-1:
-    untracked), ``source`` (det / coast / carried), ``misses``, detection ``score`` (0 for
-    predicted masks), ``det_index`` among the frame's input detections (-1: predicted), and
-    ``moved``: a late detection moved on from where the model saw it (its full-frame mask no
-    longer applies)."""
-
-    box: np.ndarray
-    cls: int
-    patch: Patch
-    mobility: float
-    track_id: int
-    source: str
-    misses: int = 0
-    score: float = 0.0
-    det_index: int = -1
-    moved: bool = False
-
-
-@dataclass
-class Track:
-    """One object over time (see the module docstring)."""
-
-    id: int
-    cls: int
-    prior: float
-    p: float
-    kf: BoxKalman
-    patch: Patch | None
-    """last observed mask (None: box-only), in the frame it was observed"""
-    transform: np.ndarray = field(default_factory=lambda: np.eye(3))
-    """last-observed frame pixels → current frame pixels"""
-    depth_m: float = 0.0
-    """median depth under the last observed mask with valid depth (0: unknown)"""
-    depth_frame: np.ndarray | None = None
-    """depth image of the last observation, until :meth:`Tracker._depth` takes its median"""
-    hits: int = 1
-    misses: int = 0
-    since_seen: int = 0
-    confirmed: bool = False
-    strong: bool = False
-    """a detection scoring ``>= new`` backed it: only such tracks are confirmed (and coast);
-    a weak track is carried over the frames the model skips and ends at its first miss"""
-    dead: bool = False
-    """a guard fired: the track is removed at the end of the frame"""
-    predicted: Patch | None = None
-    predicted_at: int = -1
-    """the tracker's frame number ``predicted`` was computed for"""
-
-    def mobility(self, decay: float) -> float:
-        return self.p * decay**self.misses
 
 
 class Tracker:

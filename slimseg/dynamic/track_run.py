@@ -29,8 +29,9 @@ from slimseg.dynamic.object_motion import (
 )
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
 from slimseg.dynamic.semantic import instances_of
-from slimseg.dynamic.track import FrameDets, TrackedFrame, Tracker
+from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.dynamic.track_types import FrameDets, TrackedFrame
 from slimseg.errors import SlimsegError
 
 
