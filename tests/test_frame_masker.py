@@ -16,7 +16,12 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker, segmenter_for
-from slimseg.dynamic.object_motion import inside_boxes, inside_masks, object_shifts
+from slimseg.dynamic.object_motion import (
+    _subset_medians,
+    inside_boxes,
+    inside_masks,
+    object_shifts,
+)
 from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.dynamic.track_settings import COAST
@@ -167,3 +172,15 @@ def test_a_prediction_is_what_the_segmenter_returns(sequence: Path) -> None:
         out = m.step(rgb)
     assert seen == [min(m.masking.conf, COAST.low)] and not out.mask.any()
     assert len(out.objects) == 0 and out.model_ran and out.stamp == 0.0
+
+
+def test_subset_medians_are_numpys_medians() -> None:
+    """All objects' medians at once (ties and even counts included) equal ``np.median``."""
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        p, m = int(rng.integers(1, 60)), int(rng.integers(1, 8))
+        values = rng.normal(size=p).round(1)
+        members = rng.random((m, p)) < 0.5
+        members[:, rng.integers(0, p)] = True
+        expected = [np.median(values[row]) for row in members]
+        assert np.allclose(_subset_medians(values, members), expected)

@@ -62,8 +62,28 @@ def object_shifts(
         return out
     src = on_objects[pairs[:, 0]]
     moved = new.keypoints[pairs[:, 1]].astype(np.float64) - kps[src]
-    for k in range(len(inside)):
-        mine = inside[k, src]
-        if mine.sum() >= min_matches:
-            out[k] = np.median(moved[mine], axis=0)
+    mine = inside[:, src]  # [M, P]: the matches on each object
+    enough = mine.sum(1) >= min_matches
+    if enough.any():
+        out[enough] = np.stack(
+            [
+                _subset_medians(moved[:, 0], mine[enough]),
+                _subset_medians(moved[:, 1], mine[enough]),
+            ],
+            axis=1,
+        )
     return out
+
+
+def _subset_medians(values: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """``float64 [M]``: the median of ``values [P]`` over each row's ``members bool [M, P]``
+    (every row non-empty), all rows at once: the values sorted once, each row's middle
+    one (two) found by counting its members in sorted order."""
+    order = np.argsort(values, kind="stable")
+    ranked = members[:, order]
+    count = ranked.sum(1)
+    seen = np.cumsum(ranked, axis=1)
+    lo = np.argmax(seen >= ((count + 1) // 2)[:, None], axis=1)
+    hi = np.argmax(seen >= (count // 2 + 1)[:, None], axis=1)
+    v = values[order]
+    return 0.5 * (v[lo] + v[hi])
