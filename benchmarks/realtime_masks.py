@@ -33,7 +33,7 @@ from slimseg import Masker, ModelRate
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.deploy.predictor import Predictor
-from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
+from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
 from slimseg.dynamic.track_settings import COAST
 from slimseg.utils.table import format_table
 

@@ -164,3 +164,34 @@ def test_cli_rates_and_their_errors(sequence: Path, tmp_path: Path, capsys) -> N
         assert main([*base, *bad]) == 2
         err = capsys.readouterr().err
         assert msg in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_replay_of_the_delivered_results_masks_as_the_live_run(sequence: Path) -> None:
+    """The other modes of a real-time run are scored on a replay of what its model thread
+    delivered: the replay's chain masks every frame exactly as the live one did."""
+    from slimseg.data.tum import TumSequence
+    from slimseg.dynamic.frame_masker import segmenter_for
+    from slimseg.dynamic.model_feed import RecordedFeed
+    from slimseg.dynamic.packed_detections import PackedDetections
+
+    inst, seq = AnnotationInstances(sequence), TumSequence(sequence)
+    slow = segmenter_for(inst)
+
+    def segment(rgb, stamp, conf):
+        time.sleep(0.04)  # a model slower than the loop: results arrive late
+        return slow(rgb, stamp, conf)
+
+    kw = {"class_mobility": inst.mobility, "mode": "fusion", "track": COAST, "fps": seq.fps}
+    live, deliveries = [], []
+    with FrameMasker(segment, rate=ModelRate.own_thread(), **kw) as m:
+        for i in range(len(seq)):
+            f = m.step(*seq.load(i))
+            live.append(f.mask)
+            hw = f.mask.shape
+            packed = None if f.prediction is None else PackedDetections.of(f.prediction, hw)
+            deliveries.append((packed, i - f.lag, f.lag))
+    assert max(lag for _, _, lag in deliveries) >= 1  # some results were late
+    feed = RecordedFeed(deliveries, lambda p: p.prediction(-1.0))
+    with FrameMasker(segment, feed=feed, **kw) as m:
+        for i in range(len(seq)):
+            assert np.array_equal(m.step(*seq.load(i)).mask, live[i]), i

@@ -22,7 +22,7 @@ from slimseg.deploy.metadata import (
     masking_from_metadata,
 )
 from slimseg.detections import Prediction
-from slimseg.dynamic.detection_cache import CachedDetections, build_cache, mask_with
+from slimseg.dynamic.detection_cache import build_cache, mask_with
 from slimseg.dynamic.masking_settings import (
     DEFAULT,
     PAPERS,
@@ -31,6 +31,7 @@ from slimseg.dynamic.masking_settings import (
     SettingsError,
     preset,
 )
+from slimseg.dynamic.packed_detections import PackedDetections
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
 from slimseg.slam.sweep import (
     SweepError,
@@ -162,13 +163,13 @@ def test_cached_masks_round_trip() -> None:
     masks = np.zeros((3, 30, 40), bool)
     masks[0, 5:12, 7:20] = rng.random((7, 13)) > 0.3
     masks[1, 20:30, 30:40] = True  # touches the bottom-right corner
-    dets = CachedDetections.pack(np.zeros((3, 4)), [0.9, 0.4, 0.05], [0, 1, 0], masks, (30, 40))
+    dets = PackedDetections.pack(np.zeros((3, 4)), [0.9, 0.4, 0.05], [0, 1, 0], masks, (30, 40))
     _, classes, back = dets.select(0.01)
     assert np.array_equal(back, masks) and list(classes) == [0, 1, 0]
     _, classes, back = dets.select(0.3)
     assert np.array_equal(back, masks[:2]) and list(classes) == [0, 1]
     assert dets.select(0.95)[2].shape == (0, 30, 40)
-    none = CachedDetections.pack(np.zeros((1, 4)), [0.5], [0], None, (30, 40))
+    none = PackedDetections.pack(np.zeros((1, 4)), [0.5], [0], None, (30, 40))
     assert none.select(0.1)[2] is None
 
 

@@ -302,11 +302,14 @@ def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) ->
         assert rc != 0 and msg in capsys.readouterr().err
 
 
-@pytest.mark.parametrize(("mode", "every"), [("fusion", 1), ("fusion+epipolar", 2)])
+@pytest.mark.parametrize(
+    ("mode", "every"), [("fusion", 1), ("fusion+epipolar", 2), ("box+depth-ransac", 3)]
+)
 def test_cached_sweep_loop_gives_the_same_tracked_masks(
     sequence: Path, tmp_path: Path, mode: str, every: int
 ) -> None:
-    """slam-eval --sweep (cached detections) and slimseg dynamic agree under the stage."""
+    """slam-eval --sweep (cached detections) and slimseg dynamic agree under the stage: one
+    chain (FrameMasker), the same depth, previous frame and model schedule in both."""
     from slimseg.data.tum import TumSequence
     from slimseg.dynamic.detection_cache import build_cache, mask_with
     from slimseg.dynamic.masking_settings import DEFAULT

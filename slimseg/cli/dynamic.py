@@ -38,7 +38,8 @@ from slimseg.dynamic.restore_run import (
     report_rows,
     restore_sequence,
 )
-from slimseg.dynamic.sequence_run import SequenceReport, run_sequence
+from slimseg.dynamic.sequence_report import SequenceReport
+from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.outputs import refuse_inputs

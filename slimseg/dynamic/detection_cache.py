@@ -2,7 +2,7 @@
 
 A sweep over the masking settings (score threshold, dilation, Eq. 1/3/4) changes only the
 post-processing of the detections, so the model runs once per frame, at the lowest score
-threshold of the sweep, and every setting filters that cache (:meth:`CachedDetections.select`).
+threshold of the sweep, and every setting filters that cache (:meth:`PackedDetections.select`).
 
 Filtering is exact: NMS is greedy in decreasing score, so a detection is only ever suppressed
 by a higher-scoring one; the survivors scoring above ``c`` are therefore the same whether NMS
@@ -31,72 +31,12 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.epipolar import OrbFeatures, orb_features
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.masking_settings import MaskingSettings
-from slimseg.dynamic.sequence_run import ModeScore, at_keypoints
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan, frame_dets
+from slimseg.dynamic.packed_detections import PackedDetections
+from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
+from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class CachedDetections:
-    """One frame's detections at the cache's floor threshold: ``boxes float32 [M, 4]`` xyxy px,
-    ``scores float32 [M]``, ``classes int64 [M]``, each mask as ``(y0, x0, bool crop)`` (None:
-    a detection-only model), frame size ``hw``."""
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    classes: np.ndarray
-    crops: list[tuple[int, int, np.ndarray]] | None
-    hw: tuple[int, int]
-
-    @classmethod
-    def pack(
-        cls,
-        boxes: np.ndarray,
-        scores: np.ndarray,
-        classes: np.ndarray,
-        masks: np.ndarray | None,
-        hw: tuple[int, int],
-    ) -> CachedDetections:
-        """From the full ``masks bool [M, H, W]`` (or None) of an ``hw`` frame."""
-        crops = None if masks is None else [_crop(np.asarray(m, bool)) for m in masks]
-        return cls(
-            np.asarray(boxes, np.float32).reshape(-1, 4),
-            np.asarray(scores, np.float32).reshape(-1),
-            np.asarray(classes, np.int64).reshape(-1),
-            crops,
-            (int(hw[0]), int(hw[1])),
-        )
-
-    def select(self, conf: float, with_scores: bool = False) -> tuple:
-        """The detections scoring above ``conf``: ``(boxes [m, 4], classes [m], masks bool
-        [m, H, W] or None)``, in the cached (decreasing score) order; ``with_scores``: and
-        ``scores [m]`` last."""
-        keep = np.flatnonzero(self.scores > conf)
-        masks = None
-        if self.crops is not None:
-            h, w = self.hw
-            masks = np.zeros((len(keep), h, w), bool)
-            for j, k in enumerate(keep):
-                y0, x0, crop = self.crops[k]
-                masks[j, y0 : y0 + crop.shape[0], x0 : x0 + crop.shape[1]] = crop
-        if with_scores:
-            return self.boxes[keep], self.classes[keep], masks, self.scores[keep]
-        return self.boxes[keep], self.classes[keep], masks
-
-    def prediction(self, conf: float) -> Prediction:
-        """The detections scoring above ``conf`` as the model's result (names left empty)."""
-        boxes, classes, masks, scores = self.select(conf, with_scores=True)
-        return Prediction(boxes, scores, classes, [], [], masks, self.hw)
-
-
-def _crop(mask: np.ndarray) -> tuple[int, int, np.ndarray]:
-    rows, cols = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
-    if not len(rows):
-        return 0, 0, np.zeros((0, 0), bool)
-    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    return int(y0), int(x0), mask[y0:y1, x0:x1].copy()
 
 
 @dataclass(frozen=True)
@@ -107,7 +47,7 @@ class CachedFrame:
 
     stamp: float
     features: OrbFeatures
-    detections: CachedDetections
+    detections: PackedDetections
     truth: np.ndarray | None
     model_ms: float
     prep_ms: float
@@ -154,8 +94,7 @@ def build_cache(
         cache.calls += 1
         t1 = time.perf_counter()
         feats = orb_features(rgb, keypoints, corners=True)  # corners: any setting's rule
-        d = frame_dets(pred, rgb.shape[:2])
-        dets = CachedDetections.pack(d.boxes, d.scores, d.classes, d.masks, d.hw)
+        dets = PackedDetections.of(pred, rgb.shape[:2])
         t2 = time.perf_counter()
         truth = None
         gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)

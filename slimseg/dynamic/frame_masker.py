@@ -23,7 +23,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.model_feed import ModelFeed
+from slimseg.dynamic.model_feed import ModelFeed, RecordedFeed
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
@@ -98,7 +98,8 @@ class MaskedFrame:
     ``keypoints float32 [N, 2]`` (the caller's, or the chain's ORB) with ``dynamic bool [N]``,
     the ``objects``; ``model_ran``: a model result arrived this frame, computed ``lag`` frames
     ago; ``results``: the chosen mode's and every scored mode's outcome; ``inputs`` /
-    ``tracked`` / ``features``: what the rules saw (reports, overlays)."""
+    ``tracked`` / ``features``: what the rules saw (reports, overlays); ``prediction``: the
+    model result that arrived this frame (None: none), as the model gave it."""
 
     index: int
     stamp: float
@@ -114,6 +115,7 @@ class MaskedFrame:
     inputs: FrameInputs
     tracked: TrackedFrame | None
     features: OrbFeatures
+    prediction: Prediction | None = None
 
     @property
     def result(self) -> FrameResult:
@@ -139,6 +141,7 @@ class FrameMasker:
         fps: float = 30.0,
         depth_scale: float | None = None,
         score_modes: Sequence[str] = (),
+        feed: ModelFeed | RecordedFeed | None = None,
     ) -> None:
         """``class_mobility [K]``: priors per class; ``mode``: one of
         :data:`~slimseg.dynamic.pipeline.MODES`; ``masking``: the settings (score threshold,
@@ -148,7 +151,9 @@ class FrameMasker:
         cy)``: gives the epipolar check the previous depth (PnP residual); ``fps``: the
         sequence's rate (the stage's time constants); ``depth_scale``: units per metre of
         integer depth images (TUM: 5000; float depth is metres); ``score_modes``: other modes
-        to run on the same inputs for a report, after the mask is ready."""
+        to run on the same inputs for a report, after the mask is ready; ``feed``: the model
+        results of another run to replay (a :class:`RecordedFeed`) instead of a schedule
+        at ``rate`` (the segmenter then runs not at all)."""
         if mode not in MODES:
             raise SlimsegError(f"mode {mode!r}: expected one of {', '.join(MODES)}")
         bad = [m for m in score_modes if m not in MODES]
@@ -181,7 +186,9 @@ class FrameMasker:
         self.fps = fps
         self.frames = 0
         self._paused = 0.0
-        self.feed = ModelFeed(lambda rgb, s: segmenter(rgb, s, self.floor), rate, self.clock)
+        self.feed = feed or ModelFeed(
+            lambda rgb, s: segmenter(rgb, s, self.floor), rate, self.clock
+        )
         self._rng = np.random.default_rng(0)  # depth-RANSAC's sampling
         self._previous: PreviousFrame | None = None
         self._hw: tuple[int, int] | None = None
@@ -256,6 +263,7 @@ class FrameMasker:
             dynamic=res.dynamic, objects=self._objects(inputs, tracked),
             model_ran=got.pred is not None, lag=got.lag, timing=timing, mode=self.mode,
             results=results, inputs=inputs, tracked=tracked, features=features,
+            prediction=got.pred,
         )  # fmt: skip
 
     def close(self) -> None:
@@ -267,12 +275,6 @@ class FrameMasker:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-    def describe(self) -> str:
-        """One line: mode, masking settings, track stage and rate."""
-        track = "off (per-frame)" if self.track is None else self.track.describe()
-        return (f"mode {self.mode}; masking {self.masking.describe()}; track stage {track}; "
-                f"{self.rate.describe()}")  # fmt: skip
 
     # -- inside -------------------------------------------------------------------------------
 

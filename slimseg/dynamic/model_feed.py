@@ -154,3 +154,34 @@ class ModelFeed:
 
     def describe(self) -> str:
         return self.rate.describe()
+
+
+class RecordedFeed:
+    """Another run's model results, replayed: frame ``i`` gets ``deliveries[i]``, a
+    ``(packed result or None, frame it was computed on, lag)``, unpacked by ``unpack``. A
+    real-time run (the model on its own thread) scores its chosen mode only, then replays what
+    it received through a second chain to score the other modes on the same inputs (scoring
+    them live would take the CPU and the GIL the model's thread needs)."""
+
+    def __init__(
+        self,
+        deliveries: list[tuple[object | None, int, int]],
+        unpack: Callable[[object], Prediction],
+    ) -> None:
+        self.deliveries = deliveries
+        self.unpack = unpack
+        self.lags = [lag for packed, _, lag in deliveries if packed is not None]
+        self.model_runs = len(self.lags)
+        self.model_s = 0.0
+
+    def frame(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections:
+        packed, index, lag = self.deliveries[i]
+        if packed is None:
+            return FedDetections(None)
+        return FedDetections(self.unpack(packed), index, lag)
+
+    def other_time(self, seconds: float) -> None:
+        """Nothing to schedule: the deliveries are fixed."""
+
+    def close(self) -> None:
+        """Nothing runs."""

@@ -16,11 +16,9 @@ instance against its ground-truth ``moving`` flag.
 
 from __future__ import annotations
 
-import csv
-import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Sequence as Sequence_
 from pathlib import Path
 
 import cv2
@@ -32,78 +30,24 @@ from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
-from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
+from slimseg.dynamic.frame_masker import FrameMasker, MaskedFrame, segmenter_for
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
+from slimseg.dynamic.model_feed import RecordedFeed
+from slimseg.dynamic.packed_detections import PackedDetections
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, MODES, FrameResult
 from slimseg.dynamic.recall_loss import RecallLoss
+from slimseg.dynamic.sequence_report import (
+    ModeScore,
+    SequenceReport,
+    at_keypoints,
+    coasted_only,
+    overlay,
+    track_rows,
+    write_csv,
+)
 from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.dynamic.track_types import TrackedFrame
 from slimseg.utils.atomic import write_png
-
-
-@dataclass
-class ModeScore:
-    """Keypoint-level confusion counts of one mode against ground-truth dynamic masks."""
-
-    tp: int = 0
-    fp: int = 0
-    fn: int = 0
-    tn: int = 0
-
-    def add(self, dynamic: np.ndarray, truth: np.ndarray) -> None:
-        """Count one frame: predicted ``dynamic [N]`` vs ground-truth ``truth [N]`` (bool)."""
-        self.tp += int((dynamic & truth).sum())
-        self.fp += int((dynamic & ~truth).sum())
-        self.fn += int((~dynamic & truth).sum())
-        self.tn += int((~dynamic & ~truth).sum())
-
-    @property
-    def precision(self) -> float:
-        return self.tp / (self.tp + self.fp) if self.tp + self.fp else float("nan")
-
-    @property
-    def recall(self) -> float:
-        return self.tp / (self.tp + self.fn) if self.tp + self.fn else float("nan")
-
-
-@dataclass
-class SequenceReport:
-    frames: int = 0
-    skipped: list[str] = field(default_factory=list)
-    scores: dict[str, ModeScore] = field(default_factory=dict)
-    ms_per_frame: dict[str, float] = field(default_factory=dict)
-    epipolar: dict[str, int] = field(default_factory=dict)
-    """GT instances only: ``"<truth> as <decision>"`` counts, truth moving/static, decision
-    moving/static/undecided, over every instance the epipolar check looked at."""
-    recall_loss: RecallLoss | None = None
-    """the chosen mode's missed keypoints split by dropout vs partial cover, ghosts
-    (sequences with ``annotations.json`` and ``dynamic/``)"""
-    model_frames: int = 0
-    """frames the model ran on (``--segment-every``: about frames / N)"""
-    coasted: int = 0
-    """predicted masks the track stage emitted (coasted or carried)"""
-    latency_ms: list[float] = field(default_factory=list)
-    """per frame: from when the loop takes it up (at its arrival in a real-time replay, or
-    later when the loop is behind) to its mask being ready (the chosen mode; before the
-    scoring of the others and the writing): what a SLAM front end waits per frame"""
-    late_ms: list[float] = field(default_factory=list)
-    """real-time replay: per frame, how long after its arrival the loop took it up (the
-    replay's own reading, scoring and writing count here; a runtime has none of them)"""
-    model_lags: list[int] = field(default_factory=list)
-    """per model result used: frames between the frame it was computed on and the one it fed"""
-    model_ms_per_run: float = 0.0
-    """mean wall time of one model run (on whichever thread)"""
-    stage_parts_ms: dict[str, float] = field(default_factory=dict)
-    """the track stage's time per frame by part (``slimseg.dynamic.track.STAGE_PARTS``)"""
-    rate: str = ""
-    """how the model's rate was set (``ModelFeed.describe``)"""
-    gave_up: int = 0
-    """frames the chosen mode's rule masked nothing while objects were candidates (Eq. 1
-    giving up the frame)"""
-    dropped: int = 0
-    """candidate objects the rule left out of the mask, over the sequence"""
-    dropped_confident_frames: int = 0
-    """frames in which the rule left out a candidate scoring at least ``keep_score``"""
 
 
 def sequence_masker(
@@ -114,21 +58,28 @@ def sequence_masker(
     keypoints: int = 1000,
     epipolar_depth: bool = False,
     track: TrackPlan = TRACK_OFF,
+    score: Sequence_[str] = (),
+    feed: RecordedFeed | None = None,
 ) -> FrameMasker:
     """The chain ``slimseg dynamic`` runs over ``seq``: ``predictor`` (a slimseg ``Predictor``
-    or ``AnnotationInstances``) at the ``track`` plan's rate; with ground-truth ``dynamic/``
-    masks every other mode is scored on the same inputs (ground-truth instances: the epipolar
-    check too, for its tally)."""
-    score = MODES if (seq.root / "dynamic").is_dir() else ()
-    if isinstance(predictor, AnnotationInstances) and "semantic+epipolar" not in score:
-        score = (*score, "semantic+epipolar")
+    or ``AnnotationInstances``) at the ``track`` plan's rate (or the results of ``feed``),
+    the ``score`` modes run beside the chosen one."""
     cam = seq.camera
     return FrameMasker(
         segmenter_for(predictor), class_mobility=predictor.mobility, mode=mode,
         masking=masking, track=track.settings, rate=track.rate, keypoints=keypoints,
         camera=(cam.fx, cam.fy, cam.cx, cam.cy) if epipolar_depth else None, fps=seq.fps,
-        score_modes=score,
+        score_modes=score, feed=feed,
     )  # fmt: skip
+
+
+def scored_modes(predictor: object, seq: Sequence) -> tuple[str, ...]:
+    """The modes a run scores besides its own: every mode where ground-truth ``dynamic/``
+    masks exist; with ground-truth instances the epipolar check too, for its tally."""
+    score = MODES if (seq.root / "dynamic").is_dir() else ()
+    if isinstance(predictor, AnnotationInstances) and "semantic+epipolar" not in score:
+        score = (*score, "semantic+epipolar")
+    return score
 
 
 def run_sequence(
@@ -154,9 +105,17 @@ def run_sequence(
     (None: the sequence's own timestamps; 0: as fast as the loop goes). A loop over
     :class:`~slimseg.dynamic.frame_masker.FrameMasker` (:func:`sequence_masker`)."""
     seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
-    with sequence_masker(predictor, seq, mode, masking, keypoints, epipolar_depth, track) as m:
-        gt = predictor if isinstance(predictor, AnnotationInstances) else None
-        return _loop(m, seq, out, gt, progress, fps)
+    gt = predictor if isinstance(predictor, AnnotationInstances) else None
+    score = scored_modes(predictor, seq)
+    live = track.rate.thread  # real time: the other modes are scored on a replay afterwards
+    args = (predictor, seq, mode, masking, keypoints, epipolar_depth, track)
+    with sequence_masker(*args, score=() if live else score) as m:
+        report, deliveries = _loop(m, seq, out, gt, progress, fps)
+    if live and score:
+        feed = RecordedFeed(deliveries, lambda packed: packed.prediction(-1.0))
+        with sequence_masker(*args, score=score, feed=feed) as m:
+            _score_replay(report, m, seq, gt, progress)
+    return report
 
 
 def _loop(
@@ -166,13 +125,14 @@ def _loop(
     gt_instances: AnnotationInstances | None,
     progress: bool,
     fps: float | None,
-) -> SequenceReport:
+) -> tuple[SequenceReport, list[tuple[PackedDetections | None, int, int]]]:
+    """The run; with the model on its own thread also what it delivered per frame (packed
+    result, the frame it was computed on, lag) for :func:`_score_replay`."""
     gt_dir = seq.root / "dynamic"
-    mode = masker.mode
     (out / "masks").mkdir(parents=True, exist_ok=True)
     report = SequenceReport(scores={m: ModeScore() for m in MODES} if gt_dir.is_dir() else {})
     report.rate = masker.rate.describe()
-    rows, panels, track_rows, stamps = [], [], [], []
+    rows, panels, tracks, stamps, deliveries = [], [], [], [], []
     t_model = t_logic = 0.0
     step = max(len(seq.frames) // 6, 1)
     losses = RecallLoss() if gt_dir.is_dir() and (seq.root / "annotations.json").is_file() else None
@@ -185,17 +145,20 @@ def _loop(
         arrival = clock.arrive(i, stamp)
         taken = masker.clock()
         f = masker.step(rgb, depth, stamp)
+        result, tracked, kps, hw = f.result, f.tracked, f.keypoints, f.mask.shape
         report.model_frames += f.model_ran
         report.latency_ms.append(f.timing.latency)
         if live:
             report.late_ms.append(1000 * max(taken - arrival, 0.0))
+            packed = None if f.prediction is None else PackedDetections.of(f.prediction, hw)
+            deliveries.append((packed, i - f.lag, f.lag))
         t_logic += f.timing.masking / 1000  # the chosen mode only, not the scoring of the rest
         t_model += f.timing.model / 1000  # the loop's time in the model (inline), or waiting
-        result, tracked, kps, hw = f.result, f.tracked, f.keypoints, f.mask.shape
+
         masks = f.objects.masks
         if tracked is not None:
             report.coasted += int(tracked.coasted.sum())
-            track_rows += _track_rows(stamp, tracked)
+            tracks += track_rows(stamp, tracked)
         name = mask_name(stamp)
         write_png(out / "masks" / name, result.mask)
         confident = _confident(result.dropped, f.inputs.scores, keep)
@@ -226,22 +189,18 @@ def _loop(
                 for m, res in f.results.items():
                     report.scores[m].add(res.dynamic, truth)
                 if losses is not None:
-                    only = _coasted_only(tracked, masks, hw)
+                    only = coasted_only(tracked, masks, hw)
                     losses.add(instances, stamp, kps, result.dynamic, truth, result.mask > 0, only)
-        epi_mode = mode if mode in EPIPOLAR_MODES else "semantic+epipolar"
         stamps.append(stamp)
-        if gt_instances is not None and i > 0 and epi_mode in f.results:
-            # the detections' own frame (a late result's is older than this one)
-            seen = stamps[i - f.lag] if f.model_ran else stamp
-            _count_epipolar(report, gt_instances, seen, f.results[epi_mode], tracked)
+        _tally(report, gt_instances, f, stamps)
         if i % step == 0 and len(panels) < 6:
-            ghost = None if tracked is None else _coasted_only(tracked, masks, hw)
-            panels.append(_overlay(rgb, result.mask, kps, result.dynamic, ghost))
+            ghost = None if tracked is None else coasted_only(tracked, masks, hw)
+            panels.append(overlay(rgb, result.mask, kps, result.dynamic, ghost))
         report.frames += 1
-    _write_csv(out / "frames.csv", rows)
+    write_csv(out / "frames.csv", rows)
     stage, feed = masker.stage, masker.feed
     if stage is not None:
-        _write_csv(out / "tracks.csv", track_rows)
+        write_csv(out / "tracks.csv", tracks)
     if losses is not None:
         report.recall_loss = losses.finish()
     if panels:
@@ -255,7 +214,47 @@ def _loop(
     report.model_ms_per_run = 1000 * feed.model_s / max(feed.model_runs, 1)
     if live:  # the loop waited for the model only on the first frame: count its runs' time
         report.ms_per_frame["model_thread"] = 1000 * feed.model_s / n
-    return report
+    return report, deliveries
+
+
+def _tally(
+    report: SequenceReport,
+    gt_instances: AnnotationInstances | None,
+    f: MaskedFrame,
+    stamps: list[float],
+) -> None:
+    """The epipolar check's decisions of frame ``f`` against ground-truth instances (``stamps``:
+    every frame's so far; a late result's detections belong to an older frame)."""
+    epi_mode = f.mode if f.mode in EPIPOLAR_MODES else "semantic+epipolar"
+    if gt_instances is None or f.index == 0 or epi_mode not in f.results:
+        return
+    seen = stamps[f.index - f.lag] if f.model_ran else f.stamp
+    _count_epipolar(report, gt_instances, seen, f.results[epi_mode], f.tracked)
+
+
+def _score_replay(
+    report: SequenceReport,
+    masker: FrameMasker,
+    seq: Sequence,
+    gt_instances: AnnotationInstances | None,
+    progress: bool,
+) -> None:
+    """Score the modes other than the chosen one (scored live) on a replay of a real-time
+    run's model results (``masker`` has them as its feed): the same inputs, no clock."""
+    gt_dir, stamps = seq.root / "dynamic", []
+    for i in tqdm(range(len(seq.frames)), desc="scoring the other modes", disable=not progress):
+        rgb, depth, stamp = seq.load(i)
+        f = masker.step(rgb, depth, stamp)
+        stamps.append(stamp)
+        if report.scores:
+            gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
+            if gt is not None:
+                truth = at_keypoints(gt > 0, f.keypoints)
+                for m, res in f.results.items():
+                    if m != f.mode:
+                        report.scores[m].add(res.dynamic, truth)
+        if f.mode not in EPIPOLAR_MODES:  # the chosen mode's tally was taken live
+            _tally(report, gt_instances, f, stamps)
 
 
 def _confident(dropped: list[int], scores: np.ndarray | None, keep_score: float) -> int:
@@ -297,32 +296,6 @@ def _instances(gt: AnnotationInstances | None, root: Path) -> AnnotationInstance
     return AnnotationInstances(root)
 
 
-def _coasted_only(
-    tracked: TrackedFrame | None, masks: np.ndarray | None, hw: tuple[int, int]
-) -> np.ndarray | None:
-    """``bool [H, W]``: pixels of coasted masks that no detection mask covers."""
-    if tracked is None or masks is None or not tracked.coasted.any():
-        return None if tracked is None else np.zeros(hw, bool)
-    det = masks[~tracked.coasted].any(0) if (~tracked.coasted).any() else np.zeros(hw, bool)
-    return masks[tracked.coasted].any(0) & ~det
-
-
-def _track_rows(stamp: float, tracked: TrackedFrame) -> list[dict]:
-    return [
-        {
-            "timestamp": f"{stamp:.6f}",
-            "track_id": int(tracked.track_ids[k]),
-            "class": int(tracked.classes[k]),
-            "source": tracked.source[k],
-            "misses": int(tracked.misses[k]),
-            "mobility": round(float(tracked.mobility[k]), 4),
-            "score": round(float(tracked.scores[k]), 4),
-            "box": " ".join(f"{v:.1f}" for v in tracked.boxes[k]),
-        }
-        for k in range(len(tracked.boxes))
-    ]
-
-
 def _count_epipolar(
     report: SequenceReport,
     instances: AnnotationInstances,
@@ -345,41 +318,3 @@ def _count_epipolar(
         decision = "moving" if mov else ("static" if dec else "undecided")
         key = f"{'moving' if t else 'static'} as {decision}"
         report.epipolar[key] = report.epipolar.get(key, 0) + 1
-
-
-def at_keypoints(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
-    """``mask [H, W]`` sampled at ``kps [N, 2]`` (x, y) px, rounded and clipped → ``[N]``."""
-    h, w = mask.shape
-    x = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
-    y = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)
-    return mask[y, x]
-
-
-def _overlay(
-    rgb: np.ndarray,
-    mask: np.ndarray,
-    kps: np.ndarray,
-    dyn: np.ndarray,
-    coasted: np.ndarray | None = None,
-) -> np.ndarray:
-    """Red: the dynamic mask; yellow: its part that only coasted masks cover."""
-    out = rgb.copy()
-    sel = mask > 0
-    out[sel] = (0.5 * out[sel] + 0.5 * np.array([255, 0, 0])).astype(np.uint8)
-    if coasted is not None:
-        c = coasted & sel
-        out[c] = (0.4 * rgb[c] + 0.6 * np.array([255, 220, 0])).astype(np.uint8)
-    for (x, y), d in zip(kps.astype(int), dyn, strict=True):
-        cv2.circle(out, (int(x), int(y)), 2, (255, 0, 0) if d else (0, 255, 0), -1)
-    return out
-
-
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    if not rows:
-        return
-    tmp = path.with_name(f".{path.name}.tmp")
-    with tmp.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)

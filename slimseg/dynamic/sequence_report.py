@@ -1,0 +1,144 @@
+"""What a sequence run reports and draws: keypoint scores per mode, the report, the overlay
+panels, the CSV rows (used by :mod:`slimseg.dynamic.sequence_run` and the sweeps' cache)."""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from slimseg.dynamic.recall_loss import RecallLoss
+from slimseg.dynamic.track_types import TrackedFrame
+
+
+@dataclass
+class ModeScore:
+    """Keypoint-level confusion counts of one mode against ground-truth dynamic masks."""
+
+    tp: int = 0
+    fp: int = 0
+    fn: int = 0
+    tn: int = 0
+
+    def add(self, dynamic: np.ndarray, truth: np.ndarray) -> None:
+        """Count one frame: predicted ``dynamic [N]`` vs ground-truth ``truth [N]`` (bool)."""
+        self.tp += int((dynamic & truth).sum())
+        self.fp += int((dynamic & ~truth).sum())
+        self.fn += int((~dynamic & truth).sum())
+        self.tn += int((~dynamic & ~truth).sum())
+
+    @property
+    def precision(self) -> float:
+        return self.tp / (self.tp + self.fp) if self.tp + self.fp else float("nan")
+
+    @property
+    def recall(self) -> float:
+        return self.tp / (self.tp + self.fn) if self.tp + self.fn else float("nan")
+
+
+@dataclass
+class SequenceReport:
+    frames: int = 0
+    skipped: list[str] = field(default_factory=list)
+    scores: dict[str, ModeScore] = field(default_factory=dict)
+    ms_per_frame: dict[str, float] = field(default_factory=dict)
+    epipolar: dict[str, int] = field(default_factory=dict)
+    """GT instances only: ``"<truth> as <decision>"`` counts, truth moving/static, decision
+    moving/static/undecided, over every instance the epipolar check looked at."""
+    recall_loss: RecallLoss | None = None
+    """the chosen mode's missed keypoints split by dropout vs partial cover, ghosts
+    (sequences with ``annotations.json`` and ``dynamic/``)"""
+    model_frames: int = 0
+    """frames the model ran on (``--segment-every``: about frames / N)"""
+    coasted: int = 0
+    """predicted masks the track stage emitted (coasted or carried)"""
+    latency_ms: list[float] = field(default_factory=list)
+    """per frame: from when the loop takes it up (at its arrival in a real-time replay, or
+    later when the loop is behind) to its mask being ready (the chosen mode; before the
+    scoring of the others and the writing): what a SLAM front end waits per frame"""
+    late_ms: list[float] = field(default_factory=list)
+    """real-time replay: per frame, how long after its arrival the loop took it up (the
+    replay's own reading, scoring and writing count here; a runtime has none of them)"""
+    model_lags: list[int] = field(default_factory=list)
+    """per model result used: frames between the frame it was computed on and the one it fed"""
+    model_ms_per_run: float = 0.0
+    """mean wall time of one model run (on whichever thread)"""
+    stage_parts_ms: dict[str, float] = field(default_factory=dict)
+    """the track stage's time per frame by part (``slimseg.dynamic.track.STAGE_PARTS``)"""
+    rate: str = ""
+    """how the model's rate was set (``ModelFeed.describe``)"""
+    gave_up: int = 0
+    """frames the chosen mode's rule masked nothing while objects were candidates (Eq. 1
+    giving up the frame)"""
+    dropped: int = 0
+    """candidate objects the rule left out of the mask, over the sequence"""
+    dropped_confident_frames: int = 0
+    """frames in which the rule left out a candidate scoring at least ``keep_score``"""
+
+
+def coasted_only(
+    tracked: TrackedFrame | None, masks: np.ndarray | None, hw: tuple[int, int]
+) -> np.ndarray | None:
+    """``bool [H, W]``: pixels of coasted masks that no detection mask covers."""
+    if tracked is None or masks is None or not tracked.coasted.any():
+        return None if tracked is None else np.zeros(hw, bool)
+    det = masks[~tracked.coasted].any(0) if (~tracked.coasted).any() else np.zeros(hw, bool)
+    return masks[tracked.coasted].any(0) & ~det
+
+
+def track_rows(stamp: float, tracked: TrackedFrame) -> list[dict]:
+    return [
+        {
+            "timestamp": f"{stamp:.6f}",
+            "track_id": int(tracked.track_ids[k]),
+            "class": int(tracked.classes[k]),
+            "source": tracked.source[k],
+            "misses": int(tracked.misses[k]),
+            "mobility": round(float(tracked.mobility[k]), 4),
+            "score": round(float(tracked.scores[k]), 4),
+            "box": " ".join(f"{v:.1f}" for v in tracked.boxes[k]),
+        }
+        for k in range(len(tracked.boxes))
+    ]
+
+
+def at_keypoints(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
+    """``mask [H, W]`` sampled at ``kps [N, 2]`` (x, y) px, rounded and clipped → ``[N]``."""
+    h, w = mask.shape
+    x = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
+    y = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)
+    return mask[y, x]
+
+
+def overlay(
+    rgb: np.ndarray,
+    mask: np.ndarray,
+    kps: np.ndarray,
+    dyn: np.ndarray,
+    coasted: np.ndarray | None = None,
+) -> np.ndarray:
+    """Red: the dynamic mask; yellow: its part that only coasted masks cover."""
+    out = rgb.copy()
+    sel = mask > 0
+    out[sel] = (0.5 * out[sel] + 0.5 * np.array([255, 0, 0])).astype(np.uint8)
+    if coasted is not None:
+        c = coasted & sel
+        out[c] = (0.4 * rgb[c] + 0.6 * np.array([255, 220, 0])).astype(np.uint8)
+    for (x, y), d in zip(kps.astype(int), dyn, strict=True):
+        cv2.circle(out, (int(x), int(y)), 2, (255, 0, 0) if d else (0, 255, 0), -1)
+    return out
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    if not rows:
+        return
+    tmp = path.with_name(f".{path.name}.tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(tmp, path)
