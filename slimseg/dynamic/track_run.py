@@ -19,7 +19,7 @@ import numpy as np
 from slimseg.detections import Prediction
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
-from slimseg.dynamic.mask_patch import patch_from_mask, warp_patch
+from slimseg.dynamic.mask_patch import clip_patch, patch_from_mask, warp_patch
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.object_motion import (
     inside_boxes,
@@ -97,7 +97,11 @@ def move_dets(dets: FrameDets, h: np.ndarray, shifts: np.ndarray | None = None) 
     if dets.masks is not None:
         masks = np.zeros((len(boxes), *hw), bool)
         for k, (m, b) in enumerate(zip(dets.masks, boxes, strict=True)):
-            p = warp_patch(patch_from_mask(m, b), hs[k], hw)
+            p = patch_from_mask(m, b)
+            if own[k]:  # a whole-pixel shift: the warp's nearest neighbour, without a warp
+                p = clip_patch(p.moved(int(hs[k, 1, 2]), int(hs[k, 0, 2])), hw)
+            else:
+                p = warp_patch(p, hs[k], hw)
             masks[k, p.y0 : p.y0 + p.mask.shape[0], p.x0 : p.x0 + p.mask.shape[1]] = p.mask
     return FrameDets(out.astype(np.float32), dets.scores, dets.classes, masks, hw, own)
 
