@@ -54,8 +54,11 @@ class Predictor:
         imgsz: tuple[int, int],
         backend: str,
         path: Path | None = None,
+        threads: int | None = None,
     ) -> None:
         self.runner = runner
+        self.threads = threads
+        """intra-op threads of the network and of the post-processing (None: the defaults)"""
         self.metadata = metadata
         self.imgsz = imgsz
         self.backend = backend
@@ -100,7 +103,8 @@ class Predictor:
         ``imgsz``: network input ``H`` or ``(H, W)``; default: the metadata's (ONNX) or the
         training size (torch, 640 if unknown). A static ONNX graph only runs at its own size.
         ``threads``: intra-op threads (the onnxruntime session's; for torch, the count set
-        around each forward pass and restored after it). ``None``: the library default.
+        around each forward pass and restored after it; the post-processing's torch ops run
+        on as many, set and restored the same way). ``None``: the library default.
         """
         path = Path(path)
         if backend not in BACKENDS:
@@ -133,7 +137,7 @@ class Predictor:
             trained = info.train_config.get("imgsz", 640)
             hw = parse_imgsz(trained if isinstance(trained, int) else list(trained))
         meta = build_metadata(model, info.names, info.mobility, hw)
-        return cls(TorchRunner(model, threads), meta, hw, "torch", path)
+        return cls(TorchRunner(model, threads), meta, hw, "torch", path, threads)
 
     @classmethod
     def _from_onnx(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
@@ -147,7 +151,7 @@ class Predictor:
                 f"{path}: the graph has a static {static_hw[0]}x{static_hw[1]} input; "
                 f"imgsz {hw[0]}x{hw[1]} needs an export with --dynamic (or drop --imgsz)"
             )
-        return cls(runner, meta, hw or default, "onnxruntime", path)
+        return cls(runner, meta, hw or default, "onnxruntime", path, threads)
 
     # -- inference ---------------------------------------------------------------------------
 
@@ -164,11 +168,15 @@ class Predictor:
         iou: float,
         max_det: int,
     ) -> list[Prediction]:
-        if self.task == "semantic":
-            return semantic_predictions(pred, metas, self.names)
-        return instance_predictions(
-            pred, proto, metas, self.names, self.mobility, self.family, conf, iou, max_det
-        )
+        # the post-processing's torch ops on the predictor's threads too: with the model on
+        # its own thread beside a busy loop, torch's default pool (every core) made it 2-5x
+        # slower (docs/tracking.md section 6.6)
+        with torch_threads(self.threads):
+            if self.task == "semantic":
+                return semantic_predictions(pred, metas, self.names)
+            return instance_predictions(
+                pred, proto, metas, self.names, self.mobility, self.family, conf, iou, max_det
+            )
 
     def predict(
         self,

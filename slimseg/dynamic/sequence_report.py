@@ -78,6 +78,9 @@ class SequenceReport:
     """candidate objects the rule left out of the mask, over the sequence"""
     dropped_confident_frames: int = 0
     """frames in which the rule left out a candidate scoring at least ``keep_score``"""
+    replay_differs: int = 0
+    """a real-time run: frames whose mask the replay that scored it did not reproduce (the
+    epipolar check's RANSAC draws; 0 elsewhere)"""
 
 
 def coasted_only(

@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from collections.abc import Sequence as Sequence_
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -107,36 +108,97 @@ def run_sequence(
     seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
     gt = predictor if isinstance(predictor, AnnotationInstances) else None
     score = scored_modes(predictor, seq)
-    live = track.rate.thread  # real time: the other modes are scored on a replay afterwards
+    live = track.rate.thread  # real time: the analysis runs on a replay afterwards
     args = (predictor, seq, mode, masking, keypoints, epipolar_depth, track)
+    scored = (seq.root / "dynamic").is_dir()
+    report = SequenceReport(scores={m: ModeScore() for m in MODES} if scored else {})
+    analysis = _Analysis(seq, gt, report)
     with sequence_masker(*args, score=() if live else score) as m:
-        report, deliveries = _loop(m, seq, out, gt, progress, fps)
-    if live and score:
-        feed = RecordedFeed(deliveries, lambda packed: packed.prediction(-1.0))
+        live_frames = _loop(m, seq, out, report, None if live else analysis, progress, fps)
+    if live:
+        feed = RecordedFeed([lf.delivery for lf in live_frames], lambda p: p.prediction(-1.0))
         with sequence_masker(*args, score=score, feed=feed) as m:
-            _score_replay(report, m, seq, gt, progress)
+            for i in tqdm(range(len(seq.frames)), desc="scoring", disable=not progress):
+                rgb, depth, stamp = seq.load(i)
+                f = m.step(rgb, depth, stamp)
+                report.replay_differs += not np.array_equal(f.mask, live_frames[i].mask)
+                analysis.frame(f, rgb, live_frames[i].dynamic)
+    analysis.finish(out)
     return report
+
+
+@dataclass(frozen=True)
+class _LiveFrame:
+    """What a real-time pass keeps of a frame for the analysis that follows it: the model
+    result it received (packed, the frame it was computed on, lag), its mask and decisions."""
+
+    delivery: tuple[PackedDetections | None, int, int]
+    mask: np.ndarray
+    dynamic: np.ndarray
+
+
+class _Analysis:
+    """Scores (every mode against ``dynamic/``), where recall is lost, the epipolar tally and
+    the overlay panels: inline for inline rates, on a replay for a real-time run (that work
+    in the live loop would take the CPU and the GIL from the model's thread)."""
+
+    def __init__(
+        self, seq: Sequence, gt_instances: AnnotationInstances | None, report: SequenceReport
+    ) -> None:
+        self.report, self.gt_instances = report, gt_instances
+        self.gt_dir = seq.root / "dynamic"
+        ann = (seq.root / "annotations.json").is_file()
+        self.losses = RecallLoss() if self.gt_dir.is_dir() and ann else None
+        self.instances = _instances(gt_instances, seq.root) if self.losses is not None else None
+        self.every = max(len(seq.frames) // 6, 1)
+        self.panels: list[np.ndarray] = []
+        self.stamps: list[float] = []
+
+    def frame(self, f: MaskedFrame, rgb: np.ndarray, chosen: np.ndarray | None = None) -> None:
+        """One frame; ``chosen``: the chosen mode's decisions as the live run made them."""
+        report, result, tracked, kps = self.report, f.result, f.tracked, f.keypoints
+        hw, masks, stamp = f.mask.shape, f.objects.masks, f.stamp
+        if report.scores:
+            gt = decode_file(self.gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
+            if gt is None:
+                report.skipped.append(str(self.gt_dir / mask_name(stamp)))
+            else:
+                truth = at_keypoints(gt > 0, kps)
+                for m, res in f.results.items():
+                    own = chosen is not None and m == f.mode
+                    report.scores[m].add(chosen if own else res.dynamic, truth)
+                if self.losses is not None:
+                    only = coasted_only(tracked, masks, hw)
+                    self.losses.add(self.instances, stamp, kps, result.dynamic, truth,
+                                    result.mask > 0, only)  # fmt: skip
+        self.stamps.append(stamp)
+        _tally(report, self.gt_instances, f, self.stamps)
+        if f.index % self.every == 0 and len(self.panels) < 6:
+            ghost = None if tracked is None else coasted_only(tracked, masks, hw)
+            self.panels.append(overlay(rgb, result.mask, kps, result.dynamic, ghost))
+
+    def finish(self, out: Path) -> None:
+        if self.losses is not None:
+            self.report.recall_loss = self.losses.finish()
+        if self.panels:
+            write_png(out / "overlay.png", tile(self.panels, 3))
 
 
 def _loop(
     masker: FrameMasker,
     seq: Sequence,
     out: Path,
-    gt_instances: AnnotationInstances | None,
+    report: SequenceReport,
+    analysis: _Analysis | None,
     progress: bool,
     fps: float | None,
-) -> tuple[SequenceReport, list[tuple[PackedDetections | None, int, int]]]:
-    """The run; with the model on its own thread also what it delivered per frame (packed
-    result, the frame it was computed on, lag) for :func:`_score_replay`."""
-    gt_dir = seq.root / "dynamic"
+) -> list[_LiveFrame]:
+    """The run: masks, ``frames.csv``, ``tracks.csv`` and the timing figures of ``report``;
+    ``analysis`` per frame (None: a real-time run, which returns what the analysis replays)."""
     (out / "masks").mkdir(parents=True, exist_ok=True)
-    report = SequenceReport(scores={m: ModeScore() for m in MODES} if gt_dir.is_dir() else {})
     report.rate = masker.rate.describe()
-    rows, panels, tracks, stamps, deliveries = [], [], [], [], []
+    rows, tracks, kept = [], [], []
     t_model = t_logic = 0.0
-    step = max(len(seq.frames) // 6, 1)
-    losses = RecallLoss() if gt_dir.is_dir() and (seq.root / "annotations.json").is_file() else None
-    instances = _instances(gt_instances, seq.root) if losses is not None else None
     live = masker.rate.thread  # frames replayed in real time
     clock = _Replay(fps if live else 0.0, masker.clock)
     keep = masker.masking.keep_score
@@ -145,22 +207,19 @@ def _loop(
         arrival = clock.arrive(i, stamp)
         taken = masker.clock()
         f = masker.step(rgb, depth, stamp)
-        result, tracked, kps, hw = f.result, f.tracked, f.keypoints, f.mask.shape
+        result, tracked, hw = f.result, f.tracked, f.mask.shape
         report.model_frames += f.model_ran
         report.latency_ms.append(f.timing.latency)
         if live:
             report.late_ms.append(1000 * max(taken - arrival, 0.0))
             packed = None if f.prediction is None else PackedDetections.of(f.prediction, hw)
-            deliveries.append((packed, i - f.lag, f.lag))
+            kept.append(_LiveFrame((packed, i - f.lag, f.lag), f.mask, f.dynamic))
         t_logic += f.timing.masking / 1000  # the chosen mode only, not the scoring of the rest
         t_model += f.timing.model / 1000  # the loop's time in the model (inline), or waiting
-
-        masks = f.objects.masks
         if tracked is not None:
             report.coasted += int(tracked.coasted.sum())
             tracks += track_rows(stamp, tracked)
-        name = mask_name(stamp)
-        write_png(out / "masks" / name, result.mask)
+        write_png(out / "masks" / mask_name(stamp), result.mask)
         confident = _confident(result.dropped, f.inputs.scores, keep)
         report.gave_up += result.m_th is None and bool(result.dropped)
         report.dropped += len(result.dropped)
@@ -180,31 +239,13 @@ def _loop(
                 **({} if tracked is None else {"coasted": int(tracked.coasted.sum())}),
             }
         )
-        if report.scores:
-            gt = decode_file(gt_dir / name, cv2.IMREAD_GRAYSCALE)
-            if gt is None:
-                report.skipped.append(str(gt_dir / name))
-            else:
-                truth = at_keypoints(gt > 0, kps)
-                for m, res in f.results.items():
-                    report.scores[m].add(res.dynamic, truth)
-                if losses is not None:
-                    only = coasted_only(tracked, masks, hw)
-                    losses.add(instances, stamp, kps, result.dynamic, truth, result.mask > 0, only)
-        stamps.append(stamp)
-        _tally(report, gt_instances, f, stamps)
-        if i % step == 0 and len(panels) < 6:
-            ghost = None if tracked is None else coasted_only(tracked, masks, hw)
-            panels.append(overlay(rgb, result.mask, kps, result.dynamic, ghost))
+        if analysis is not None:
+            analysis.frame(f, rgb)
         report.frames += 1
     write_csv(out / "frames.csv", rows)
     stage, feed = masker.stage, masker.feed
     if stage is not None:
         write_csv(out / "tracks.csv", tracks)
-    if losses is not None:
-        report.recall_loss = losses.finish()
-    if panels:
-        write_png(out / "overlay.png", tile(panels, 3))
     n = max(report.frames, 1)
     report.ms_per_frame = {"model": 1000 * t_model / n, "masking_logic": 1000 * t_logic / n}
     if stage is not None:  # its time is inside masking_logic (preparation); shown apart too
@@ -214,7 +255,7 @@ def _loop(
     report.model_ms_per_run = 1000 * feed.model_s / max(feed.model_runs, 1)
     if live:  # the loop waited for the model only on the first frame: count its runs' time
         report.ms_per_frame["model_thread"] = 1000 * feed.model_s / n
-    return report, deliveries
+    return kept
 
 
 def _tally(
@@ -230,31 +271,6 @@ def _tally(
         return
     seen = stamps[f.index - f.lag] if f.model_ran else f.stamp
     _count_epipolar(report, gt_instances, seen, f.results[epi_mode], f.tracked)
-
-
-def _score_replay(
-    report: SequenceReport,
-    masker: FrameMasker,
-    seq: Sequence,
-    gt_instances: AnnotationInstances | None,
-    progress: bool,
-) -> None:
-    """Score the modes other than the chosen one (scored live) on a replay of a real-time
-    run's model results (``masker`` has them as its feed): the same inputs, no clock."""
-    gt_dir, stamps = seq.root / "dynamic", []
-    for i in tqdm(range(len(seq.frames)), desc="scoring the other modes", disable=not progress):
-        rgb, depth, stamp = seq.load(i)
-        f = masker.step(rgb, depth, stamp)
-        stamps.append(stamp)
-        if report.scores:
-            gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
-            if gt is not None:
-                truth = at_keypoints(gt > 0, f.keypoints)
-                for m, res in f.results.items():
-                    if m != f.mode:
-                        report.scores[m].add(res.dynamic, truth)
-        if f.mode not in EPIPOLAR_MODES:  # the chosen mode's tally was taken live
-            _tally(report, gt_instances, f, stamps)
 
 
 def _confident(dropped: list[int], scores: np.ndarray | None, keep_score: float) -> int:
