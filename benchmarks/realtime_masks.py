@@ -10,12 +10,15 @@ read into memory first, so the loop pays only what a SLAM front end would. Rates
 ``per-frame`` (no track stage: every frame judged alone), ``N`` (track stage, model on every
 N-th frame), ``budget:MS``, ``thread`` (the model on its own thread, frames arriving at the
 sequence's timestamps, late results moved by each object's own ORB matches) and
-``thread-camera`` (the same, late results moved by the camera motion and the track's velocity
-only: ``own_matches`` 0, the mechanism before). Per row: the loop's ms per frame in the
-model (inline runs; the thread's runs are shown apart), in ORB + track stage + masking logic,
-of which the stage, the total and its ratio to the first row's total, the latency per frame
-(median / p95), the results' lag in frames, keypoint recall / precision against ``dynamic/``
-and recall as a share of the per-frame row of the same model. ``--json`` prints the rows.
+``thread-camera`` (the same, late results and carried masks moved by the camera motion and
+the track's velocity only: ``own_matches`` 0, the mechanism before), ``lag:L`` and
+``lag:L-camera`` (the own thread emulated without a clock: every result exactly L frames late,
+the same on any machine; the loop's time then includes the model's inline runs). Per row:
+the loop's ms per frame in the model (inline runs; the thread's runs are shown apart), in
+ORB + track stage + masking logic, of which the stage, the total and its ratio to the first
+row's total, the latency per frame (median / p95), the results' lag in frames, keypoint
+recall / precision against ``dynamic/`` and recall as a share of the per-frame row of the
+same model. ``--json`` prints the rows.
 """
 
 from __future__ import annotations
@@ -32,25 +35,69 @@ import numpy as np
 from slimseg import Masker, ModelRate
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
+from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.predictor import Predictor
+from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
+from slimseg.dynamic.model_feed import FedDetections
 from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
 from slimseg.dynamic.track_settings import COAST
 from slimseg.utils.table import format_table
 
 
-def masker_for(predictor: Predictor, rate: str, fps: float) -> Masker:
-    """The row's object: ``per-frame`` without the stage, the rest with it."""
+class FixedLagFeed:
+    """The model on its own thread, emulated without a clock: frame 0 waits for its own
+    result, then each result arrives ``lag`` frames after the frame it was computed on and
+    the worker takes the current frame (what a thread whose runs last ``lag`` frames does,
+    the same on every machine: ``lag:L`` rows)."""
+
+    def __init__(self, run, lag: int) -> None:
+        self.run, self.lag = run, lag
+        self.job: tuple[int, object] | None = None
+        self.lags: list[int] = []
+        self.model_runs, self.model_s = 0, 0.0
+
+    def frame(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections:
+        got = FedDetections(None)
+        if i == 0:
+            got = FedDetections(self.run(rgb, stamp), 0, 0)
+        elif self.job is not None and i - self.job[0] >= self.lag:
+            got = FedDetections(self.job[1], self.job[0], i - self.job[0])
+            self.job = None
+        if got.pred is not None:
+            self.lags.append(got.lag)
+            self.model_runs += 1
+        if self.job is None and i > 0:
+            self.job = (i, self.run(rgb, stamp))
+        return got
+
+    def other_time(self, seconds: float) -> None:
+        """A fixed schedule."""
+
+    def close(self) -> None:
+        """Nothing runs apart."""
+
+
+def masker_for(predictor: Predictor, rate: str, fps: float) -> FrameMasker:
+    """The row's object: ``per-frame`` without the stage, the rest with it; ``*-camera``:
+    late results and carried masks moved by the camera motion and the track velocity only
+    (``own_matches`` 0, the mechanism before)."""
     if rate == "per-frame":
         return Masker.from_predictor(predictor, fps=fps)
-    track = COAST.with_values(own_matches=0) if rate == "thread-camera" else COAST
-    parsed = ModelRate.own_thread() if rate == "thread-camera" else ModelRate.parse(rate)
-    return Masker.from_predictor(predictor, track=track, rate=parsed, fps=fps)
+    base, camera = rate.removesuffix("-camera"), rate.endswith("-camera")
+    track = COAST.with_values(own_matches=0) if camera else COAST
+    if base.startswith("lag:"):
+        masking = masking_from_metadata(predictor.metadata)
+        floor = min(masking.conf, track.low)
+        feed = FixedLagFeed(lambda rgb, stamp: predictor.predict(rgb, conf=floor), int(base[4:]))
+        return FrameMasker(segmenter_for(predictor), class_mobility=predictor.mobility,
+                           masking=masking, track=track, fps=fps, feed=feed)  # fmt: skip
+    return Masker.from_predictor(predictor, track=track, rate=ModelRate.parse(base), fps=fps)
 
 
-def run(masker: Masker, frames: list, truths: list, stamps: list[float]) -> dict:
+def run(masker: FrameMasker, frames: list, truths: list, stamps: list[float]) -> dict:
     """One pass over the in-memory frames; frames arrive at their timestamps when the model
     has its own thread (the loop waits for each), at once otherwise."""
-    score = ModeScore()
+    score, carried = ModeScore(), ModeScore()
     lat, model, masking, late = [], [], [], []
     live = masker.rate.thread
     with masker:
@@ -64,7 +111,10 @@ def run(masker: Masker, frames: list, truths: list, stamps: list[float]) -> dict
                     time.sleep(due - now)
                 late.append(1000 * max(masker.clock() - due, 0.0))
             out = masker.step(rgb, depth, stamp)
-            score.add(out.dynamic, at_keypoints(truth, out.keypoints))
+            at = at_keypoints(truth, out.keypoints)
+            score.add(out.dynamic, at)
+            if not out.model_ran:
+                carried.add(out.dynamic, at)
             lat.append(out.timing.latency)
             model.append(out.timing.model)
             masking.append(out.timing.masking)
@@ -85,6 +135,7 @@ def run(masker: Masker, frames: list, truths: list, stamps: list[float]) -> dict
         "model_frames": feed.model_runs,
         "recall_pct": 100 * score.recall,
         "precision_pct": 100 * score.precision,
+        "recall_carried_pct": 100 * carried.recall,
     }
 
 
@@ -131,7 +182,8 @@ def main() -> None:
           f"{args.repeats} alternating run(s)")  # fmt: skip
     head = ["model", "rate", "model ms", "masking ms", "of which stage", "total ms", "x first",
             "thread model ms", "latency med / p95", "lag med (max)", "recall %",
-            "precision %", "recall / per-frame %"]  # fmt: skip
+            "precision %", "recall / per-frame %",
+            "recall without a result %"]  # fmt: skip
     print(format_table(head, [_cells(r) for r in rows], markdown=True))
 
 
@@ -145,7 +197,8 @@ def _cells(r: dict) -> list[str]:
             f"{r['thread_model_ms']:.1f}" if r["thread_model_ms"] else "-",
             f"{r['latency_median_ms']:.0f} / {r['latency_p95_ms']:.0f}",
             f"{r['lag_median']:g} ({r['lag_max']})", f"{r['recall_pct']:.1f}",
-            f"{r['precision_pct']:.1f}", f"{r['recall_share_pct']:.0f}"]  # fmt: skip
+            f"{r['precision_pct']:.1f}", f"{r['recall_share_pct']:.0f}",
+            f"{r['recall_carried_pct']:.1f}"]  # fmt: skip
 
 
 if __name__ == "__main__":

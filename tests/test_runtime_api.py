@@ -3,6 +3,7 @@ block runs as written (ORB-SLAM3 included) and writes the masks ``slimseg dynami
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -132,3 +133,21 @@ def test_masker_settings_come_from_the_export(model: Path, sequence: Path) -> No
     ):
         with pytest.raises(SlimsegError, match=re.escape(msg)):
             slimseg.Masker.from_onnx(model, threads=1, **bad)
+
+
+def test_realtime_benchmark_runs_every_rate_through_the_object(model: Path, sequence: Path):
+    """benchmarks/realtime_masks.py (the figures of docs/tracking.md section 6.6): one row per
+    rate, shares of the per-frame recall, the emulated lag exactly as asked."""
+    bench = ROOT / "benchmarks" / "realtime_masks.py"
+    run = subprocess.run(
+        [sys.executable, str(bench), "--sequence", str(sequence), "--model", str(model),
+         "--rates", "per-frame,2,lag:2,lag:2-camera,thread", "--frames", "10", "--json"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = {r["rate"]: r for r in json.loads(run.stdout)}
+    assert list(rows) == ["per-frame", "2", "lag:2", "lag:2-camera", "thread"]
+    assert rows["per-frame"]["recall_share_pct"] == 100 and rows["per-frame"]["x_first"] == 1
+    assert rows["2"]["model_frames"] == 5 and rows["lag:2"]["lag_median"] == 2
+    assert rows["lag:2"]["model_frames"] == rows["lag:2-camera"]["model_frames"] >= 4
+    assert rows["thread"]["thread_model_ms"] > 0 and rows["thread"]["model_ms"] >= 0
