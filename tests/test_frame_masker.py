@@ -19,10 +19,10 @@ from slimseg.dynamic.frame_masker import FrameError, FrameMasker, segmenter_for
 from slimseg.dynamic.object_motion import (
     _subset_medians,
     inside_boxes,
-    inside_masks,
     object_shifts,
 )
 from slimseg.dynamic.sequence_run import run_sequence
+from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.dynamic.track_settings import COAST
 from slimseg.dynamic.track_types import FrameDets
@@ -122,7 +122,7 @@ def test_object_shifts_follow_the_objects_own_matches() -> None:
     masks[0, 80:144, 100:164] = True
     flat = np.zeros((2, 4), np.float32)
     flat[0], flat[1] = [100, 80, 164, 144], [0, 0, 2, 2]
-    on = inside_masks(masks, fo.keypoints)
+    on = inside(fo.keypoints, masks)
     shifts = object_shifts(fo, fn, on, min_matches=6)
     assert shifts[0] == pytest.approx([9, -4], abs=1.0) and np.isnan(shifts[1]).all()
     boxes = object_shifts(fo, fn, inside_boxes(flat, fo.keypoints), 6)  # box-only: the box

@@ -20,14 +20,6 @@ from slimseg.dynamic.epipolar import OrbFeatures, match_features
 from slimseg.dynamic.mask_patch import Patch
 
 
-def inside_masks(masks: np.ndarray, kps: np.ndarray) -> np.ndarray:
-    """``bool [M, N]``: keypoint ``kps [N, 2]`` (x, y px, rounded) on ``masks bool [M, H, W]``."""
-    h, w = masks.shape[1:]
-    x = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
-    y = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)
-    return masks[:, y, x]
-
-
 def inside_boxes(boxes: np.ndarray, kps: np.ndarray) -> np.ndarray:
     """``bool [M, N]``: keypoint ``kps [N, 2]`` inside ``boxes [M, 4]`` xyxy (box-only)."""
     b = np.asarray(boxes, np.float64).reshape(-1, 4)
@@ -48,8 +40,9 @@ def object_shifts(
 ) -> np.ndarray:
     """``float64 [M, 2]`` (dx, dy) px from the ``old`` frame to the ``new`` one, per object:
     the median displacement of the ratio-test matches of ``old``'s keypoints that lie on the
-    object (``inside bool [M, N]`` over ``old.keypoints``, :func:`inside_masks` and
-    friends); NaN where fewer than ``min_matches`` matched (the caller falls back)."""
+    object (``inside bool [M, N]`` over ``old.keypoints``:
+    :func:`slimseg.dynamic.threshold.inside`, :func:`inside_boxes`, :func:`inside_patches`);
+    NaN where fewer than ``min_matches`` matched (the caller falls back)."""
     out = np.full((len(inside), 2), np.nan)
     kps = old.keypoints
     if len(inside) == 0 or len(kps) == 0 or min_matches < 1:

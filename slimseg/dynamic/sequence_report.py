@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.recall_loss import RecallLoss
+from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track_types import TrackedFrame
 
 
@@ -111,10 +112,7 @@ def track_rows(stamp: float, tracked: TrackedFrame) -> list[dict]:
 
 def at_keypoints(mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
     """``mask [H, W]`` sampled at ``kps [N, 2]`` (x, y) px, rounded and clipped → ``[N]``."""
-    h, w = mask.shape
-    x = np.clip(np.round(kps[:, 0]).astype(int), 0, w - 1)
-    y = np.clip(np.round(kps[:, 1]).astype(int), 0, h - 1)
-    return mask[y, x]
+    return inside(kps, np.asarray(mask)[None])[0]
 
 
 def overlay(

@@ -23,12 +23,12 @@ from slimseg.dynamic.mask_patch import clip_patch, patch_from_mask, warp_patch
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.object_motion import (
     inside_boxes,
-    inside_masks,
     inside_patches,
     object_shifts,
 )
 from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
 from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_settings import TrackSettings
 from slimseg.dynamic.track_types import FrameDets, TrackedFrame
@@ -165,8 +165,8 @@ class TrackedSequence:
             if self.tracker.s.own_matches > 0 and lag < len(self._features):
                 old = self._features[-1 - lag]
                 kps = old.keypoints
-                on = inside_boxes(dets.boxes, kps) if dets.masks is None else inside_masks(
-                    dets.masks, kps)  # fmt: skip
+                on = inside_boxes(dets.boxes, kps) if dets.masks is None else inside(
+                    kps, dets.masks)  # fmt: skip
                 shifts = object_shifts(old, features, on, self.tracker.s.own_matches)
             dets = move_dets(dets, h, shifts)
             self.tracker.parts["lag"] += time.perf_counter() - t1
