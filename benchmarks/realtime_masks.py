@@ -40,7 +40,7 @@ from slimseg.deploy.predictor import Predictor
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.model_feed import FedDetections
 from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
-from slimseg.dynamic.track_settings import COAST
+from slimseg.dynamic.track_settings import COAST, detection_floor
 from slimseg.utils.table import format_table
 
 
@@ -87,7 +87,7 @@ def masker_for(predictor: Predictor, rate: str, fps: float) -> FrameMasker:
     track = COAST.with_values(own_matches=0) if camera else COAST
     if base.startswith("lag:"):
         masking = masking_from_metadata(predictor.metadata)
-        floor = min(masking.conf, track.low)
+        floor = detection_floor(masking.conf, track)
         feed = FixedLagFeed(lambda rgb, stamp: predictor.predict(rgb, conf=floor), int(base[4:]))
         return FrameMasker(segmenter_for(predictor), class_mobility=predictor.mobility,
                            masking=masking, track=track, fps=fps, feed=feed)  # fmt: skip

@@ -37,7 +37,7 @@ from slimseg.dynamic.pipeline import (
 )
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track_run import TrackedSequence, frame_dets
-from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.dynamic.track_settings import TrackSettings, detection_floor
 from slimseg.dynamic.track_types import SOURCE_DETECTION, TrackedFrame
 from slimseg.errors import SlimsegError
 
@@ -176,7 +176,7 @@ class FrameMasker:
         self.depth_scale = depth_scale
         self.score_modes = tuple(m for m in score_modes if m != mode)
         self.rules = FrameRules.from_masking(self.mobility, mode, masking)
-        self.floor = masking.conf if track is None else min(masking.conf, track.low)
+        self.floor = detection_floor(masking.conf, track)
         """the score threshold the model runs at: the masking one, or BYTE's ``low``"""
         self.stage = None
         if track is not None:

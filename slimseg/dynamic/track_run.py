@@ -30,7 +30,7 @@ from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evide
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track import Tracker
-from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.dynamic.track_settings import TrackSettings, detection_floor
 from slimseg.dynamic.track_types import FrameDets, TrackedFrame
 from slimseg.errors import SlimsegError
 
@@ -57,7 +57,7 @@ class TrackPlan:
 
     def floor(self, conf: float) -> float:
         """The score threshold the model must run at: the masking one, or BYTE's ``low``."""
-        return conf if self.settings is None else min(conf, self.settings.low)
+        return detection_floor(conf, self.settings)
 
     def describe(self) -> str:
         if self.settings is None:

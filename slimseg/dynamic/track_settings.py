@@ -131,6 +131,12 @@ TRACK_PRESETS: dict[str, TrackSettings] = {"coast": COAST, "no-coast": NO_COAST}
 DEFAULT_TRACK_PRESET = "coast"
 
 
+def detection_floor(conf: float, track: TrackSettings | None) -> float:
+    """The score threshold the model must run at: the masking ``conf``, or with the stage on
+    BYTE's ``low`` when lower (its second pass uses detections down to it)."""
+    return conf if track is None else min(conf, track.low)
+
+
 def track_preset(name: str) -> TrackSettings:
     """The named preset, or :class:`TrackSettingsError` listing the names."""
     if name not in TRACK_PRESETS:
