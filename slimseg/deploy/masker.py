@@ -17,8 +17,7 @@ from typing import Any
 
 from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.predictor import Predictor
-from slimseg.detections import Prediction
-from slimseg.dynamic.frame_masker import FrameMasker
+from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.track_settings import DEFAULT_TRACK_PRESET, TrackSettings, track_preset
 from slimseg.errors import SlimsegError
@@ -28,8 +27,6 @@ class Masker(FrameMasker):
     """:class:`FrameMasker` around a :class:`~slimseg.deploy.predictor.Predictor`; build it
     with :meth:`from_onnx` (any model file :meth:`Predictor.from_path` loads) or
     :meth:`from_predictor`. ``predictor``: the model it runs; ``names``: its class names."""
-
-    predictor: Predictor
 
     @classmethod
     def from_onnx(
@@ -71,17 +68,17 @@ class Masker(FrameMasker):
         stage = _track_settings(track)
         if isinstance(rate, str):
             rate = ModelRate.parse(rate)
-
-        def segment(rgb, stamp: float, conf: float) -> Prediction:
-            return predictor.predict(rgb, conf=conf)
-
-        masker = cls(
-            segment, class_mobility=predictor.mobility, mode=mode, masking=settings,
-            track=stage, rate=rate, keypoints=keypoints, camera=camera, fps=fps,
-            depth_scale=depth_scale,
+        return cls(
+            predictor, mode=mode, masking=settings, track=stage, rate=rate,
+            keypoints=keypoints, camera=camera, fps=fps, depth_scale=depth_scale,
         )  # fmt: skip
-        masker.predictor = predictor
-        return masker
+
+    def __init__(self, predictor: Predictor, **options: Any) -> None:
+        """The chain running ``predictor`` (its class priors); ``options``: those of
+        :class:`FrameMasker` (build through :meth:`from_predictor` to take the export's
+        settings)."""
+        super().__init__(segmenter_for(predictor), class_mobility=predictor.mobility, **options)
+        self.predictor = predictor
 
     @property
     def names(self) -> list[str]:

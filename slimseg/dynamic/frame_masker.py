@@ -23,7 +23,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.model_feed import ModelFeed, RecordedFeed
+from slimseg.dynamic.model_feed import Feed, ModelFeed
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
@@ -141,7 +141,7 @@ class FrameMasker:
         fps: float = 30.0,
         depth_scale: float | None = None,
         score_modes: Sequence[str] = (),
-        feed: ModelFeed | RecordedFeed | None = None,
+        feed: Feed | None = None,
     ) -> None:
         """``class_mobility [K]``: priors per class; ``mode``: one of
         :data:`~slimseg.dynamic.pipeline.MODES`; ``masking``: the settings (score threshold,
@@ -152,7 +152,8 @@ class FrameMasker:
         sequence's rate (the stage's time constants); ``depth_scale``: units per metre of
         integer depth images (TUM: 5000; float depth is metres); ``score_modes``: other modes
         to run on the same inputs for a report, after the mask is ready; ``feed``: the model
-        results of another run to replay (a :class:`RecordedFeed`) instead of a schedule
+        results of another run to replay (a :class:`~slimseg.dynamic.model_feed.RecordedFeed`,
+        any :class:`~slimseg.dynamic.model_feed.Feed`) instead of a schedule
         at ``rate`` (the segmenter then runs not at all)."""
         if mode not in MODES:
             raise SlimsegError(f"mode {mode!r}: expected one of {', '.join(MODES)}")

@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -36,6 +37,21 @@ from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 
 MAX_EVERY = 10  # the budget never lets the model skip more frames than this
 BUDGET_WARMUP = 2  # model frames measured before the budget picks N (the model runs on each)
+
+
+class Feed(Protocol):
+    """What the per-frame chain asks for its model results: :class:`ModelFeed` (a schedule),
+    :class:`RecordedFeed` (another run's results, replayed) or a caller's own."""
+
+    lags: list[int]
+    model_runs: int
+    model_s: float
+
+    def frame(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections: ...
+
+    def other_time(self, seconds: float) -> None: ...
+
+    def close(self) -> None: ...
 
 
 RunModel = Callable[[np.ndarray, float], Prediction]
