@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from slimseg.data.images import decode_bytes
+from slimseg.data.tum import depth_metres
 
 MM_PER_M = 1000.0
 COLOUR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8")
@@ -64,7 +65,7 @@ def depth_from_image(msg: object) -> np.ndarray:
     """``sensor_msgs/Image`` depth → ``float32 [H, W]`` metres, 0 = no depth."""
     enc = str(msg.encoding)
     if enc in ("16UC1", "mono16"):
-        return _metres_from_mm(_rows(msg, np.uint16, 1))
+        return depth_metres(_rows(msg, np.uint16, 1), MM_PER_M)
     if enc == "32FC1":
         return _clean(_rows(msg, np.float32, 1).copy())
     raise ValueError(f"depth encoding {enc!r} is not one of {', '.join(DEPTH_ENCODINGS)}")
@@ -102,7 +103,7 @@ def depth_from_compressed(msg: object) -> np.ndarray:
                 depth = np.where(raw > 0, np.float32(qa) / (v - np.float32(qb)), 0)
             return _clean(depth.astype(np.float32))
         if kind in ("16UC1", "mono16", ""):
-            return _metres_from_mm(raw)
+            return depth_metres(raw, MM_PER_M)
         raise ValueError(f"compressedDepth of {kind!r}: expected 16UC1 or 32FC1")
     raw = decode_bytes(data, cv2.IMREAD_UNCHANGED, f"{fmt} message")
     if raw is None or raw.dtype != np.uint16 or raw.ndim != 2:
@@ -110,13 +111,7 @@ def depth_from_compressed(msg: object) -> np.ndarray:
             f"compressed depth (format {fmt!r}) is not a 16-bit single-channel PNG; "
             "expected compressedDepth or a 16UC1 PNG"
         )
-    return _metres_from_mm(raw)
-
-
-def _metres_from_mm(raw: np.ndarray) -> np.ndarray:
-    """``uint16`` millimetres → ``float32`` metres (the TUM reader's arithmetic: float32
-    value / float32 units per metre)."""
-    return raw.astype(np.float32) / np.float32(MM_PER_M)
+    return depth_metres(raw, MM_PER_M)
 
 
 def _clean(depth: np.ndarray) -> np.ndarray:

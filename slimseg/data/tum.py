@@ -217,6 +217,12 @@ def write_trajectory(path: str | Path, rows: np.ndarray) -> Path:
     return write_text(path, "\n".join(lines) + ("\n" if lines else ""))
 
 
+def depth_metres(raw: np.ndarray, depth_scale: float) -> np.ndarray:
+    """An integer depth image ``[H, W]`` (``depth_scale`` units per metre, TUM: 5000) as
+    ``float32`` metres (0 stays 0: no depth)."""
+    return raw.astype(np.float32) / np.float32(depth_scale)
+
+
 def mask_name(timestamp: float | str) -> str:
     """DynaSLAM-style mask-cache file name for an RGB frame: the RGB file's name, i.e. the
     timestamp with 6 decimals plus ``.png`` (``1305031102.175304`` → ``"1305031102.175304.png"``).
@@ -388,7 +394,7 @@ class TumSequence:
                 f"size mismatch: {rgb_path} is {bgr.shape[1]}x{bgr.shape[0]} but "
                 f"{depth_path} is {raw.shape[1]}x{raw.shape[0]}"
             )
-        depth = raw.astype(np.float32) / np.float32(self.camera.depth_scale)
+        depth = depth_metres(raw, self.camera.depth_scale)
         depth[~np.isfinite(depth) | (depth < 0)] = 0.0
         if not self._depth_checked:
             self._check_depth_scale(depth, depth_path)

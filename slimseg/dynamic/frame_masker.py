@@ -19,6 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
+from slimseg.data.tum import depth_metres
 from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
@@ -317,7 +318,7 @@ class FrameMasker:
         if depth is None:
             return None
         if np.issubdtype(depth.dtype, np.integer):
-            return depth.astype(np.float32) / np.float32(self.depth_scale)
+            return depth_metres(depth, self.depth_scale)
         return depth
 
     def _scored(self, inputs: FrameInputs) -> list[str]:

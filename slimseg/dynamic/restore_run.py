@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
-from slimseg.data.tum import mask_name
+from slimseg.data.tum import depth_metres, mask_name
 from slimseg.dynamic.restore import (
     MAX_REFS,
     STRIDE,
@@ -180,7 +180,7 @@ def _score(
     truth = cv2.cvtColor(truth_bgr, cv2.COLOR_BGR2RGB)
     depth_name = Path(seq.frames[i][1][1]).name
     raw = decode_file(bg_dir / "depth" / depth_name, cv2.IMREAD_UNCHANGED)
-    truth_d = None if raw is None else raw.astype(np.float32) / seq.camera.depth_scale
+    truth_d = None if raw is None else depth_metres(raw, seq.camera.depth_scale)
     region = target.removed
     t0 = time.perf_counter()
     m8 = region.astype(np.uint8)

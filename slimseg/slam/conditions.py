@@ -26,7 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.data.images import decode_file
-from slimseg.data.tum import TumSequence, mask_name
+from slimseg.data.tum import TumSequence, depth_metres, mask_name
 from slimseg.dynamic.remove_region import remove_dynamic
 from slimseg.dynamic.seg_box import dilate
 from slimseg.errors import SlimsegError
@@ -119,5 +119,5 @@ def _replacement(seq: TumSequence, paths: tuple[Path, Path], hw: tuple[int, int]
             raise SlimsegError(f"missing or unreadable replacement frame {p}")
         if img.shape[:2] != hw:
             raise SlimsegError(f"replacement frame {p} is not {hw[1]}x{hw[0]}")
-    depth = raw.astype(np.float32) / np.float32(seq.camera.depth_scale)
+    depth = depth_metres(raw, seq.camera.depth_scale)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), depth
