@@ -6,7 +6,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -139,8 +138,6 @@ def track_plan_from_args(args: argparse.Namespace) -> TrackPlan:
             f"{chosen[0]} needs --track (the tracks carry the masks over the frames the model "
             "skips)"
         )
-    if not math.isfinite(budget):
-        raise SlimsegError(f"--budget-ms {budget}: expected a positive number")
     return TrackPlan(settings, ModelRate(every=every, budget_ms=budget, thread=thread))
 
 
