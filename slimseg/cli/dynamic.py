@@ -203,8 +203,12 @@ def _print_latency(report: SequenceReport, live: bool) -> None:
     if live and report.late_ms:
         late = np.asarray(report.late_ms)
         print(f"replay kept up with {int((late < 1).sum())} of {len(late)} frames (taken up "
-              f"late by up to {late.max():.0f} ms: reading, scoring and writing frames cost "
-              f"the replay time a runtime does not spend)")  # fmt: skip
+              f"late by up to {late.max():.0f} ms: reading and writing frames cost the replay "
+              f"time a runtime does not spend)")  # fmt: skip
+    if report.replay_differs:
+        print(f"the replay that scored the modes masked {report.replay_differs} frame(s) "
+              "unlike the live run (the epipolar check's RANSAC draws); masks/ is the live "
+              "run's")  # fmt: skip
     if live and report.model_lags:
         lags = np.asarray(report.model_lags)
         print(f"model results used: {len(lags)} for {report.frames} frames, lag median "

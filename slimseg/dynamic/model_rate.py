@@ -77,12 +77,6 @@ class ModelRate:
         on time (cached sweeps can replay it)."""
         return self.budget_ms == 0 and not self.thread
 
-    def runs_model(self, i: int) -> bool:
-        """Does the model run on frame ``i`` (0-based) of a fixed schedule?"""
-        if not self.fixed:
-            raise ValueError("a budget or a model thread sets the rate while running (ModelFeed)")
-        return i % self.every == 0
-
     @property
     def name(self) -> str:
         """Short label: ``per-frame``, ``every 3``, ``budget 25 ms``, ``own thread``."""
