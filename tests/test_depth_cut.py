@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
@@ -96,3 +98,29 @@ def test_the_reference_is_the_sorted_sample_at_the_quantile_index() -> None:
     d = np.sort(d[d > 0])
     expected = d[int(REFERENCE_QUANTILE * (len(d) - 1))]
     assert reference_depths(mask[None], boxes, depth)[0] == expected
+
+
+def test_without_depth_eq4_replaces_only_thin_masks() -> None:
+    """RGB-only: a box nothing can cut is the room behind the object, so with the depth cut
+    asked for and no depth (for the frame, or under one object's mask) Eq. 4 falls back to the
+    papers' t_o: a seg mask covering 30 % of its box stays, one covering 10 % becomes the box."""
+    hw = (60, 80)
+    boxes = np.array([[0, 0, 40, 40], [40, 0, 80, 40]], np.float32)
+    masks = np.zeros((2, *hw), bool)
+    masks[0, 0:40, 0:12] = True  # 30 % of its box
+    masks[1, 0:40, 40:44] = True  # 10 %
+    kps = np.array([[20, 20], [60, 20], [5, 5], [42, 5]], np.float32)
+    mob = np.array([1.0], np.float32)
+    inputs = FrameInputs(kps, boxes, np.zeros(2, np.int64), masks, hw)
+    rules = FrameRules(mob, "fusion", min_static=0, frame_ratio=0.0, t_o=1.0, cut_behind_m=0.5)
+    out = process_frame(inputs=inputs, settings=rules)
+    assert out.used_seg == [True, False]
+    assert out.dynamic.tolist() == [False, True, True, True]
+    # the cut switched off: t_o 1 is asked for as it is, both masks become boxes
+    whole = process_frame(inputs=inputs, settings=replace(rules, cut_behind_m=0.0))
+    assert whole.used_seg == [False, False] and whole.dynamic.all()
+    # depth for the frame but none under the first mask: that object alone falls back
+    depth = np.full(hw, 3.0, np.float32)
+    depth[0:40, 0:40] = 0.0
+    per_object = process_frame(inputs=replace(inputs, depth_m=depth), settings=rules)
+    assert per_object.used_seg == [True, False]

@@ -95,6 +95,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "motion along epipolar lines) where depth is valid",
     )
     p.add_argument(
+        "--no-depth",
+        action="store_true",
+        help="mask from the colour frames alone, as for an RGB-only camera (no depth cut; "
+        "Eq. 4 keeps seg masks covering more than the papers' t_o of their box)",
+    )
+    p.add_argument(
         "--restore",
         action="store_true",
         help="write restored/rgb/<ts>.png and restored/depth/<ts>.png (uint16, depth scale)",
@@ -163,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
             epipolar_depth=args.epipolar_depth,
             track=track,
             fps=args.fps,
+            use_depth=not args.no_depth,
         )
         restored = _restore(args, seq, stage, restore_mask) if args.restore else None
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())

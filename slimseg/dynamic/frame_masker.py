@@ -11,6 +11,7 @@ this one takes any :data:`Segmenter` (a predictor, ground-truth instances, cache
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -36,6 +37,7 @@ from slimseg.dynamic.pipeline import (
     epipolar_priors,
     process_modes,
 )
+from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track_run import TrackedSequence, frame_dets
 from slimseg.dynamic.track_settings import TrackSettings, detection_floor
@@ -47,6 +49,7 @@ Segmenter = Callable[[np.ndarray, float, float], Prediction]
 (detections scoring above ``conf``, in frame pixels)."""
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
+log = logging.getLogger(__name__)
 
 
 class FrameError(SlimsegError):
@@ -194,6 +197,7 @@ class FrameMasker:
         self._rng = np.random.default_rng(0)  # depth-RANSAC's sampling
         self._previous: PreviousFrame | None = None
         self._hw: tuple[int, int] | None = None
+        self._told_no_depth = False
 
     # -- the loop's calls ---------------------------------------------------------------------
 
@@ -217,6 +221,14 @@ class FrameMasker:
         i = self.frames
         hw = self._check(rgb, depth, keypoints)
         depth_m = self._metres(depth)
+        if depth_m is None and self.masking.cut_behind_m > 0 and not self._told_no_depth:
+            self._told_no_depth = True
+            log.warning(
+                "no depth image: the depth cut (cut_behind_m %g) cannot act, so Eq. 4 puts a "
+                "box only in place of a seg mask covering at most %g of it (RGB-only masking, "
+                "docs/slam_defaults.md §6)", self.masking.cut_behind_m,
+                min(self.masking.t_o, T_O),
+            )  # fmt: skip
         stamp = i / self.fps if stamp is None else float(stamp)
         t0 = time.perf_counter()
         got = self.feed.frame(i, rgb, stamp)

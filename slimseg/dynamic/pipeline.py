@@ -36,6 +36,7 @@ from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame,
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
 from slimseg.dynamic.seg_box import (
+    T_O,
     box_keypoint_mobility,
     box_masks,
     dilate,
@@ -244,6 +245,7 @@ def _one_mode(
         return FrameResult(dynamic, _mask(region, settings.dilation_px), None, flag)
     regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
     depth = inputs.depth_m if settings.cut_behind_m > 0 and mode != "box" else None
+    reference = None
     if depth is not None:  # masks that stay on their object (seg masks, before dilation)
         reference = reference_depths(regions, boxes, depth)
         regions = cut_behind(regions.copy(), boxes, depth, reference, settings.cut_behind_m)
@@ -255,7 +257,7 @@ def _one_mode(
     box_mob = box_keypoint_mobility(keypoints, boxes, hw, mob)
     dynamic_frame = is_dynamic_frame(box_mob, settings.frame_ratio)
     if mode == "fusion" and dynamic_frame and len(boxes):
-        fused, used = fuse_seg_box(regions, boxes, settings.t_o)
+        fused, used = fuse_seg_box(regions, boxes, eq4_thresholds(settings, reference, len(boxes)))
         if inputs.predicted is not None:  # Eq. 4 acts on detection masks only
             keep = np.asarray(inputs.predicted, bool)
             fused[keep] = regions[keep]
@@ -290,6 +292,19 @@ def _one_mode(
     dropped = np.flatnonzero(candidates & ~kept).tolist()
     return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg,
                        dropped=dropped)  # fmt: skip
+
+
+def eq4_thresholds(settings: FrameRules, reference: np.ndarray | None, n: int) -> np.ndarray:
+    """Eq. 4's ``t_o`` per object ``[n]``: the setting's; but where the depth cut is asked for
+    and cannot act on an object (no depth image: an RGB-only stream; or no valid depth under
+    its mask, ``reference`` NaN), at most the papers' :data:`~slimseg.dynamic.seg_box.T_O`: a
+    box nothing trims is the room behind the object, so only a seg mask too thin to trust is
+    replaced by it."""
+    t_o = np.full(n, settings.t_o)
+    if settings.cut_behind_m > 0:
+        uncut = np.ones(n, bool) if reference is None else ~np.isfinite(reference)
+        t_o[uncut] = min(settings.t_o, T_O)
+    return t_o
 
 
 def weighed_mobility(inputs: FrameInputs, mob: np.ndarray, odds: float) -> np.ndarray:

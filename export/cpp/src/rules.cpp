@@ -14,6 +14,8 @@ namespace {
 
 // slimseg.dynamic.depth_cut.REFERENCE_QUANTILE: an object's depth is this quantile of its mask's.
 constexpr double kReferenceQuantile = 0.1;
+// slimseg.dynamic.seg_box.T_O: Eq. 4's t_o where the depth cut cannot act (no depth under it).
+constexpr double kUncutTO = 0.25;
 
 // Frame pixels whose centre lies in an xyxy box (c + 0.5 >= x1 and c + 0.5 < x2), as a window.
 WindowMask box_window(const std::array<float, 4>& b, int h, int w) {
@@ -314,7 +316,11 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
             }
             double s_o = static_cast<double>(inter) /
                          static_cast<double>(std::max<std::int64_t>(b.area(), 1));
-            res.used_seg[i] = s_o > rules.t_o;
+            // slimseg.dynamic.pipeline.eq4_thresholds: a box no depth cut can trim replaces only
+            // a seg mask covering at most the papers' t_o of it
+            const double t_o = rules.cut_behind_m > 0 && !std::isfinite(ref[i])
+                                   ? std::min(rules.t_o, kUncutTO) : rules.t_o;
+            res.used_seg[i] = s_o > t_o;
             if (!res.used_seg[i]) {
                 regions[i] = b;
                 if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], rules.cut_behind_m);
