@@ -30,12 +30,14 @@ from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
     MODES,
+    WEIGHED_MODES,
     FrameInputs,
     FrameResult,
     FrameRules,
     MotionEvidence,
     epipolar_priors,
     process_modes,
+    weighed_mobility,
 )
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import instances_of
@@ -347,10 +349,18 @@ class FrameMasker:
     def _with_keypoints(self, inputs: FrameInputs, kps: np.ndarray) -> FrameInputs:
         """The caller's keypoints classified instead of the chain's ORB; the epipolar check
         still runs on the chain's own features (it needs their descriptors)."""
-        if self.mode in EPIPOLAR_MODES and inputs.evidence is None:
-            mob = self.mobility[np.asarray(inputs.classes, int)]
-            priors, result, checked = epipolar_priors(inputs, mob, self.rules.mover_prior)
-            inputs = replace(inputs, mobility=priors, evidence=MotionEvidence(result, checked))
+        weighed = self.mode in WEIGHED_MODES and self.rules.motion_odds > 1
+        if inputs.evidence is None and (self.mode in EPIPOLAR_MODES or weighed):
+            mob = inputs.mobility
+            if mob is None:
+                mob = self.mobility[np.asarray(inputs.classes, int)]
+            if weighed:  # the evidence weighed in now (a check without result: not again)
+                mob = weighed_mobility(inputs, mob, self.rules.motion_odds)
+                evidence = MotionEvidence(None, [])
+            else:
+                mob, result, checked = epipolar_priors(inputs, mob, self.rules.mover_prior)
+                evidence = MotionEvidence(result, checked)
+            inputs = replace(inputs, mobility=mob, evidence=evidence)
         return replace(inputs, keypoints=kps, descriptors=None)
 
     def _objects(self, inputs: FrameInputs, tracked: TrackedFrame | None) -> FrameObjects:
