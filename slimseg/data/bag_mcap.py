@@ -164,6 +164,12 @@ class McapFile:
     def _channel(self, topic: str) -> McapChannel:
         return self._by_topic[topic]
 
+    def profile(self, topic: str) -> str:
+        """``ros1``, ``ros2``, ``foxglove protobuf`` or ``foxglove JSON`` (see :data:`ENCODINGS`)
+        for a decodable channel, else its schema encoding."""
+        c = self._channel(topic)
+        return ENCODINGS.get((c.schema_encoding, c.message_encoding), c.schema_encoding)
+
     def header(self, raw: bytes, topic: str) -> Header:
         """The message's stamp and frame: from the bytes for ROS messages, from the decoded
         message for Foxglove ones. ``ValueError`` when there is none."""

@@ -167,6 +167,13 @@ class BagFile:
         reader.open()
         return reader
 
+    def profile(self, topic: str) -> str:
+        """How ``topic`` is encoded: ``ros1``, ``ros2``, ``foxglove protobuf`` or ``foxglove
+        JSON``."""
+        if self._mcap is not None:
+            return self._mcap.profile(topic)
+        return "ros2" if self.cdr else "ros1"
+
     def __enter__(self) -> BagFile:
         return self
 
