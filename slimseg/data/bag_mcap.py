@@ -157,7 +157,7 @@ class McapFile:
 
     def messages(self, topics: list[str], start_ns: int | None) -> Iterator[tuple[str, int, bytes]]:
         """``(topic, log time ns, raw bytes)`` of ``topics`` in log-time order."""
-        it = self._reader.iter_messages(topics=topics, start_time=start_ns, log_time_order=True)
+        it = self._reader.iter_messages(topics=topics, starting_at=start_ns, log_time_order=True)
         for _, channel, message in it:
             yield channel.topic, message.log_time, message.data
 
