@@ -1,10 +1,10 @@
-"""MCAP of every profile, written by the tooling robots record with (``tests/profile_recordings.py``:
-mcap-ros1-support, foxglove-sdk, mcap-protobuf-support + foxglove-schemas-protobuf, the mcap
-package's JSON writer), reads as the TUM folder it was made from; ``slimseg dynamic`` on each
-gives the folder's masks byte for byte; the ground truth comes from their pose topics; a
-Foxglove source gets its masks back as Foxglove messages at its stamps, read back with
-mcap-protobuf-support's own decoder; a recording of schemas slimseg cannot decode is refused
-in one line within a second."""
+"""MCAP of every profile, written by the tooling robots record with
+(``tests/profile_recordings.py``: mcap-ros1-support, foxglove-sdk, mcap-protobuf-support +
+foxglove-schemas-protobuf, the mcap package's JSON writer), reads as the TUM folder it was made
+from; ``slimseg dynamic`` on each gives the folder's masks byte for byte; the ground truth
+comes from their pose topics; a Foxglove source gets its masks back as Foxglove messages at its
+stamps, read back with mcap-protobuf-support's own decoder; a recording of schemas slimseg
+cannot decode is refused in one line within a second."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import profile_recordings as pr
 import pytest
 import torch
 from conftest import batchnorm_from
@@ -33,7 +34,6 @@ pytest.importorskip("rosbags")
 pytest.importorskip("mcap_ros1")
 pytest.importorskip("mcap_protobuf")
 pytest.importorskip("foxglove")
-import profile_recordings as pr  # noqa: E402  (needs the packages checked above)
 
 # name → (writer, its ground-truth topic, profile slimseg reports)
 RECORDINGS = {
