@@ -110,6 +110,26 @@ def unclaimed(names: list[str]) -> int:
     return len(names) + 1
 
 
+def frames_layout() -> object:
+    """The viewer's opening layout: the frame with mask, boxes and keypoints large; depth and
+    every timing series in one plot beside it; panels folded."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial2DView(
+                origin="camera/image", name="frame: dynamic mask, objects, keypoints"
+            ),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="camera/depth", name="depth (m)"),
+                rrb.TimeSeriesView(origin="timing", name="ms per frame"),
+            ),
+            column_shares=[2, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
 def class_map(f: MaskedFrame, n_classes: int) -> np.ndarray:
     """``uint16 [H, W]``: 0 outside the dynamic mask, the covering object's class + 1 inside
     (its instance mask, or its box for a box-only model), ``n_classes + 1`` elsewhere in it."""
@@ -138,6 +158,7 @@ class RerunFrames(RerunRecording):
         self.names = list(names)
         self.frames = 0
         self.rec.log("/", annotation_context(self.rr, self.names), static=True)
+        self.rec.send_blueprint(frames_layout())
 
     def __call__(self, f: MaskedFrame, rgb: np.ndarray, depth: np.ndarray | None) -> None:
         rr, rec = self.rr, self.rec

@@ -21,6 +21,20 @@ from slimseg.slam.condition_runs import ConditionResult
 from slimseg.slam.metrics import aligned_positions
 
 
+def _layout() -> object:
+    """The trajectories in 3-D beside the results table; panels folded."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="trajectories (aligned as for the ATE)"),
+            rrb.TextDocumentView(origin="results", name="ATE per condition"),
+            column_shares=[2, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
 def write_trajectories(
     path: Path, gt: np.ndarray, results: list[ConditionResult], table: str
 ) -> tuple[Path, int]:
@@ -49,6 +63,7 @@ def write_trajectories(
             shown += 1
         rec.rec.log("results", rr.TextDocument(table, media_type=rr.MediaType.MARKDOWN),
                     static=True)  # fmt: skip
+        rec.rec.send_blueprint(_layout())
     except BaseException:
         rec.discard()
         raise
