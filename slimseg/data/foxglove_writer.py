@@ -84,6 +84,25 @@ class FoxgloveWriter:
                        step=a.nbytes // h, data=a.tobytes())  # fmt: skip
         self._write(topic, header, msg)
 
+    def write_calibration(
+        self,
+        topic: str,
+        header: Header,
+        size: tuple[int, int],
+        k: tuple[float, float, float, float],
+    ) -> None:
+        """A ``foxglove.CameraCalibration``: ``size`` (w, h), ``k`` (fx, fy, cx, cy), no
+        distortion (``plumb_bob`` of zeros)."""
+        from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+
+        fx, fy, cx, cy = k
+        msg = CameraCalibration(
+            frame_id=header.frame_id, width=size[0], height=size[1], distortion_model="plumb_bob",
+            D=[0.0] * 5, K=[fx, 0, cx, 0, fy, cy, 0, 0, 1],
+            P=[fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0],
+        )  # fmt: skip
+        self._write(topic, header, msg)
+
     def write_boxes(
         self,
         topic: str,
