@@ -1,8 +1,9 @@
-"""Recordings of a TUM folder written by the tooling robots record with, not by the library
-slimseg reads with: an MCAP of the ``ros1`` profile (``mcap-ros1-support``'s writer, what
-``mcap convert`` makes of a ROS 1 bag), Foxglove protobuf MCAPs (``foxglove-sdk``, as robots
-without ROS log; ``mcap-protobuf-support`` with ``foxglove-schemas-protobuf``, as older
-pipelines do) and a Foxglove JSON-schema MCAP (the ``mcap`` package's plain ``Writer``).
+"""Recordings of a TUM folder written by the tooling robots record with, not by the library slimseg
+reads with: an MCAP of the ``ros1`` profile (``mcap-ros1-support``'s writer, what ``mcap
+convert`` makes of a ROS 1 bag), one of the ``ros2`` profile (``mcap-ros2-support``), Foxglove
+protobuf MCAPs (``foxglove-sdk``, as robots without ROS log; ``mcap-protobuf-support`` with
+``foxglove-schemas-protobuf``, as older pipelines do) and a Foxglove JSON-schema MCAP (the
+``mcap`` package's plain ``Writer``).
 
 Topics are a RealSense driver's (:data:`RGB`, :data:`DEPTH`, :data:`INFO`); each message is
 logged :data:`LOG_DELAY_NS` after its header stamp and every depth message one frame late (after
@@ -106,6 +107,52 @@ def write_ros1_mcap(seq_dir: Path, out: Path) -> None:
         writer = Writer(f)
         for log, topic, msg in _in_log_order(items):
             writer.write_message(topic, msg, log_time=log, publish_time=log)
+        writer.finish()
+
+
+def write_ros2_mcap(seq_dir: Path, out: Path) -> None:
+    """``ros2`` profile through ``mcap-ros2-support``: rgb8 colour, 16UC1 depth, CameraInfo,
+    PoseStamped ground truth (messages as dicts, schemas from rosbags' ROS 2 definitions)."""
+    from mcap_ros2.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+
+    def header(ns: int, frame: str) -> dict:
+        return {"stamp": {"sec": ns // 10**9, "nanosec": ns % 10**9}, "frame_id": frame}
+
+    items = []
+    k = _k(seq_dir)
+    for t, td, log_d, rgb, mm, _ in _frames(seq_dir):
+        h, w = mm.shape
+        items.append((t + LOG_DELAY_NS, INFO, {
+            "header": header(t, FRAME), "height": h, "width": w, "distortion_model": "plumb_bob",
+            "d": [0.0] * 5, "k": k, "r": [1.0, 0, 0, 0, 1, 0, 0, 0, 1],
+            "p": [*k[:3], 0, *k[3:6], 0, 0, 0, 1, 0],
+        }))  # fmt: skip
+        items.append((t + LOG_DELAY_NS, RGB, {
+            "header": header(t, FRAME), "height": h, "width": w, "encoding": "rgb8",
+            "is_bigendian": 0, "step": 3 * w, "data": rgb.tobytes(),
+        }))  # fmt: skip
+        items.append((log_d, DEPTH, {
+            "header": header(td, FRAME), "height": h, "width": w, "encoding": "16UC1",
+            "is_bigendian": 0, "step": 2 * w, "data": mm.astype("<u2").tobytes(),
+        }))  # fmt: skip
+    for row in _poses(seq_dir):
+        pose = {"position": dict(zip("xyz", row[1:4], strict=True)),
+                "orientation": dict(zip("xyzw", row[4:], strict=True))}  # fmt: skip
+        items.append((stamp_ns(row[0]), GT, {"header": header(stamp_ns(row[0]), "world"),
+                                             "pose": pose}))  # fmt: skip
+    types = {RGB: "sensor_msgs/msg/Image", DEPTH: "sensor_msgs/msg/Image",
+             INFO: "sensor_msgs/msg/CameraInfo", GT: "geometry_msgs/msg/PoseStamped"}  # fmt: skip
+    with out.open("wb") as f:
+        writer = Writer(f)
+        schemas = {}
+        for name in set(types.values()):
+            text, _ = store.generate_msgdef(name, ros_version=2)
+            schemas[name] = writer.register_msgdef(name, text)
+        for log, topic, msg in _in_log_order(items):
+            writer.write_message(topic, schemas[types[topic]], msg, log_time=log, publish_time=log)
         writer.finish()
 
 

@@ -1,10 +1,10 @@
 """MCAP of every profile, written by the tooling robots record with
-(``tests/profile_recordings.py``: mcap-ros1-support, foxglove-sdk, mcap-protobuf-support +
-foxglove-schemas-protobuf, the mcap package's JSON writer), reads as the TUM folder it was made
-from; ``slimseg dynamic`` on each gives the folder's masks byte for byte; the ground truth
-comes from their pose topics; a Foxglove source gets its masks back as Foxglove messages at its
-stamps, read back with mcap-protobuf-support's own decoder; a recording of schemas slimseg
-cannot decode is refused in one line within a second."""
+(``tests/profile_recordings.py``: mcap-ros1-support, mcap-ros2-support, foxglove-sdk, mcap-
+protobuf-support + foxglove-schemas-protobuf, the mcap package's JSON writer), reads as the TUM
+folder it was made from; ``slimseg dynamic`` on each gives the folder's masks byte for byte; the
+ground truth comes from their pose topics; a Foxglove source gets its masks back as Foxglove
+messages at its stamps, read back with mcap-protobuf-support's own decoder; a recording of
+schemas slimseg cannot decode is refused in one line within a second."""
 
 from __future__ import annotations
 
@@ -32,12 +32,14 @@ from slimseg.utils.atomic import write_png
 
 pytest.importorskip("rosbags")
 pytest.importorskip("mcap_ros1")
+pytest.importorskip("mcap_ros2")
 pytest.importorskip("mcap_protobuf")
 pytest.importorskip("foxglove")
 
 # name → (writer, its ground-truth topic, profile slimseg reports)
 RECORDINGS = {
     "ros1.mcap": (pr.write_ros1_mcap, pr.GT, "ros1"),
+    "ros2.mcap": (pr.write_ros2_mcap, pr.GT, "ros2"),
     "foxglove_sdk.mcap": (pr.write_foxglove_sdk, pr.GT, "foxglove protobuf"),
     "foxglove_pb_png.mcap": (pr.write_foxglove_protobuf, pr.TF, "foxglove protobuf"),
     "foxglove_json.mcap": (pr.write_foxglove_json, pr.TF, "foxglove JSON"),
