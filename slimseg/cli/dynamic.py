@@ -211,7 +211,8 @@ def run(args: argparse.Namespace) -> int:
         total = report.ms_per_frame["model"] + report.ms_per_frame["masking_logic"]
         print(f"track stage: {track.describe()}; model on {report.model_frames} of "
               f"{report.frames} frames, {report.coasted} predicted masks emitted; {total:.1f} "
-              f"ms per frame in all (model + masking logic); {out / 'tracks.csv'}")  # fmt: skip
+              f"ms per frame in all (model + masking logic)"
+              + ("" if bag_out else f"; {out / 'tracks.csv'}"))  # fmt: skip
         parts = ", ".join(f"{k} {v:.2f}" for k, v in report.stage_parts_ms.items())
         print(f"track stage per frame by part (ms): {parts}")
     _print_latency(report, track.rate.thread)
