@@ -5,7 +5,8 @@ The same synthetic 640x480 frames (a gradient with a moving disc, depth a tilted
 holes) are written as a TUM folder and, with ``slimseg data tum2bag``'s writer, as a ROS 1
 bag, a rosbag2 folder (SQLite and MCAP) and a bare MCAP file (raw ``rgb8`` + ``16UC1``, and
 PNG + ``compressedDepth``), and as an MCAP of Foxglove protobuf schemas (``RawImage`` ``rgb8`` +
-``16UC1``, ``CameraCalibration``; slimseg's Foxglove writer). Each is then read in a fresh
+``16UC1``, ``CameraCalibration``; slimseg's Foxglove writer; zstd chunks as the Foxglove SDK
+writes them, and without). Each is then read in a fresh
 process through ``slimseg.data.sequence_source.open_sequence`` (what every command uses), every
 frame ``load``-ed in order; the table gives the opening time, frames per second, the resident
 memory after the imports (``import slimseg`` loads torch) and the most it grew above that
@@ -38,6 +39,7 @@ KINDS = {  # name → (output name, storage, colour, depth)
     "bare .mcap raw": ("raw.mcap", None, "rgb8", "16UC1"),
     "bare .mcap PNG+compressedDepth": ("png.mcap", None, "png", "compressedDepth"),
     "Foxglove protobuf .mcap raw": ("foxglove_raw.mcap", "foxglove", "rgb8", "16UC1"),
+    "Foxglove .mcap raw, no zstd": ("foxglove_plain.mcap", "foxglove-plain", "rgb8", "16UC1"),
 }
 
 
@@ -91,23 +93,24 @@ def make(work: Path, frames: int, size: tuple[int, int], kinds: list[str]) -> di
         paths[kind] = root / name
         if not paths[kind].exists():
             print(f"writing {frames} frames as {kind} ...", flush=True)
-            if storage == "foxglove":
-                write_foxglove(folder, paths[kind])
+            if (storage or "").startswith("foxglove"):
+                write_foxglove(folder, paths[kind], compress=storage == "foxglove")
             else:
                 tum_to_bag(folder, paths[kind], storage, colour, depth)
     return paths
 
 
-def write_foxglove(folder: Path, out: Path) -> None:
+def write_foxglove(folder: Path, out: Path, compress: bool) -> None:
     """The TUM folder as Foxglove protobuf messages, streamed in time order: ``RawImage`` rgb8
-    colour and 16UC1 depth (mm), a ``CameraCalibration`` per colour frame."""
+    colour and 16UC1 depth (mm), a ``CameraCalibration`` per colour frame; chunks
+    zstd-compressed (the Foxglove SDK's default) or not."""
     from slimseg.data.bag_reader import Header, stamp_ns
     from slimseg.data.foxglove_writer import FoxgloveWriter
     from slimseg.data.tum import TumSequence
 
     seq = TumSequence(folder)
     c = seq.camera
-    with FoxgloveWriter(out) as w:
+    with FoxgloveWriter(out, compress=compress) as w:
         for i in range(len(seq)):
             rgb, depth_m, t = seq.load(i)
             head = Header(stamp_ns(t), "camera")

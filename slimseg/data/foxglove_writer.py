@@ -37,13 +37,15 @@ def require_foxglove(path: str | Path) -> None:
 
 
 class FoxgloveWriter:
-    """Messages in, a Foxglove MCAP out (use as a context manager); log time = stamp."""
+    """Messages in, a Foxglove MCAP out (use as a context manager); log time = stamp; chunks
+    zstd-compressed (as the Foxglove SDK writes them) unless ``compress`` is False."""
 
-    def __init__(self, path: str | Path, option: str = "--out") -> None:
+    def __init__(self, path: str | Path, option: str = "--out", compress: bool = True) -> None:
         self.path = Path(path)
         if os.path.lexists(self.path):
             raise SlimsegError(f"{option} {self.path} exists: a bag is never overwritten")
         require_foxglove(self.path)
+        from mcap.writer import CompressionType
         from mcap_protobuf.writer import Writer
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -52,7 +54,8 @@ class FoxgloveWriter:
         self._target = self._stage / self.path.name
         try:
             self._file = self._target.open("wb")
-            self._writer = Writer(self._file)
+            kind = CompressionType.ZSTD if compress else CompressionType.NONE
+            self._writer = Writer(self._file, compression=kind)
         except BaseException:
             shutil.rmtree(self._stage, ignore_errors=True)
             raise
