@@ -107,6 +107,7 @@ def test_dynamic_writes_one_mask_per_frame(env: Env, tmp_path: Path, capsys) -> 
 
 def test_predict_track_writes_one_mask_per_frame(env: Env, tmp_path: Path) -> None:
     rrd = tmp_path / "pred.rrd"
+    rrd.write_bytes(b"RRF2" + bytes(12))  # an earlier recording (by its magic) is replaced
     cmd = ["predict", "--source", str(env.seq / "rgb"), "--out", str(tmp_path / "p"),
            "--track", "--rerun", str(rrd), *env.common()]  # fmt: skip
     assert main(cmd) == 0
