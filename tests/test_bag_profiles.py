@@ -114,6 +114,18 @@ def test_dynamic_on_each_profile_gives_the_folders_masks(env: Env, tmp_path: Pat
     assert any(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE).any() for p in want)  # not all empty
 
 
+def test_predict_on_a_foxglove_colour_topic_as_on_the_folder(env: Env, tmp_path: Path) -> None:
+    base = ["predict", "--model", str(env.weights), "--threads", "1", "--quiet"]
+    assert main([*base, "--source", str(env.seq / "rgb"), "--out", str(tmp_path / "f")]) == 0
+    for name in ("foxglove_pb_png.mcap", "foxglove_json.mcap"):
+        out = tmp_path / name.replace(".mcap", "")
+        assert main([*base, "--source", str(env.recordings[name]), "--out", str(out)]) == 0
+        want = sorted((tmp_path / "f").glob("*_classes.png"))
+        got = sorted(out.glob("*_classes.png"))
+        assert len(want) == 10 and [p.name for p in got] == [p.name for p in want]
+        assert all(a.read_bytes() == b.read_bytes() for a, b in zip(got, want, strict=True))
+
+
 def test_foxglove_masks_go_back_as_foxglove_messages(env: Env, tmp_path: Path, capsys) -> None:
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory
