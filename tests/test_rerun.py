@@ -93,8 +93,9 @@ def test_dynamic_writes_one_mask_per_frame(env: Env, tmp_path: Path, capsys) -> 
     masked = 0
     for row in rows["/camera/image/dynamic_mask"]:
         fmt = row["SegmentationImage:format"][0]
-        seg = np.frombuffer(bytes(row["SegmentationImage:buffer"][0]), np.uint16)
-        seg = seg.reshape(fmt["height"], fmt["width"])
+        buf = bytes(row["SegmentationImage:buffer"][0])
+        assert len(buf) == fmt["height"] * fmt["width"]  # ids 0-3 fit in uint8
+        seg = np.frombuffer(buf, np.uint8).reshape(fmt["height"], fmt["width"])
         png = cv2.imread(str(out / "masks" / mask_name(tum.frames[row["frame"]][0][0])), 0)
         assert np.array_equal(seg > 0, png > 0)
         assert set(np.unique(seg)) <= {0, 1, 2, 3}  # static, person, chair, dilation only
