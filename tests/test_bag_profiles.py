@@ -187,3 +187,16 @@ def test_undecodable_schemas_refused_in_one_line_within_a_second(
     assert err.count("\n") == 1 and took < 1.0, (err, took)
     assert "foxglove.RawImage (flatbuffer)" in err and "slimseg reads ros1msg" in err
     assert "damaged" not in err and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name", ["ros1.mcap", "foxglove_sdk.mcap", "foxglove_json.mcap"])
+def test_a_truncated_recording_of_any_profile_is_named_damaged(
+    env: Env, tmp_path: Path, capsys, name: str
+) -> None:
+    data = env.recordings[name].read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    assert main(env.dynamic(cut, tmp_path / "out")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cannot read bag" in err and "truncated or damaged" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap"]

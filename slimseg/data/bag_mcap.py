@@ -23,6 +23,7 @@ from slimseg.data.bag_foxglove import FOXGLOVE_ROLES, foxglove_header, foxglove_
 from slimseg.data.bag_reader import (
     CAMERA_INFO,
     COMPRESSED,
+    DAMAGED,
     IMAGE,
     ODOMETRY,
     POSE,
@@ -86,17 +87,23 @@ def _role(schema: str, schema_enc: str, msg_enc: str) -> str | None:
 
 
 def mcap_channels(path: Path) -> tuple[str, list[McapChannel]] | None:
-    """``(profile, channels)`` of the MCAP file ``path``; None when it cannot be read this way
-    (the caller's reader then names the damage)."""
+    """``(profile, channels)`` of the MCAP file ``path``, from its summary or, lacking one (a
+    recording cut short), by scanning its records. None when its header does not parse or it
+    is of the ``ros2`` profile and does not parse further (rosbags' reader then names the
+    damage, as before); any other profile that does not parse is a damaged recording."""
     from mcap.reader import make_reader
     from mcap.records import Channel, Schema
     from mcap.stream_reader import StreamReader
 
+    profile = None
     try:
         with path.open("rb") as f:
             reader = make_reader(f)
             profile = reader.get_header().profile
-            summary = reader.get_summary()
+            try:
+                summary = reader.get_summary()
+            except Exception:  # no footer (a recording cut short): scan the records
+                summary = None
             if summary is not None:
                 schemas, channels = summary.schemas, summary.channels
             else:  # no summary section: the schemas and channels are among the records
@@ -107,8 +114,11 @@ def mcap_channels(path: Path) -> tuple[str, list[McapChannel]] | None:
                         schemas[rec.id] = rec
                     elif isinstance(rec, Channel):
                         channels[rec.id] = rec
-    except Exception:  # the mcap parser's errors on a damaged file, all of them
-        return None
+    except Exception as e:  # the mcap parser's errors on a damaged file, all of them
+        if profile is None or profile == "ros2":
+            return None
+        reason = " ".join(str(e).split())[:300] or type(e).__name__
+        raise SlimsegError(f"cannot read bag {path}: {reason} ({DAMAGED})") from None
     out = []
     for c in channels.values():
         s = schemas.get(c.schema_id)
