@@ -200,3 +200,14 @@ def test_a_truncated_recording_of_any_profile_is_named_damaged(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cannot read bag" in err and "truncated or damaged" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.mcap"]
+
+
+def test_topic_listings_name_the_schemas_as_held(env: Env, tmp_path: Path, capsys) -> None:
+    src = env.recordings["foxglove_sdk.mcap"]
+    assert main(env.dynamic(src, tmp_path / "out", "--rgb-topic", "/nope")) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "/nope: bag" in err and "no such topic" in err
+    assert f"{pr.RGB} (foxglove.RawImage (protobuf))" in err
+    assert f"{pr.INFO} (foxglove.CameraCalibration (protobuf))" in err
+    assert main(env.dynamic(src, tmp_path / "out", "--rgb-topic", pr.GT)) == 2
+    assert "carries foxglove.PoseInFrame (protobuf), expected" in capsys.readouterr().err

@@ -117,11 +117,13 @@ class BagFile:
             )
         self._mcap = self._open_mcap() if self.path.suffix.lower() == ".mcap" else None
         self.topics: dict[str, str] = {}
+        self.held: dict[str, str] = {}  # the types as an MCAP of any profile names them
         if self._mcap is not None:
             self._reader = self._mcap
             self.cdr = all(c.message_encoding != "ros1" for c in self._mcap.channels)
             for ch in self._mcap.channels:
                 self.topics.setdefault(ch.topic, ch.role or ch.kind)
+                self.held.setdefault(ch.topic, ch.kind)
             return
         try:
             self._reader = self._open()

@@ -86,7 +86,7 @@ class BagSequence:
         self._bag = BagFile(self.root)
         self.topics: TopicChoice = choose_topics(
             str(self.root), self._bag.topics, options.rgb_topic, options.depth_topic,
-            options.camera_info_topic,
+            options.camera_info_topic, self._bag.held,
         )  # fmt: skip
         self._types = {t: self._bag.topics[t] for t in (self.topics.rgb, self.topics.depth)}
         self.profile = self._bag.profile(self.topics.rgb)  # how its colour topic is encoded
