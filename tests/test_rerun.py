@@ -101,6 +101,12 @@ def test_dynamic_writes_one_mask_per_frame(env: Env, tmp_path: Path, capsys) -> 
         assert set(np.unique(seg)) <= {0, 1, 2, 3}  # static, person, chair, dilation only
         masked += int((seg == 1).sum())
     assert masked > 0  # person pixels, coloured as the class
+    for row in rows["/camera/image/ground_truth"]:  # the synthetic sequence's dynamic/ masks
+        fmt = row["SegmentationImage:format"][0]
+        ids = np.frombuffer(bytes(row["SegmentationImage:buffer"][0]), np.uint8)
+        truth = cv2.imread(str(env.seq / "dynamic" / mask_name(tum.frames[row["frame"]][0][0])), 0)
+        assert np.array_equal(ids.reshape(fmt["height"], fmt["width"]), np.where(truth > 0, 3, 0))
+    assert _frames(rows["/camera/image/ground_truth"]) == list(range(FRAMES))
     labels = [x for r in rows["/camera/image/objects"] for x in r["Boxes2D:labels"] or []]
     assert labels and any(x.startswith("#") and " p " in x for x in labels)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dyn.rrd", "out"]  # nothing staged
@@ -116,6 +122,7 @@ def test_predict_track_writes_one_mask_per_frame(env: Env, tmp_path: Path) -> No
     assert _frames(rows["/camera/image/dynamic_mask"]) == list(range(FRAMES))
     assert _frames(rows["/camera/image"]) == list(range(FRAMES))
     assert "/camera/depth" not in rows  # predict reads colour only
+    assert "/camera/image/ground_truth" not in rows
 
 
 def test_slam_eval_writes_one_trajectory_per_condition(env: Env, tmp_path: Path, capsys):

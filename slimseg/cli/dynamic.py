@@ -172,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
     if rerun is not None:
         from slimseg.dynamic.rerun_frames import RerunFrames
 
-        viz = RerunFrames(rerun, names, "slimseg dynamic")
+        truth = seq.root / "dynamic"  # a synthetic sequence's ground-truth masks, if any
+        viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)
         observers.append(viz)
     try:
         with _staged_output(out, seq, bag_out, args, boxes) as stage:  # complete or not at all

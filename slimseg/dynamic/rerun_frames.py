@@ -14,6 +14,9 @@ Per frame, on the ``frame`` (index) and ``stamp`` (the colour header stamp) time
   <class> p <moving probability>``, coloured by class.
 - ``camera/image/keypoints/static`` and ``.../dynamic``: the ORB keypoints kept and dropped
   (``Points2D``, green and red).
+- ``camera/image/ground_truth``: with ``truth`` (a sequence's ``dynamic/`` folder), its
+  ground-truth dynamic mask (``SegmentationImage``, the dilation's id), shown in a view of its
+  own beside the frame.
 - ``timing/<part>_ms``: the frame's milliseconds by part (``Scalars``: model, features,
   track, logic, latency).
 
@@ -26,8 +29,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from slimseg.data.images import decode_file
+from slimseg.data.tum import mask_name
 from slimseg.data.visualize import class_color
 from slimseg.dynamic.frame_masker import MaskedFrame
 from slimseg.dynamic.mask_bag import object_labels
@@ -40,6 +46,7 @@ RRD_MAGIC = b"RRF"  # what every .rrd begins with (RRF0, RRF2, ...)
 STATIC_COLOUR = (40, 220, 60)
 DYNAMIC_COLOUR = (255, 40, 40)
 TIMING_PARTS = ("model", "features", "track", "logic", "latency")
+TRUTH = "ground_truth"  # entity (under camera/image) of a sequence's ground-truth dynamic mask
 JPEG_QUALITY = 90  # the colour frame as JPEG: a twelfth of its raw size in the file
 DEPTH_UNITS = 5000.0  # depth as uint16 at TUM's 5000 per metre (0.2 mm, up to 13.1 m)
 
@@ -113,23 +120,21 @@ def unclaimed(names: list[str]) -> int:
     return len(names) + 1
 
 
-def frames_layout() -> object:
-    """The viewer's opening layout: the frame with mask, boxes and keypoints large; depth and
-    every timing series in one plot beside it; panels folded."""
+def frames_layout(truth: bool = False) -> object:
+    """The viewer's opening layout: the frame with mask, boxes and keypoints large; beside it
+    depth, the frame with the ground-truth mask (``truth``) and every timing series in one
+    plot; panels folded."""
     import rerun.blueprint as rrb
 
+    side = [rrb.Spatial2DView(origin="camera/depth", name="depth (m)")]
+    if truth:
+        side.append(rrb.Spatial2DView(origin="camera/image", name="ground-truth dynamic mask",
+                                      contents=["+ $origin", f"+ $origin/{TRUTH}"]))  # fmt: skip
+    side.append(rrb.TimeSeriesView(origin="timing", name="ms per frame"))
+    main = rrb.Spatial2DView(origin="camera/image", name="frame: dynamic mask, objects, keypoints",
+                             contents=["+ $origin/**", f"- $origin/{TRUTH}"])  # fmt: skip
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial2DView(
-                origin="camera/image", name="frame: dynamic mask, objects, keypoints"
-            ),
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="camera/depth", name="depth (m)"),
-                rrb.TimeSeriesView(origin="timing", name="ms per frame"),
-            ),
-            column_shares=[2, 1],
-        ),
-        collapse_panels=True,
+        rrb.Horizontal(main, rrb.Vertical(*side), column_shares=[2, 1]), collapse_panels=True
     )
 
 
@@ -157,12 +162,15 @@ class RerunFrames(RerunRecording):
     """Per-frame logging (see the module docstring); an observer of
     :func:`~slimseg.dynamic.sequence_run.run_sequence`: call it with each frame's outcome."""
 
-    def __init__(self, path: Path, names: list[str], application: str) -> None:
+    def __init__(
+        self, path: Path, names: list[str], application: str, truth: Path | None = None
+    ) -> None:
         super().__init__(path, application)
         self.names = list(names)
+        self.truth = truth
         self.frames = 0
         self.rec.log("/", annotation_context(self.rr, self.names), static=True)
-        self.rec.send_blueprint(frames_layout())
+        self.rec.send_blueprint(frames_layout(truth is not None))
 
     def __call__(self, f: MaskedFrame, rgb: np.ndarray, depth: np.ndarray | None) -> None:
         rr, rec = self.rr, self.rec
@@ -187,4 +195,9 @@ class RerunFrames(RerunRecording):
         rec.log("camera/image/keypoints/dynamic", rr.Points2D(kps[dyn], colors=DYNAMIC_COLOUR))
         for part in TIMING_PARTS:
             rec.log(f"timing/{part}_ms", rr.Scalars(float(getattr(f.timing, part))))
+        if self.truth is not None:
+            gt = decode_file(self.truth / mask_name(f.stamp), cv2.IMREAD_GRAYSCALE)
+            if gt is not None:  # a frame without one is left out (as the scores do)
+                ids = np.where(gt > 0, unclaimed(self.names), 0).astype(np.uint8)
+                rec.log(f"camera/image/{TRUTH}", rr.SegmentationImage(ids))
         self.frames += 1
