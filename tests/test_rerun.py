@@ -87,8 +87,9 @@ def test_dynamic_writes_one_mask_per_frame(env: Env, tmp_path: Path, capsys) -> 
         1: "person",
         2: "chair",
         3: "dynamic (dilation)",
+        4: "ground truth (dynamic)",
     }
-    assert classes[0]["color"] & 0xFF == 0 and len({v["color"] for v in classes.values()}) == 4
+    assert classes[0]["color"] & 0xFF == 0 and len({v["color"] for v in classes.values()}) == 5
     tum = TumSequence(env.seq)
     masked = 0
     for row in rows["/camera/image/dynamic_mask"]:
@@ -105,7 +106,7 @@ def test_dynamic_writes_one_mask_per_frame(env: Env, tmp_path: Path, capsys) -> 
         fmt = row["SegmentationImage:format"][0]
         ids = np.frombuffer(bytes(row["SegmentationImage:buffer"][0]), np.uint8)
         truth = cv2.imread(str(env.seq / "dynamic" / mask_name(tum.frames[row["frame"]][0][0])), 0)
-        assert np.array_equal(ids.reshape(fmt["height"], fmt["width"]), np.where(truth > 0, 3, 0))
+        assert np.array_equal(ids.reshape(fmt["height"], fmt["width"]), np.where(truth > 0, 4, 0))
     assert _frames(rows["/camera/image/ground_truth"]) == list(range(FRAMES))
     labels = [x for r in rows["/camera/image/objects"] for x in r["Boxes2D:labels"] or []]
     assert labels and any(x.startswith("#") and " p " in x for x in labels)

@@ -4,7 +4,8 @@ on ``slimseg dynamic`` and ``slimseg predict --track``; the ``slimseg[viz]`` ext
 
 Per frame, on the ``frame`` (index) and ``stamp`` (the colour header stamp) timelines:
 
-- ``camera/image``: the colour frame (``Image``, JPEG at quality :data:`JPEG_QUALITY`);
+- ``camera/image``: the colour frame (``Image``, raw: Rerun's web viewer in a headless browser
+  never decoded a JPEG-compressed one);
   ``camera/depth``: depth (``DepthImage``, ``uint16`` at :data:`DEPTH_UNITS` per metre; not for
   ``predict``, which has none).
 - ``camera/image/dynamic_mask``: the dynamic mask as a ``SegmentationImage``, each masked
@@ -15,8 +16,8 @@ Per frame, on the ``frame`` (index) and ``stamp`` (the colour header stamp) time
 - ``camera/image/keypoints/static`` and ``.../dynamic``: the ORB keypoints kept and dropped
   (``Points2D``, green and red).
 - ``camera/image/ground_truth``: with ``truth`` (a sequence's ``dynamic/`` folder), its
-  ground-truth dynamic mask (``SegmentationImage``, the dilation's id), shown in a view of its
-  own beside the frame.
+  ground-truth dynamic mask (``SegmentationImage``, id :func:`truth_id`, amber), shown over the
+  frame in a view of its own beside the main one.
 - ``timing/<part>_ms``: the frame's milliseconds by part (``Scalars``: model, features,
   track, logic, latency).
 
@@ -47,7 +48,6 @@ STATIC_COLOUR = (40, 220, 60)
 DYNAMIC_COLOUR = (255, 40, 40)
 TIMING_PARTS = ("model", "features", "track", "logic", "latency")
 TRUTH = "ground_truth"  # entity (under camera/image) of a sequence's ground-truth dynamic mask
-JPEG_QUALITY = 90  # the colour frame as JPEG: a twelfth of its raw size in the file
 DEPTH_UNITS = 5000.0  # depth as uint16 at TUM's 5000 per metre (0.2 mm, up to 13.1 m)
 
 
@@ -106,13 +106,20 @@ class RerunRecording:
 
 def annotation_context(rr: object, names: list[str]) -> object:
     """Id 0 static (transparent), class ``c`` as ``c + 1`` in its colour, :func:`unclaimed`
-    for the dilation's pixels."""
+    for the dilation's pixels, :func:`truth_id` for the ground truth's."""
     infos = [rr.AnnotationInfo(id=0, label="static", color=(0, 0, 0, 0))]
     infos += [rr.AnnotationInfo(id=c + 1, label=n, color=class_color(c)) for c, n in
               enumerate(names)]  # fmt: skip
+    infos.append(rr.AnnotationInfo(id=truth_id(names), label="ground truth (dynamic)",
+                                   color=(255, 200, 0)))  # fmt: skip
     infos.append(rr.AnnotationInfo(id=unclaimed(names), label="dynamic (dilation)",
                                    color=(255, 255, 255)))  # fmt: skip
     return rr.AnnotationContext(infos)
+
+
+def truth_id(names: list[str]) -> int:
+    """The segmentation id of a ground-truth dynamic pixel (``camera/image/ground_truth``)."""
+    return len(names) + 2
 
 
 def unclaimed(names: list[str]) -> int:
@@ -176,7 +183,7 @@ class RerunFrames(RerunRecording):
         rr, rec = self.rr, self.rec
         rec.set_time("frame", sequence=self.frames)
         rec.set_time("stamp", timestamp=f.stamp)
-        rec.log("camera/image", rr.Image(rgb).compress(jpeg_quality=JPEG_QUALITY))
+        rec.log("camera/image", rr.Image(rgb))
         if depth is not None:
             units = np.clip(np.round(depth * DEPTH_UNITS), 0, 65535).astype(np.uint16)
             rec.log("camera/depth", rr.DepthImage(units, meter=DEPTH_UNITS))
@@ -198,6 +205,6 @@ class RerunFrames(RerunRecording):
         if self.truth is not None:
             gt = decode_file(self.truth / mask_name(f.stamp), cv2.IMREAD_GRAYSCALE)
             if gt is not None:  # a frame without one is left out (as the scores do)
-                ids = np.where(gt > 0, unclaimed(self.names), 0).astype(np.uint8)
+                ids = np.where(gt > 0, truth_id(self.names), 0).astype(np.uint8)
                 rec.log(f"camera/image/{TRUTH}", rr.SegmentationImage(ids))
         self.frames += 1
