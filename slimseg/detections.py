@@ -13,8 +13,7 @@ Each type's docstring opens with its coordinate frame. Which type at which stage
 
 This module imports nothing of slimseg and nothing but numpy, so any layer may use it and
 the core install (no torch) imports it: :class:`Detections` holds torch tensors that its
-producer (``slimseg.ops.nms``) made, and the RLE conversions import pycocotools (the
-``train`` extra) when called.
+producer (``slimseg.ops.nms``) made, and the RLE conversions import pycocotools when called.
 """
 
 from __future__ import annotations

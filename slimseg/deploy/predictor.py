@@ -132,7 +132,7 @@ class Predictor:
     def _from_torch(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
         from slimseg.utils.extras import needs_train
 
-        with needs_train(f"{path.suffix} weights"):
+        with needs_train(f"loading {path.suffix} weights"):
             from slimseg.models.checkpoint import load_weights
 
         with torch_threads(threads):

@@ -16,7 +16,6 @@ import numpy as np
 
 from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
-from slimseg.utils.extras import needs_train
 
 
 @dataclass(frozen=True)
@@ -138,12 +137,12 @@ class AnnotationInstances:
         return self._by_stamp[key]
 
     def for_stamp(self, stamp: float) -> Prediction:
-        """The frame's instances: boxes xyxy, classes, ``masks bool [N, H, W]`` (decoding the
-        COCO RLEs needs pycocotools, the ``train`` extra)."""
-        with needs_train("ground-truth instances (annotations.json)"):
-            from pycocotools import mask as mask_utils
+        """The frame's instances: boxes xyxy, classes, ``masks bool [N, H, W]``."""
+        # here, not at the top: slimseg.Masker imports this module and needs neither
+        from pycocotools import mask as mask_utils
 
-            from slimseg.data.coco_rle import segm_to_rle
+        from slimseg.data.coco_rle import segm_to_rle
+
         im, anns = self._frame(stamp)
         h, w = int(im["height"]), int(im["width"])
         masks = np.zeros((len(anns), h, w), bool)

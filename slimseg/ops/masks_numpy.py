@@ -76,16 +76,19 @@ def frame_masks(
     boxes: np.ndarray,
     p: LetterboxParams,
     frame_hw: tuple[int, int],
+    threshold: float | None = 0.5,
 ) -> np.ndarray:
     """``bool [N, h, w]`` masks on the source frame ``frame_hw`` of ``N`` detections:
     ``coeffs float32 [N, nm]``, the image's ``proto float32 [nm, Hp, Wp]``, ``boxes float32
-    [N, 4]`` xyxy in network-input pixels, ``p`` the frame's letterbox (module docstring)."""
+    [N, 4]`` xyxy in network-input pixels, ``p`` the frame's letterbox (module docstring).
+    ``threshold=None``: the values a mask thresholds (``float32 [N, h, w]``, 0 where no tap
+    reaches the box), to see how close a pixel is to flipping."""
     n, (h, w) = len(coeffs), frame_hw
     if coeffs.ndim != 2 or proto.ndim != 3 or coeffs.shape[1] != proto.shape[0]:
         raise ValueError(
             f"expected coeffs [N, nm] and proto [nm, Hp, Wp], got {coeffs.shape} and {proto.shape}"
         )
-    out = np.zeros((n, h, w), bool)
+    out = np.zeros((n, h, w), bool if threshold is not None else F32)
     if n == 0:
         return out
     nm, hp, wp = proto.shape
@@ -107,7 +110,8 @@ def frame_masks(
             r0, c0 = max(top, 0), max(left, 0)
             r1, c1 = min(top + int(ny[d]), h), min(left + int(nx[d]), w)
             if r1 > r0 and c1 > c0:
-                out[d, r0:r1, c0:c1] = values[r0 - top : r1 - top, c0 - left : c1 - left] > 0.5
+                kept = values[r0 - top : r1 - top, c0 - left : c1 - left]
+                out[d, r0:r1, c0:c1] = kept if threshold is None else kept > threshold
             continue
         if fnx[d] == 0 or fny[d] == 0:
             continue
@@ -116,9 +120,13 @@ def frame_masks(
         local = np.zeros((int(ny[d]) + 2, int(nx[d]) + 2), F32)
         local[1:-1, 1:-1] = values
         fys = _onto_window(bilinear_taps(int(fy[d]), int(fny[d]), h, p.new_h), y0[d] - p.top, ny[d])
-        fxs = _onto_window(bilinear_taps(int(fx[d]), int(fnx[d]), w, p.new_w), x0[d] - p.left, nx[d])
+        fxs = _onto_window(
+            bilinear_taps(int(fx[d]), int(fnx[d]), w, p.new_w), x0[d] - p.left, nx[d]
+        )
         r, c = int(fy[d]), int(fx[d])
-        out[d, r : r + int(fny[d]), c : c + int(fnx[d])] = resample(local, fys, fxs) > 0.5
+        at_frame = resample(local, fys, fxs)
+        window = out[d, r : r + int(fny[d]), c : c + int(fnx[d])]
+        window[...] = at_frame if threshold is None else at_frame > threshold
     return out
 
 

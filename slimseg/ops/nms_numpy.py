@@ -70,7 +70,9 @@ def greedy_nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> np.ndarray:
     return order[np.asarray(keep, np.int64)]
 
 
-def batched_nms(boxes: np.ndarray, scores: np.ndarray, groups: np.ndarray, iou: float) -> np.ndarray:
+def batched_nms(
+    boxes: np.ndarray, scores: np.ndarray, groups: np.ndarray, iou: float
+) -> np.ndarray:
     """Greedy NMS within each group (class) of ``groups int [N]``: kept indices ``int64
     [K]`` by decreasing score, as torchvision's CPU ``batched_nms`` (module docstring)."""
     if len(boxes) == 0:

@@ -2,8 +2,9 @@
 says which to install when a feature needs one that is missing.
 
 The core install (``pip install slimseg``) is the runtime: numpy, OpenCV, onnxruntime, PyYAML,
-tqdm and Pillow. Training, export and evaluation need the ``train`` extra; its top-level
-modules are listed here so that a ``ModuleNotFoundError`` for one of them becomes that line.
+tqdm, Pillow and pycocotools. Training, export and evaluation need the ``train`` extra; its
+top-level modules are listed here so that a ``ModuleNotFoundError`` for one of them becomes
+that line.
 """
 
 from __future__ import annotations
@@ -21,12 +22,10 @@ TRAIN_MODULES = frozenset(
         "torchvision",
         "lightning",
         "albumentations",
-        "pycocotools",
         "tensorboard",
         "onnx",
         "onnxslim",
         "matplotlib",
-        "scipy",
     }
 )
 
