@@ -14,8 +14,9 @@ on each detection's pixels:
    otherwise the cropped probabilities of the letterbox content are resized to the frame by
    the same bilinear rule and ``mask = value > 0.5``.
 
-Steps 2 and 3 give the torch path's numbers exactly; step 1 differs from torch's BLAS and
-vectorised ``exp`` by a rounding of the last bit on some pixels, so a mask pixel can differ
+Steps 2 and 3 give the torch path's numbers exactly; step 1 (numpy's own product loop, no
+BLAS threads, and ``exp``) differs from torch's BLAS and vectorised ``exp`` by a rounding of
+the last bit on some pixels, so a mask pixel can differ
 only where its value lies within a few float32 steps of 0.5 (``tests/test_postprocess_numpy.py``
 measures it; docs/runtime_api.md).
 """
@@ -92,7 +93,10 @@ def frame_masks(
     if n == 0:
         return out
     nm, hp, wp = proto.shape
-    probs = sigmoid(coeffs.astype(F32) @ proto.reshape(nm, hp * wp).astype(F32))
+    # einsum's own loop, not BLAS: OpenBLAS would start a thread per core for this product
+    # (10x slower than one thread beside a busy SLAM loop on 2 cores) and ignore `threads`
+    flat = proto.reshape(nm, hp * wp).astype(F32)
+    probs = sigmoid(np.einsum("nk,kp->np", coeffs.astype(F32), flat, optimize=False))
     b = boxes.astype(F32)
     x0, nx = pixel_span(b[:, 0], b[:, 2], p.out_w)
     y0, ny = pixel_span(b[:, 1], b[:, 3], p.out_h)
