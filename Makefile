@@ -1,4 +1,5 @@
-# Front door. `make demo` and `make test` create .venv on first use (pinned dependencies).
+# Front door. `make demo` and `make test` create .venv on first use (every extra, at the
+# versions constraints.txt pins).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -6,10 +7,10 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test lint format reference bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev,slam,ray,ros,viz]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[train,dev,slam,ray,ros,viz]"
 	touch $(STAMP)
 
 demo: $(STAMP)  ## the main job on the embedded default (no download)

@@ -11,7 +11,9 @@ Each type's docstring opens with its coordinate frame. Which type at which stage
   and timings (or a semantic class map): what the predictor returns and the SLAM-side logic
   (``slimseg.dynamic``) consumes.
 
-This module imports nothing of slimseg, so any layer may use it.
+This module imports nothing of slimseg and nothing but numpy, so any layer may use it and
+the core install (no torch) imports it: :class:`Detections` holds torch tensors that its
+producer (``slimseg.ops.nms``) made, and the RLE conversions import pycocotools when called.
 """
 
 from __future__ import annotations
@@ -19,11 +21,12 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
-from pycocotools import mask as mask_utils
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass(eq=False)
@@ -103,6 +106,8 @@ def encode_rle(masks: np.ndarray) -> list[dict]:
     """``bool/uint8 [N, h, w]`` → ``N`` COCO RLE dicts (``counts`` as str, json-ready)."""
     if len(masks) == 0:
         return []
+    from pycocotools import mask as mask_utils
+
     # [N, w, h] C order is [h, w, N] Fortran order: one transpose copy per mask.
     fortran = np.ascontiguousarray(np.transpose(masks, (0, 2, 1)), dtype=np.uint8).T
     rles = mask_utils.encode(fortran)
@@ -115,6 +120,8 @@ def decode_rle(rles: Sequence[dict], image_hw: tuple[int, int]) -> np.ndarray:
     """``N`` COCO RLE dicts → ``bool [N, h, w]``."""
     if len(rles) == 0:
         return np.zeros((0, *image_hw), bool)
+    from pycocotools import mask as mask_utils
+
     with warnings.catch_warnings():
         # pycocotools' Cython array lacks numpy 2's ``copy`` keyword: harmless, silenced here.
         warnings.filterwarnings("ignore", "__array__ implementation", DeprecationWarning)

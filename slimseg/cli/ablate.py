@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from slimseg.ablate.config import load_ablation_config
 from slimseg.cli.arg_types import count, number
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.errors import SlimsegError
 from slimseg.utils.shipped import shipped_names
 
@@ -21,8 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     shipped = ", ".join(shipped_names("ablation"))
     p = sub.add_parser(
         "ablate",
-        help="train and compare variants or spec overrides under one recipe and its seeds "
-        "(the paper's Table II)",
+        help=COMMAND_HELP["ablate"],
         description="Train, evaluate (COCO box and mask mAP, plus the config's extra row "
         "metrics) and measure (params, gradients, GFLOPs, onnxruntime latency at each "
         "bench size, optionally NMS + mask post-processing, training images/s) every arm "

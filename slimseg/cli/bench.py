@@ -7,6 +7,7 @@ import argparse
 import json
 
 from slimseg.cli.arg_types import count, multiple_of
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.deploy.bench import INT8_FORMS, bench_model, machine_info
 from slimseg.deploy.calibration import load_calibration_set
 from slimseg.deploy.int8_placement import INT8_TARGETS
@@ -19,7 +20,7 @@ from slimseg.utils.table import format_table
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "bench",
-        help="latency: torch unfused/fused vs onnxruntime FP32/FP16 (/INT8), with ratios",
+        help=COMMAND_HELP["bench"],
         description="Median latency (batch 1) of each model in every deployable form, measured "
         "side by side in one process (onnxruntime forms round-robin); with several models, "
         "ratios to the first are printed. --int8 adds the INT8 file of each --int8-target: "

@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 
 from slimseg.cli import data_bag, data_coco, data_show, data_synth
+from slimseg.cli.commands import COMMAND_HELP
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "data",
-        help="datasets: synth, coco-subset, voc2coco, check, show, bag2tum, tum2bag",
+        help=COMMAND_HELP["data"],
         description="Build the embedded synthetic dataset, cut the COCO-20 subset, convert VOC, "
         "check a dataset for bad input, or draw augmented samples.",
     )

@@ -6,12 +6,6 @@ import argparse
 from pathlib import Path
 
 from slimseg.cli.arg_types import count, multiple_of
-from slimseg.data.augment import load_augment_config
-from slimseg.data.coco import CocoDataset
-from slimseg.data.config import load_data_config
-from slimseg.data.dataset import ZooDataset
-from slimseg.data.visualize import draw_sample, tile
-from slimseg.utils.atomic import write_png
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -33,6 +27,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # here, not at the top: `slimseg data <other>` needs none of the training stack
+    from slimseg.data.augment import load_augment_config
+    from slimseg.data.coco import CocoDataset
+    from slimseg.data.config import load_data_config
+    from slimseg.data.dataset import ZooDataset
+    from slimseg.data.visualize import draw_sample, tile
+    from slimseg.utils.atomic import write_png
+
     cfg = load_data_config(args.data)
     base = CocoDataset.from_config(cfg, "val" if args.val else "train")
     augment = None if args.val else load_augment_config(args.augment)

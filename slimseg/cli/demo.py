@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slimseg.cli.arg_types import count, multiple_of
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
 from slimseg.data.dataset import ZooDataset
@@ -39,8 +40,7 @@ FLOOR_SHARE = 0.5
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="end to end on the embedded dataset: synth → train (CPU) → val → plots → ONNX → "
-        "ORB-SLAM3 with and without the masks",
+        help=COMMAND_HELP["demo"],
         description="Generate the synthetic RGB-D dataset (no download), train a small variant "
         "on the CPU with configs/train/cpu-demo.yaml, validate its EMA weights with COCO mAP, "
         "and write training curves and a prediction grid. Then export the fused model to "

@@ -17,6 +17,7 @@ import numpy as np
 
 from slimseg.cli.arg_types import count
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import (
@@ -58,7 +59,7 @@ from slimseg.utils.table import format_table
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "dynamic",
-        help="dynamic-keypoint masks for a TUM RGB-D sequence (+ precision/recall with GT)",
+        help=COMMAND_HELP["dynamic"],
         description="Run a model and the reference masking logic (Eq. 1/3/4 of the substation "
         "paper, YOLO-SLAM's depth-RANSAC, VTD-SLAM's epipolar check) on a TUM-layout sequence. "
         "Writes masks/<rgb timestamp>.png (255 = dynamic), frames.csv and overlay.png; with "

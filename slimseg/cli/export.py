@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from slimseg.cli.arg_types import count, number
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
@@ -21,7 +22,7 @@ from slimseg.utils.outputs import refuse_inputs
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "export",
-        help="fused ONNX (FP32/FP16/INT8) with metadata and a verified parity or accuracy check",
+        help=COMMAND_HELP["export"],
         description="EMA weights -> fuse -> ONNX -> checker -> onnxslim -> (FP16) -> metadata "
         "-> onnxruntime vs torch parity on two inputs (with --dynamic also batch 2 and a second "
         "size). --int8: that FP32 graph -> calibration on real frames -> Q/DQ for the "

@@ -8,6 +8,7 @@ import json
 from torch import nn
 
 from slimseg.cli.arg_types import count, multiple_of
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.eval.complexity import Complexity, count_params, measure
 from slimseg.eval.paper import TABLE2, TABLE2_IMGSZ, TABLE2_NUM_CLASSES
 from slimseg.models.registry import build_model, list_models
@@ -18,7 +19,7 @@ from slimseg.utils.text import printable
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "info",
-        help="model size and cost (params, gradients, GFLOPs ours and paper convention)",
+        help=COMMAND_HELP["info"],
         description="Report params, gradients (trainable params), GFLOPs in our convention "
         "(FlopCounterMode, eval, batch 1) and in the substation paper's (thop-style), and the "
         "fused model's params and GFLOPs. '--model all' prints the zoo and compares the "

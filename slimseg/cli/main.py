@@ -6,11 +6,17 @@ and exit code 2: a :class:`~slimseg.errors.SlimsegError` from any reader or chec
 bad option (argparse's own errors and those raised inside a ``type=`` parser). ``slimseg
 --debug <command>`` or ``SLIMSEG_DEBUG=1`` lets the exception through with its traceback, for
 bug reports. Any other exception is a bug and keeps its traceback.
+
+Only the command that runs is imported (:mod:`slimseg.cli.commands`): ``slimseg --help`` and
+the runtime's commands never load the training stack. A command whose module needs the
+``train`` extra and lacks it ends in one line, ``slimseg train needs the training stack: pip
+install 'slimseg[train]'``, and exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
 import sys
@@ -18,31 +24,14 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import NoReturn
 
-import cv2
-
-from slimseg.cli import (
-    ablate,
-    bench,
-    data,
-    demo,
-    dynamic,
-    export,
-    info,
-    predict,
-    slam,
-    slam_eval,
-    train,
-    val,
-)
+from slimseg.cli.commands import COMMANDS
 from slimseg.errors import SlimsegError
+from slimseg.utils.extras import is_train_module, train_hint
 from slimseg.utils.outputs import ALLOW_OUTSIDE_ENV, ALLOW_OUTSIDE_FLAG
 from slimseg.utils.text import printable
 from slimseg.version import __version__
 
 DEBUG_ENV = "SLIMSEG_DEBUG"  # set to 1: user errors raise with their traceback (bug reports)
-
-# Each command module exposes ``add_parser(subparsers)`` and ``run(args) -> int``.
-COMMANDS = (demo, info, data, train, val, ablate, export, predict, bench, dynamic, slam_eval, slam)
 
 
 @contextmanager
@@ -53,6 +42,8 @@ def cli_logging() -> Iterator[None]:
     caller's logging is never changed for good). OpenCV's own warnings and errors (``[ WARN:0]
     ... PNG input buffer is incomplete``, ``[ERROR:0] ... IHDR chunk shall be first``) are off
     meanwhile: the readers report an unreadable file themselves, on one line."""
+    import cv2  # here: `slimseg --help` never loads OpenCV
+
     logger = logging.getLogger("slimseg")
     handler = logging.StreamHandler(sys.stdout)
     handler.setFormatter(PrintableFormatter("%(message)s"))
@@ -90,7 +81,16 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_word(argv: Sequence[str]) -> str | None:
+    """The command ``argv`` names: its first word that is not an option (the global options
+    take no value), ``None`` when there is none."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of ``slimseg``: every command listed, the one ``argv`` names (``None``:
+    ``sys.argv``) complete with its options; the others' modules are not imported."""
+    chosen = command_word(sys.argv[1:] if argv is None else argv)
     parser = OneLineParser(
         prog="slimseg",
         description="Build, train, ablate, fuse and export segmenters for dynamic SLAM.",
@@ -110,7 +110,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="<command>", required=True)
     for command in COMMANDS:
-        command.add_parser(sub)
+        if command.name == chosen:
+            importlib.import_module(command.module).add_parser(sub)
+        else:
+            sub.add_parser(command.name, help=command.help)
     return parser
 
 
@@ -145,8 +148,11 @@ def _debug(argv: Sequence[str] | None) -> bool:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Parse ``argv`` and run the command; user errors print one line and return 2."""
-    parser = build_parser()
     debug = _debug(argv)
+    try:
+        parser = build_parser(argv)
+    except ModuleNotFoundError as exc:  # the command's module needs an extra
+        return _missing_extra(exc, command_word(sys.argv[1:] if argv is None else argv), debug)
     try:
         args = parser.parse_args(argv)
     except SlimsegError as exc:  # from a type= parser, which argparse lets through
@@ -161,6 +167,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"slimseg {args.command}: error: {printable(exc)}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:
+        return _missing_extra(exc, args.command, debug)
     except KeyboardInterrupt:
         print(f"slimseg {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -174,6 +182,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         line = printable(describe_os_error(exc))
         print(f"slimseg {args.command}: error: {line}", file=sys.stderr)
         return 2
+
+
+def _missing_extra(exc: ModuleNotFoundError, command: str | None, debug: bool) -> int:
+    """A module of the ``train`` extra missing: one line, exit 2 (any other: a bug, raised)."""
+    if debug or not is_train_module(exc.name):
+        raise exc
+    print(train_hint(f"slimseg {command}"), file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -39,6 +39,7 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.cli.arg_types import FRACTION, count, multiple_of
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.bag_colour import BagColour
@@ -55,7 +56,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.epipolar import orb_features
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
-from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
+from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
 from slimseg.utils.outputs import claim_folder, refuse_inputs, unique_stems
 
@@ -66,7 +67,7 @@ STAGES = ("preprocess", "inference", "postprocess")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "predict",
-        help="masks, boxes and overlays for images, a folder or a video",
+        help=COMMAND_HELP["predict"],
         description="Run an exported .onnx (onnxruntime) or .pt/.ckpt weights (torch) on an "
         "image, a folder of .png/.jpg/.jpeg/.bmp images or a video. Writes per frame "
         "<stem>_overlay.png, <stem>_mask.png (255 = any object) and <stem>.json to --out. "

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from slimseg.cli.arg_types import count
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.bag_reader import is_bag
 from slimseg.errors import SlimsegError
 from slimseg.utils.outputs import claim_file, refuse_inputs
@@ -18,7 +19,7 @@ from slimseg.utils.outputs import claim_file, refuse_inputs
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "slam",
-        help="SLAM helpers: vocab (DBoW2 ORB vocabulary for ORB-SLAM3)",
+        help=COMMAND_HELP["slam"],
         description="Helpers for the SLAM engines used by slimseg slam-eval.",
     )
     actions = p.add_subparsers(dest="action", metavar="<action>", required=True)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from slimseg.cli.arg_types import count, number
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import (
@@ -30,7 +31,7 @@ DEFAULT_MODES = "raw,gt,oracle,fusion"
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "slam-eval",
-        help="trajectory error (ATE/RPE, evo) of ORB-SLAM3 on raw vs masked RGB-D frames",
+        help=COMMAND_HELP["slam-eval"],
         description="Run ORB-SLAM3 RGB-D (pyorbslam3) or a dense RGB odometry on a TUM-layout "
         "sequence once per condition - raw frames, each mode's dynamic masks (computed as "
         "slimseg dynamic does, or read from --masks), ground-truth masks, restored frames "

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from slimseg.cli.arg_types import count, multiple_of, number
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.augment import load_augment_config
 from slimseg.data.config import SPLITS, load_data_config
 from slimseg.engine.config import load_train_config
@@ -17,7 +18,7 @@ from slimseg.eval.semantic_metrics import format_semantic_table
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "train",
-        help="train a model (Lightning: CPU, GPU, multi-GPU / multi-node DDP)",
+        help=COMMAND_HELP["train"],
         description="Train a zoo variant on a COCO-format dataset config. Writes "
         "OUT/weights/{last,best}.pt (EMA weights), OUT/checkpoints/last.ckpt (for --resume), "
         "OUT/results.csv and TensorBoard logs in OUT/tb.",

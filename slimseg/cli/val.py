@@ -14,6 +14,7 @@ import torch
 from torch import nn
 
 from slimseg.cli.arg_types import FRACTION, count, multiple_of
+from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig, load_data_config
 from slimseg.data.dataset import ZooDataset
@@ -38,7 +39,7 @@ from slimseg.utils.outputs import claim_file, json_with, refuse_inputs
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "val",
-        help="COCO box/mask mAP (or mIoU/MPA) of weights or an exported ONNX on a val split",
+        help=COMMAND_HELP["val"],
         description="Evaluate weights (.pt from slimseg train, or its .ckpt) or a file written "
         "by slimseg export (FP32, FP16 or INT8 .onnx, run by onnxruntime with the same "
         "letterbox, NMS and masks) with pycocotools; "

@@ -10,7 +10,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from slimseg.data.coco_index import Instance
-from slimseg.ops.boxes import box_pixel_bounds
+from slimseg.ops.box_pixels import box_pixel_bounds
 
 
 def _box_pixels(box: tuple[float, ...], height: int, width: int) -> tuple[int, int, int, int]:

@@ -88,8 +88,8 @@ def agreement_on_frames(
     nms: list[float] = []
     bar = tqdm(calib.inputs(imgsz), total=len(calib.paths), desc="agreement", disable=not progress)
     for x in bar:
-        ref = [t.numpy() for t in fp32.runner(x) if t is not None]
-        got = [t.numpy() for t in int8.runner(x) if t is not None]
+        ref = [t for t in fp32.runner(x) if t is not None]
+        got = [t for t in int8.runner(x) if t is not None]
         a = detection_agreement(fp32, ref, got)
         totals["frames"] += 1
         totals["checked"] += a["checked"]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from slimseg.dynamic.masking_settings import (
     DEFAULT,
@@ -21,10 +21,12 @@ from slimseg.dynamic.masking_settings import (
     SettingsError,
 )
 from slimseg.errors import SlimsegError
-from slimseg.models.base import ZooModel
 from slimseg.ops.letterbox import PAD_VALUE
-from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
+from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.version import __version__
+
+if TYPE_CHECKING:  # the runtime reads metadata without torch
+    from slimseg.models.base import ZooModel
 
 # Eq. 1's starting mobility threshold of the default masking settings (docs/papers.md §2):
 # classes above it are dynamic. Read from slimseg.dynamic.masking_settings, never retyped.

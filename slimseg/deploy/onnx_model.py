@@ -53,4 +53,6 @@ class OnnxModel(nn.Module):
     def forward(self, images: torch.Tensor) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         x = np.ascontiguousarray(images.detach().cpu().float().numpy())
         pred, proto = self.runner.run_chunked(x)
-        return pred if proto is None else (pred, proto)
+        if proto is None:
+            return torch.from_numpy(pred)
+        return torch.from_numpy(pred), torch.from_numpy(proto)

@@ -7,8 +7,11 @@ detections (up to float rounding) whichever file is loaded:
    size, RGB / 255, NCHW, float32 (float16 for FP16 exports, as their metadata says);
 2. inference (:mod:`slimseg.deploy.runners`): the fused model or the ONNX graph →
    ``pred [B, 4 + nc (+ nm), A]`` and, for segmenters, ``proto [B, nm, H/s, W/s]``;
-3. postprocess (:mod:`slimseg.deploy.predict_postprocess`): NMS, boxes and masks on the source
-   frame; semantic models (``logits [B, K+1, H, W]``) get a class map instead.
+3. postprocess (:mod:`slimseg.deploy.predict_postprocess`, numpy): NMS, boxes and masks on
+   the source frame; semantic models (``logits [B, K+1, H, W]``) get a class map instead.
+
+The ONNX backend imports no torch (the core install, ``pip install slimseg``); ``.pt``/``.ckpt``
+weights need the ``train`` extra.
 
 Class names, mobility priors, input size and precision come from the ONNX metadata written by
 ``slimseg export`` (:func:`~slimseg.deploy.metadata.read_session_metadata`), or from the weights
@@ -24,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from slimseg.deploy.metadata import build_metadata, int8_target, read_session_metadata
 from slimseg.deploy.ort_session import cpu_session
@@ -34,7 +36,7 @@ from slimseg.deploy.preprocess import parse_imgsz, preprocess_frame
 from slimseg.deploy.runners import OnnxRunner, TorchRunner
 from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
-from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
+from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.threads import torch_threads
 
 __all__ = ["BACKENDS", "Prediction", "Predictor", "combined_mask"]
@@ -58,7 +60,7 @@ class Predictor:
     ) -> None:
         self.runner = runner
         self.threads = threads
-        """intra-op threads of the network and of the post-processing (None: the defaults)"""
+        """intra-op threads of the network (None: the library's default)"""
         self.metadata = metadata
         self.imgsz = imgsz
         self.backend = backend
@@ -103,8 +105,7 @@ class Predictor:
         ``imgsz``: network input ``H`` or ``(H, W)``; default: the metadata's (ONNX) or the
         training size (torch, 640 if unknown). A static ONNX graph only runs at its own size.
         ``threads``: intra-op threads (the onnxruntime session's; for torch, the count set
-        around each forward pass and restored after it; the post-processing's torch ops run
-        on as many, set and restored the same way). ``None``: the library default.
+        around each forward pass and restored after it). ``None``: the library default.
         """
         path = Path(path)
         if backend not in BACKENDS:
@@ -129,7 +130,10 @@ class Predictor:
 
     @classmethod
     def _from_torch(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
-        from slimseg.models.checkpoint import load_weights
+        from slimseg.utils.extras import needs_train
+
+        with needs_train(f"loading {path.suffix} weights"):
+            from slimseg.models.checkpoint import load_weights
 
         with torch_threads(threads):
             model, info = load_weights(path, fused=True)
@@ -161,22 +165,18 @@ class Predictor:
 
     def _postprocess(
         self,
-        pred: torch.Tensor,
-        proto: torch.Tensor | None,
+        pred: np.ndarray,
+        proto: np.ndarray | None,
         metas: Sequence[dict],
         conf: float,
         iou: float,
         max_det: int,
     ) -> list[Prediction]:
-        # the post-processing's torch ops on the predictor's threads too: with the model on
-        # its own thread beside a busy loop, torch's default pool (every core) made it 2-5x
-        # slower (docs/tracking.md section 6.6)
-        with torch_threads(self.threads):
-            if self.task == "semantic":
-                return semantic_predictions(pred, metas, self.names)
-            return instance_predictions(
-                pred, proto, metas, self.names, self.mobility, self.family, conf, iou, max_det
-            )
+        if self.task == "semantic":
+            return semantic_predictions(pred, metas, self.names)
+        return instance_predictions(
+            pred, proto, metas, self.names, self.mobility, self.family, conf, iou, max_det
+        )
 
     def predict(
         self,

@@ -2,18 +2,21 @@
 onnxruntime session, both mapping a network input ``[B, 3, H, W]`` to ``(pred, proto)``.
 
 ``pred``: ``float32 [B, 4 + nc (+ nm), A]`` (``[B, K + 1, H, W]`` logits for semantic models);
-``proto``: ``float32 [B, nm, H/s, W/s]`` or ``None``.
+``proto``: ``float32 [B, nm, H/s, W/s]`` or ``None``; numpy arrays from both, so what follows
+runs without torch (the ONNX runner imports none: the core install).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from slimseg.errors import SlimsegError
 from slimseg.utils.threads import torch_threads
+
+if TYPE_CHECKING:
+    import torch
 
 # Output names a slimseg export uses, in the order the runners return them.
 OUTPUT_NAMES = ("output0", "output1", "logits")
@@ -29,12 +32,14 @@ class TorchRunner:
         self.dtype = np.float32
         self.batch_size: int | None = None  # any batch
 
-    @torch.inference_mode()
-    def __call__(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
-        with torch_threads(self.threads):
+    def __call__(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(pred, proto)`` as float32 arrays (``proto`` ``None`` for detection heads)."""
+        import torch
+
+        with torch_threads(self.threads), torch.inference_mode():
             out = self.model(torch.from_numpy(x))
         pred, proto = out if isinstance(out, tuple) else (out, None)
-        return pred, proto
+        return pred.float().numpy(), None if proto is None else proto.float().numpy()
 
 
 def check_single_image_input(session: Any, where: str) -> None:
@@ -88,18 +93,18 @@ class OnnxRunner:
 
     def __call__(
         self, x: np.ndarray, raw: dict[str, np.ndarray] | None = None
-    ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """``(pred, proto)`` as float32 tensors; ``raw``: a dict that also receives the
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(pred, proto)`` as float32 arrays; ``raw``: a dict that also receives the
         outputs as onnxruntime returned them (see :meth:`raw`)."""
         named = self.raw(x)
         if raw is not None:
             raw.update(named)
         outs = list(named.values())
-        pred = torch.from_numpy(np.asarray(outs[0], np.float32))
-        proto = torch.from_numpy(np.asarray(outs[1], np.float32)) if len(outs) > 1 else None
+        pred = np.asarray(outs[0], np.float32)
+        proto = np.asarray(outs[1], np.float32) if len(outs) > 1 else None
         return pred, proto
 
-    def run_chunked(self, x: np.ndarray) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def run_chunked(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """:meth:`__call__` for any batch: a static-batch graph runs in chunks of its batch
         size (the last one zero-padded, the padding dropped from the outputs)."""
         step = self.batch_size
@@ -115,4 +120,4 @@ class OnnxRunner:
             preds.append(pred[:n])
             if proto is not None:
                 protos.append(proto[:n])
-        return torch.cat(preds), torch.cat(protos) if protos else None
+        return np.concatenate(preds), np.concatenate(protos) if protos else None

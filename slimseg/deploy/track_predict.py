@@ -52,7 +52,7 @@ from slimseg.dynamic.masking_settings import DEFAULT
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_types import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
 from slimseg.errors import SlimsegError
-from slimseg.ops.nms import MAX_DET, NMS_IOU
+from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU
 from slimseg.utils.atomic import atomic_path, staged_dir, write_png, write_text
 
 UNTRACKED_BASE = 60000  # instance-map value of a frame's first untracked detection

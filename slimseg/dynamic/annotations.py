@@ -13,9 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pycocotools import mask as mask_utils
 
-from slimseg.data.coco_rle import segm_to_rle
 from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 
@@ -140,6 +138,11 @@ class AnnotationInstances:
 
     def for_stamp(self, stamp: float) -> Prediction:
         """The frame's instances: boxes xyxy, classes, ``masks bool [N, H, W]``."""
+        # here, not at the top: slimseg.Masker imports this module and needs neither
+        from pycocotools import mask as mask_utils
+
+        from slimseg.data.coco_rle import segm_to_rle
+
         im, anns = self._frame(stamp)
         h, w = int(im["height"]), int(im["width"])
         masks = np.zeros((len(anns), h, w), bool)

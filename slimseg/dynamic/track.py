@@ -9,9 +9,10 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
 2. **Associate (BYTE).** Detections scoring ``>= high`` or emitted (above the masking
    threshold) against every track, then the rest down to ``low`` against the confirmed
    tracks left; cost 1 - mask IoU (box IoU without masks), objects of other classes never
-   match; Hungarian assignment (scipy), gated. A detection is compared only with tracks whose
-   predicted box it overlaps (box IoU >= 0.05), with the track's last mask shifted by its
-   predicted centre motion (no warp); masks are warped only for emission (coast, carry).
+   match; Hungarian assignment (:mod:`slimseg.dynamic.assignment`), gated. A detection is
+   compared only with tracks whose predicted box it overlaps (box IoU >= 0.05), with the
+   track's last mask shifted by its predicted centre motion (no warp); masks are warped only
+   for emission (coast, carry).
 3. **Update.** A match takes the detection's mask and box; an unmatched detection that is
    emitted (or scores ``>= new``) opens a tentative track; a tentative track that finds no
    detection on a model frame ends (ByteTrack's rule), so tentative tracks stay few. Only a
@@ -37,8 +38,8 @@ import math
 import time
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from slimseg.dynamic.assignment import linear_assignment
 from slimseg.dynamic.camera_motion import CameraMotion
 from slimseg.dynamic.kalman import BoxKalman
 from slimseg.dynamic.mask_patch import (
@@ -235,7 +236,7 @@ class Tracker:
                 iou[i, j] = patch_iou(patches[d], self._shifted(t), IOU_STRIDE)
             else:
                 iou[i, j] = box_iou(boxes[d], t.kf.box)
-        rows, cols = linear_sum_assignment(1.0 - iou)
+        rows, cols = linear_assignment(1.0 - iou)
         self.parts["associate"] += time.perf_counter() - t0 - (self.parts["warp"] - w0)
         return [(int(idx[r]), pool[c]) for r, c in zip(rows, cols, strict=True)
                 if iou[r, c] >= gate]  # fmt: skip

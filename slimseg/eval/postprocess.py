@@ -150,3 +150,27 @@ def batch_to_frame_detections(
         )
         for i, (d, m) in enumerate(zip(dets, metas, strict=True))
     ]
+
+
+def outputs_to_frame_detections(
+    pred: torch.Tensor,
+    proto: torch.Tensor | None,
+    metas: Sequence[dict],
+    family: str,
+    nc: int,
+    conf: float,
+    iou: float,
+    max_det: int,
+) -> list[FrameDetections]:
+    """A predictor's network outputs (``pred [B, 4 + nc (+ nm), A]``, ``proto [B, nm, Hp, Wp]``
+    or ``None``) → dense :class:`FrameDetections` per frame by the torch path validation
+    runs (:func:`~slimseg.ops.nms.non_max_suppression`, :func:`to_frame_detections`): the
+    reference the runtime's numpy post-processing (``slimseg.deploy.predict_postprocess``)
+    is compared with (``tests/test_postprocess_numpy.py``, ``benchmarks/postprocess_numpy.py``)."""
+    from slimseg.models.registry import detection_rows
+    from slimseg.ops.nms import non_max_suppression
+
+    dets = non_max_suppression(
+        detection_rows(family, pred), nc, conf=conf, iou=iou, max_det=max_det
+    )
+    return batch_to_frame_detections(dets, proto, metas)

@@ -1,11 +1,23 @@
-"""Pure box functions: format conversion, IoU/CIoU, side distances, and the box-to-pixel rule."""
+"""Pure box functions: format conversion, IoU/CIoU, side distances (torch); the box-to-pixel
+rule is :func:`~slimseg.ops.box_pixels.box_pixel_bounds` (no torch), re-exported here."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import torch
+
+from slimseg.ops.box_pixels import box_pixel_bounds
+
+__all__ = [
+    "box_ciou_pairwise",
+    "box_iou_pairwise",
+    "box_pixel_bounds",
+    "box_to_distances",
+    "distances_to_box",
+    "xywh_to_xyxy",
+    "xyxy_to_xywh",
+]
 
 
 def xywh_to_xyxy(boxes: torch.Tensor) -> torch.Tensor:
@@ -59,18 +71,3 @@ def box_to_distances(points: torch.Tensor, boxes: torch.Tensor, limit: float) ->
 def distances_to_box(points: torch.Tensor, dist: torch.Tensor) -> torch.Tensor:
     """Inverse of ``box_to_distances``: ``points [..., 2]``, ``dist [..., 4]`` → xyxy boxes."""
     return torch.cat((points - dist[..., :2], points + dist[..., 2:]), dim=-1)
-
-
-def box_pixel_bounds(box: Sequence[float], height: int, width: int) -> tuple[int, int, int, int]:
-    """Pixels of an xyxy box as ``(r0, r1, c0, c1)`` slices: the one box-to-pixel rule.
-
-    A pixel belongs to the box when its centre does: column ``c`` iff ``x0 <= c + 0.5 < x1``,
-    i.e. ``c0 = ceil(x0 - 0.5)``, ``c1 = ceil(x1 - 0.5)`` (rows alike), clipped to the image
-    (``docs/conventions.md`` §1). The slices may be empty.
-    """
-    x0, y0, x1, y1 = (float(v) for v in box)
-    c0 = min(max(math.ceil(x0 - 0.5), 0), width)
-    r0 = min(max(math.ceil(y0 - 0.5), 0), height)
-    c1 = min(max(math.ceil(x1 - 0.5), c0), width)
-    r1 = min(max(math.ceil(y1 - 0.5), r0), height)
-    return r0, r1, c0, c1

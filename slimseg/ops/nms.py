@@ -13,6 +13,8 @@ Rule (what a C++ runtime should do to reproduce it), per image:
 4. boxes ``xywh → xyxy``; greedy NMS at IoU ``> iou`` within each class (all classes
    together with ``agnostic=True``), via :func:`torchvision.ops.batched_nms`;
 5. keep the ``max_det`` highest-scoring survivors, sorted by decreasing score.
+
+:mod:`slimseg.ops.nms_numpy` is the same rule in numpy (what the runtime runs, no torch).
 """
 
 from __future__ import annotations
@@ -23,12 +25,17 @@ from torchvision.ops import batched_nms
 from slimseg.detections import Detections
 from slimseg.ops.boxes import xywh_to_xyxy
 
-# Detection-style thresholds, one home (``docs/conventions.md`` §6). SLAM-facing thresholds
-# for dynamic masking are a separate family (``slimseg.dynamic``).
-EVAL_CONF = 0.001  # mAP evaluation: keep nearly everything, COCOeval ranks it
-PREDICT_CONF = 0.25  # predictions shown or saved
-NMS_IOU = 0.7  # suppress overlaps strictly above this IoU
-MAX_DET = 300  # detections kept per image
+# the detection-style thresholds' home is the torch-free twin (docs/conventions.md §6)
+from slimseg.ops.nms_numpy import EVAL_CONF, MAX_DET, NMS_IOU, PREDICT_CONF
+
+__all__ = [
+    "EVAL_CONF",
+    "MAX_DET",
+    "NMS_IOU",
+    "PREDICT_CONF",
+    "non_max_suppression",
+    "yolov3_to_rows",
+]
 
 
 def yolov3_to_rows(pred: torch.Tensor) -> torch.Tensor:

@@ -6,8 +6,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-import torch
-
 
 @contextmanager
 def torch_threads(threads: int | None) -> Iterator[None]:
@@ -16,6 +14,8 @@ def torch_threads(threads: int | None) -> Iterator[None]:
     if not threads:
         yield
         return
+    import torch  # here: a caller without a count never needs torch
+
     previous = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
