@@ -28,7 +28,9 @@ import numpy as np
 import yaml
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.manifest import entry_problems
 from slimseg.utils.outputs import claim_folder, foreign_entries, refuse_inputs, write_manifest
+from slimseg.utils.text import printable
 
 
 @contextmanager
@@ -102,6 +104,12 @@ def _publish(stage: Path, path: Path, command: str) -> None:
     """Move the finished ``stage`` to ``path``; an earlier folder there ends up in ``stage``
     (deleted by the caller) after its foreign entries (a race) moved into the new one."""
     foreign = foreign_entries(path) if path.is_dir() else []  # appeared while it ran
+    changed = entry_problems(path) if path.is_dir() else []  # edited while it ran
+    if changed:
+        raise SlimsegError(
+            f"{path}: {', '.join(printable(c) for c in changed)} while the command ran; move "
+            "it and run again"
+        )
     taken = [name for name in foreign if os.path.lexists(stage / name)]
     if taken:  # the user's entry would be replaced: keep it, and --out as it was
         raise SlimsegError(
