@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.cli.arg_types import count
+from slimseg.cli.arg_types import count, threads
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
@@ -44,6 +44,8 @@ from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.outputs import refuse_inputs
 from slimseg.utils.table import format_table
+
+MAX_DILATION_PX = 256  # far wider than any object's edge; a kernel grows as its square
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -107,9 +109,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "dynamic/ masks (gt, default without --model)",
     )
     p.add_argument(
-        "--restore-dilation", type=count(0), default=2, help="px added around the removed region"
+        "--restore-dilation",
+        type=count(0, MAX_DILATION_PX),
+        default=2,
+        help=f"px added around the removed region (0-{MAX_DILATION_PX})",
     )
-    p.add_argument("--threads", type=count(0), default=None)
+    p.add_argument("--threads", type=threads(), default=None)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(run=run)
 

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.cli.arg_types import FRACTION, count, multiple_of
+from slimseg.cli.arg_types import FRACTION, count, multiple_of, threads
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.bag_colour import BagColour
 from slimseg.data.bag_reader import is_bag
@@ -91,7 +91,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="network input H [W] (default: the model's; static ONNX graphs only run at theirs)",
     )
     p.add_argument("--backend", default="auto", choices=BACKENDS)
-    p.add_argument("--threads", type=count(0), default=None, help="intra-op CPU threads")
+    p.add_argument("--threads", type=threads(), default=None, help="intra-op CPU threads")
     p.add_argument("--max-det", type=count(1), default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -8,7 +8,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from slimseg.cli.arg_types import count, number
+from slimseg.cli.arg_types import count, number, threads
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.track_args import (
@@ -116,7 +116,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="realtime replay speed (0.5: half the frame rate, so the schedule holds on a "
         "loaded machine; the late column counts frames fed behind it)",
     )
-    p.add_argument("--threads", type=count(0), default=None, help="model threads")
+    p.add_argument("--threads", type=threads(), default=None, help="model threads")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(run=run)
 

@@ -18,7 +18,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from slimseg.data.mcap_crc import check_data_crc
 from slimseg.errors import SlimsegError
+from slimseg.utils.input_files import check_regular
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +139,7 @@ class BagFile:
             from rosbags.rosbag2.storage_mcap import McapReader as Reader
         else:
             from rosbags.rosbag1 import Reader
+        check_inputs(self.path)  # regular files only; MCAP data-section CRCs
         reader = Reader(self.path)
         reader.open()
         return reader
@@ -188,6 +191,19 @@ class BagFile:
             raise SlimsegError(
                 f"bag {self.path}: a message on {topic} has no header: {e}"
             ) from None
+
+
+def check_inputs(path: Path) -> None:
+    """Before a recording is opened: ``path`` (or, for a rosbag2 folder, its
+    ``metadata.yaml`` and storage files) must be regular files (a FIFO or a device would
+    block or never end) and each MCAP's recorded data-section CRC must match its bytes;
+    ``SlimsegError`` naming the file otherwise."""
+    files = sorted(p for p in path.iterdir() if p.name == "metadata.yaml" or p.suffix in
+                   (".mcap", ".db3")) if path.is_dir() else [path]  # fmt: skip
+    for f in files:
+        check_regular(f, "bag" if f == path else "bag file")
+        if f.suffix.lower() == ".mcap":
+            check_data_crc(f)
 
 
 def _why(e: Exception) -> str:

@@ -40,12 +40,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from slimseg.data.images import decode_file
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
+from slimseg.utils.input_files import read_capped
 from slimseg.utils.outputs import inside_root
+from slimseg.utils.yaml_io import MAX_YAML_BYTES, load_yaml_text
 
 log = logging.getLogger(__name__)
 
@@ -108,10 +109,13 @@ class Camera:
     depth_scale: float
 
 
+MAX_LIST_BYTES = 1 << 30  # rgb.txt / depth.txt / groundtruth.txt: ~40 bytes a line
+
+
 def _read_lines(path: Path) -> list[tuple[int, str]]:
     """Non-empty, non-comment lines of a text file with their 1-based numbers."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = read_capped(path, "list", MAX_LIST_BYTES).decode("utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise SlimsegError(f"cannot read {path}: {e}") from None
     out = []
@@ -280,11 +284,11 @@ def read_camera(path: Path) -> dict[str, float]:
     ``RGBD.DepthMapFactor`` also accepted). ``SlimsegError`` naming the file and key for an
     unknown or misspelled key, a value that is not a finite number > 0, or a key given twice."""
     try:
-        text = path.read_text(encoding="utf-8")
-        lines = [ln for ln in text.splitlines() if not ln.startswith("%YAML")]
-        cfg = yaml.safe_load("\n".join(lines)) or {}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        text = read_capped(path, "camera file", MAX_YAML_BYTES).decode("utf-8")
+    except (OSError, UnicodeDecodeError) as e:
         raise SlimsegError(f"cannot read camera file {path}: {e}") from None
+    lines = [ln for ln in text.splitlines() if not ln.startswith("%YAML")]
+    cfg = load_yaml_text("\n".join(lines), f"cannot read camera file {path}") or {}
     if not isinstance(cfg, dict):
         raise SlimsegError(f"camera file {path}: expected a mapping of fx, fy, cx, cy")
     _check_camera_keys(path, cfg)
