@@ -46,7 +46,9 @@ from slimseg.data.tum import (
     mask_name,
     read_camera,
 )
+from slimseg.data.value_checks import FrameChecks, check_intrinsics
 from slimseg.errors import SlimsegError
+from slimseg.utils.text import printable
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +100,7 @@ class BagSequence:
         self._ahead: dict[Key, bytes] = {}
         self._counts: dict[tuple[str, int], int] = {}  # the cursor's messages per (topic, time)
         self._cached: tuple[int, tuple[np.ndarray, np.ndarray, float]] | None = None
+        self._frames_seen = FrameChecks(str(self.root))
         self.load(0)  # an unknown encoding, a size mismatch or a wrong depth unit fails here
 
     # --- index -------------------------------------------------------------------------
@@ -170,6 +173,10 @@ class BagSequence:
                     "with --camera camera.yaml"
                     + ("" if self.options.camera_info_topic else " or --camera-info-topic")
                 )
+            check_intrinsics(
+                {"fx": fx, "fy": fy, "cx": cx, "cy": cy},
+                f"bag {self.root}: camera_info on {printable(self.topics.info)}",
+            )
             model = str(info.distortion_model) or "no model"
             return Camera(fx, fy, cx, cy, TUM_DEPTH_SCALE), (
                 f"camera_info {self.topics.info} (distortion model {model}; frames used as "
@@ -240,6 +247,7 @@ class BagSequence:
                 f"{rgb.shape[1]}x{rgb.shape[0]} but depth ({self.topics.depth}) is "
                 f"{depth.shape[1]}x{depth.shape[0]}"
             )
+        self._frames_seen.check(rgb.shape[:2], depth, f"bag {self.root} at {t_rgb:.6f} s")
         if self._cached is None:
             self._check_depth(depth)
             self._check_info_size(rgb.shape[1], rgb.shape[0])
