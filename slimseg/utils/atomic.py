@@ -29,7 +29,13 @@ import yaml
 
 from slimseg.errors import SlimsegError
 from slimseg.utils.manifest import entry_problems
-from slimseg.utils.outputs import claim_folder, foreign_entries, refuse_inputs, write_manifest
+from slimseg.utils.outputs import (
+    claim_folder,
+    foreign_entries,
+    named_folder,
+    refuse_inputs,
+    write_manifest,
+)
 from slimseg.utils.text import printable
 
 
@@ -80,7 +86,7 @@ def staged_dir(
     over, never deleted. A run that wrote nothing changes nothing. On an exception the
     temporary folder (and any parent folder this call created) is removed and ``path`` is
     as before."""
-    path = Path(path)
+    path = named_folder(path, option)
     if path.is_symlink():
         path = path.resolve()  # replace the folder the link points at, keep the link
     refuse_inputs(path, option, inputs or {}, folder=True)

@@ -95,12 +95,25 @@ def _shown(names: list[str]) -> str:
     return ", ".join(printable(n) for n in names[:_SHOWN]) + more
 
 
+def named_folder(path: str | Path, option: str = "--out") -> Path:
+    """``path`` as a folder output that can be built beside itself and moved into place:
+    ``SlimsegError`` for an empty path, ``.``, ``..`` or ``/`` (the current folder, a parent
+    or the root would be replaced whole, or written into among the user's files)."""
+    text = os.fspath(path)
+    if not text.strip() or Path(text).name in ("", ".", ".."):
+        raise SlimsegError(
+            f"{option} {text!r}: give a named folder (e.g. {option} runs/out), not the current, "
+            "a parent or the root folder"
+        )
+    return Path(text)
+
+
 def claim_folder(path: str | Path, option: str = "--out", own: Collection[str] = ()) -> None:
     """``SlimsegError`` (one line) unless ``path`` is new, an empty folder or a folder whose
     every entry slimseg wrote and nobody changed since; a file where the folder goes is
     refused too. ``own``: the names the calling command writes, which may take over an entry
     listed without a record (a resumable sweep's, an older slimseg's manifest)."""
-    path = Path(path)
+    path = named_folder(path, option)
     if not os.path.lexists(path):
         return
     if not path.is_dir():

@@ -26,7 +26,7 @@ from slimseg.data.synth.world_frames import (
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png, write_text
 from slimseg.utils.manifest import confined_name
-from slimseg.utils.outputs import claim_folder, read_manifest, write_manifest
+from slimseg.utils.outputs import claim_folder, named_folder, read_manifest, write_manifest
 
 _WRITES = ("train", "val", "sequences", *FOLDER.values(), "data.yaml")  # every entry it makes
 
@@ -106,6 +106,7 @@ def _check(
         )
     if min(seq_size) < 64:
         raise SlimsegError(f"--seq-size {seq_size[0]} {seq_size[1]}: both must be at least 64")
+    named_folder(out, "--out")
     if out.exists() and not out.is_dir():
         raise SlimsegError(f"--out {out} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
