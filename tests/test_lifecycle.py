@@ -119,3 +119,21 @@ def test_out_naming_the_current_or_a_parent_folder(seq: Path, out: str, capfd) -
     assert main(["dynamic", "--sequence", str(seq), "--gt-instances", "--out", out]) == 2
     err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and "give a named folder" in err[0], err
+
+
+def test_bag_topics_are_escaped_on_the_way_to_the_terminal(
+    seq: Path, tmp_path: Path, monkeypatch
+) -> None:
+    pytest.importorskip("rosbags")
+    import slimseg.data.tum_to_bag as t2b
+    from slimseg.data.bag_sequence import BagSequence
+
+    monkeypatch.setattr(t2b, "RGB_TOPIC", "/cam\x1b[2J\x1b[31mFAKE/rgb")
+    monkeypatch.setattr(t2b, "INFO_TOPIC", "/cam\u202e/info")
+    bag = tmp_path / "esc.mcap"
+    t2b.tum_to_bag(seq, bag)
+    s = BagSequence(bag)
+    lines = s.describe() + "\n" + s.describe_camera()
+    s.close()
+    assert "\x1b" not in lines and "\u202e" not in lines
+    assert "/cam\\x1b[2J\\x1b[31mFAKE/rgb" in lines and "/cam\\u202e/info" in lines

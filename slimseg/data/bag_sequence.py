@@ -197,13 +197,14 @@ class BagSequence:
 
     # --- the frame interface -----------------------------------------------------------
     def describe(self) -> str:
-        """One line: the topics chosen (and why) and how the stamps paired."""
+        """One line: the topics chosen (and why) and how the stamps paired, with every
+        non-printable character of the recording's text escaped."""
         t, why = self.topics, self.topics.why
         parts = [f"colour {t.rgb} ({why['colour']})", f"depth {t.depth} ({why['depth']})"]
         if t.info:
             parts.append(f"camera_info {t.info} ({why['camera_info']})")
         f = self.frames
-        return (
+        return printable(  # topic names come from the recording: escaped for the terminal
             f"bag {self.root}: {', '.join(parts)}; {len(f)} frames paired within "
             f"{self.options.max_dt} s, {f.unmatched_rgb} colour and {f.unmatched_depth} depth "
             "messages without a partner"
@@ -212,7 +213,8 @@ class BagSequence:
     def describe_camera(self) -> str:
         """One line for a command: the intrinsics in use and where they came from."""
         c = self.camera
-        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {self.camera_source}"
+        source = printable(self.camera_source)  # names the camera_info topic: escaped
+        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
 
     @property
     def fps(self) -> float:

@@ -365,7 +365,7 @@ class TumSequence:
         if source == f"{DEFAULT} (default)":
             source = f"{DEFAULT} (the default: no camera.yaml, no known camera in the folder name)"
         source = source.replace("camera.yaml", str(self.root / "camera.yaml"), 1)
-        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
+        return printable(f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}")
 
     @property
     def fps(self) -> float:
