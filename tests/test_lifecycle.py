@@ -137,3 +137,35 @@ def test_bag_topics_are_escaped_on_the_way_to_the_terminal(
     s.close()
     assert "\x1b" not in lines and "\u202e" not in lines
     assert "/cam\\x1b[2J\\x1b[31mFAKE/rgb" in lines and "/cam\\u202e/info" in lines
+
+
+@pytest.mark.skipif(
+    "forkserver" not in __import__("multiprocessing").get_all_start_methods(),
+    reason="the fork server exists only where multiprocessing offers forkserver",
+)
+def test_the_fork_server_survives_its_own_death() -> None:
+    """A run whose fork server was killed (the OOM killer's pick) fails alone; the next run
+    starts a fresh server (before: every later run raised, and the batch ended in exit 2)."""
+    import os
+    import signal
+    import time
+    from multiprocessing import forkserver
+
+    from slimseg.slam.engine_process import ServerDied, _context, start_child
+
+    ctx = _context()
+    child = start_child(ctx, time.sleep, (0.01,), "first")
+    child.join(30)
+    assert child.exitcode == 0
+    os.kill(forkserver._forkserver._forkserver_pid, signal.SIGKILL)
+    outcomes = []
+    for k in range(2):
+        try:
+            child = start_child(ctx, time.sleep, (0.01,), f"after{k}")
+        except ServerDied as e:
+            outcomes.append(str(e))
+            continue
+        child.join(30)
+        outcomes.append(child.exitcode)
+    assert outcomes[-1] == 0, outcomes  # the batch goes on with a fresh server
+    assert all(o == 0 or "fork server died" in str(o) for o in outcomes), outcomes
