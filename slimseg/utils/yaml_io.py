@@ -63,7 +63,10 @@ def load_yaml_text(text: str, where: str, budget: int = MAX_YAML_NODES) -> Any:
     """The one safe YAML loader: ``text`` parsed with PyYAML's safe constructors after the
     node budget is checked; ``SlimsegError`` naming ``where`` for malformed YAML, an alias
     that contains itself, or more than ``budget`` nodes once aliases are expanded."""
-    loader = yaml.SafeLoader(text)
+    try:
+        loader = yaml.SafeLoader(text)  # its reader refuses control characters already
+    except yaml.YAMLError as exc:
+        raise SlimsegError(f"{where}: {' '.join(str(exc).split())}") from None
     try:
         node = loader.get_single_node()
         if node is None:
