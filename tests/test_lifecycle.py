@@ -4,6 +4,7 @@ time), bag topics are escaped on every path to the terminal, ``--out .`` is refu
 
 from __future__ import annotations
 
+import re
 import threading
 from pathlib import Path
 
@@ -169,3 +170,16 @@ def test_the_fork_server_survives_its_own_death() -> None:
         outcomes.append(child.exitcode)
     assert outcomes[-1] == 0, outcomes  # the batch goes on with a fresh server
     assert all(o == 0 or "fork server died" in str(o) for o in outcomes), outcomes
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "needle"),
+    [("keypoints", 0, "keypoints 0"), ("keypoints", 10**9, "keypoints 1000000000"),
+     ("keypoints", 2.5, "keypoints 2.5"), ("camera", (500.0, 500.0, 320.0), "camera"),
+     ("camera", (1e-300, 500.0, 320.0, 240.0), "fx = 1e-300")],
+)  # fmt: skip
+def test_settings_out_of_range_are_refused_at_construction(
+    seq: Path, option: str, value: object, needle: str
+) -> None:
+    with pytest.raises(SlimsegError, match=re.escape(needle)):
+        _masker(seq, **{option: value})

@@ -30,6 +30,7 @@ from slimseg.data.bag_writer import STORAGES
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
+from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.mask_bag import MASK_TOPIC, MASKED_TOPIC, write_mask_bag
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import (
@@ -86,7 +87,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"bag output: also the colour frames with dynamic pixels black on {MASKED_TOPIC}",
     )
     p.add_argument("--mode", default="fusion", choices=MODES)
-    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features per frame")
+    p.add_argument(
+        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features per frame"
+    )
     add_masking_args(p)
     add_track_args(p)
     add_rate_args(p)

@@ -52,6 +52,7 @@ from slimseg.deploy.raw_dump import frame_dump, write_raw
 from slimseg.deploy.track_predict import DEFAULT_FPS, track_predict
 from slimseg.detections import Prediction
 from slimseg.dynamic.epipolar import orb_features
+from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms import MAX_DET, NMS_IOU, PREDICT_CONF
@@ -105,7 +106,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--keypoints",
-        type=count(1),
+        type=count(1, MAX_KEYPOINTS),
         default=1000,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )

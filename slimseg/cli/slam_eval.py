@@ -17,6 +17,7 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
+from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.pipeline import MODES
 from slimseg.errors import SlimsegError
 from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
@@ -86,7 +87,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
-    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features (mask modes)")
+    p.add_argument(
+        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features (mask modes)"
+    )
     add_masking_args(p)
     add_track_args(p)
     p.add_argument(

@@ -16,11 +16,13 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from numbers import Integral
 from typing import Protocol
 
 import numpy as np
 
 from slimseg.data.tum import depth_metres
+from slimseg.data.value_checks import check_intrinsics
 from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
@@ -48,6 +50,9 @@ Segmenter = Callable[[np.ndarray, float, float], Prediction]
 (detections scoring above ``conf``, in frame pixels)."""
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
+
+
+MAX_KEYPOINTS = 100_000  # ORB features per frame (ORB-SLAM uses ~1000): bounds the extractor
 
 
 class FrameError(SlimsegError):
@@ -169,6 +174,17 @@ class FrameMasker:
             )
         if depth_scale is not None and not (math.isfinite(depth_scale) and depth_scale > 0):
             raise SlimsegError(f"depth_scale {depth_scale}: expected units per metre > 0")
+        if (
+            isinstance(keypoints, bool)
+            or not isinstance(keypoints, Integral)
+            or not (1 <= keypoints <= MAX_KEYPOINTS)
+        ):
+            raise SlimsegError(f"keypoints {keypoints!r}: expected 1 to {MAX_KEYPOINTS} per frame")
+        if camera is not None:
+            if len(camera) != 4:
+                raise SlimsegError(f"camera {camera!r}: expected (fx, fy, cx, cy)")
+            names = ("fx", "fy", "cx", "cy")
+            check_intrinsics(dict(zip(names, map(float, camera), strict=True)), "camera")
         if (
             isinstance(fps, bool)
             or not isinstance(fps, int | float)
