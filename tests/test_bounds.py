@@ -59,6 +59,8 @@ def test_alias_bombs_are_refused_before_they_expand(tmp_path: Path) -> None:
         load_yaml_text("a: &a [1, *a]", "x.yaml")
     assert load_yaml_text("a: &a [1, 2]\nb: *a", "x.yaml") == {"a": [1, 2], "b": [1, 2]}
     assert load_yaml_text("", "x.yaml") is None
+    with pytest.raises(SlimsegError, match="unpaired UTF-16 surrogate"):
+        load_yaml_text('path: "\\ud800"', "x.yaml")
     with pytest.raises(SlimsegError, match=r"x\.yaml"):
         load_yaml_text("[" * 5000, "x.yaml")  # deeply nested: one line, not a RecursionError
 

@@ -151,7 +151,10 @@ def refuse_inputs(
             continue
         values = [value] if isinstance(value, str | Path) else list(value)
         for v in values:
-            src = Path(v).expanduser().resolve()
+            try:
+                src = Path(v).expanduser().resolve()
+            except (ValueError, OSError):  # a name no file can have (a lone surrogate, NUL)
+                continue
             if src == target or (folder and _same_or_inside(src, target)):
                 raise SlimsegError(
                     f"{option} {out} would overwrite the input {name} {v}: write the output "

@@ -11,6 +11,7 @@ counted on the composed node graph before any Python object is built.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,9 @@ MAX_YAML_BYTES = 4 << 20  # configs, specs and camera files are a few KB
 MAX_YAML_NODES = 1_000_000  # after alias expansion
 
 
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+
 def _children(node: yaml.Node) -> list[yaml.Node]:
     if isinstance(node, yaml.MappingNode):
         return [n for pair in node.value for n in pair]
@@ -33,7 +37,8 @@ def _children(node: yaml.Node) -> list[yaml.Node]:
 
 def expanded_size(root: yaml.Node, budget: int = MAX_YAML_NODES) -> int:
     """Nodes in ``root``'s document with every alias expanded (counted once per reference,
-    capped at ``budget + 1``); ``ValueError`` for an alias that contains itself."""
+    capped at ``budget + 1``); ``ValueError`` for an alias that contains itself, or a string
+    holding an unpaired surrogate (a ``"\\ud800"`` escape: no file name can hold it)."""
     sizes: dict[int, int] = {}
     open_: set[int] = set()
     stack: list[tuple[yaml.Node, bool]] = [(root, False)]
@@ -47,6 +52,10 @@ def expanded_size(root: yaml.Node, budget: int = MAX_YAML_NODES) -> int:
             continue
         if key in sizes:
             continue
+        if isinstance(node, yaml.ScalarNode) and _SURROGATE.search(node.value):
+            raise ValueError(  # "\ud800" escapes: not text a file name or a key can hold
+                f"line {node.start_mark.line + 1}: a string holds an unpaired UTF-16 surrogate"
+            )
         if key in open_:
             raise ValueError("an alias refers to a node that contains it")
         open_.add(key)
