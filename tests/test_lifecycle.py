@@ -183,3 +183,11 @@ def test_settings_out_of_range_are_refused_at_construction(
 ) -> None:
     with pytest.raises(SlimsegError, match=re.escape(needle)):
         _masker(seq, **{option: value})
+
+
+@pytest.mark.parametrize("out", [".", ".."])
+def test_export_out_naming_a_folder(out: str, capfd) -> None:
+    argv = ["export", "--weights", "yolov8n-seg", "--imgsz", "64", "--out", out]
+    assert main(argv) == 2
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "give a file name ending in .onnx" in err[0], err
