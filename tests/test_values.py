@@ -105,3 +105,27 @@ def test_a_frame_without_depth_is_named_once(seq: Path, tmp_path: Path, caplog) 
     warned = [r.getMessage() for r in caplog.records if "no valid depth" in r.getMessage()]
     assert len(warned) == 1 and s.frames[1][0][1] in warned[0], warned
     assert len(s._frames_seen.no_depth) == 2
+
+
+def test_a_bag_frame_of_another_size_is_named(seq: Path, tmp_path: Path, monkeypatch) -> None:
+    pytest.importorskip("rosbags")
+    from slimseg.data.bag_sequence import BagSequence
+    from slimseg.data.tum_to_bag import tum_to_bag
+
+    real = TumSequence.load
+
+    def grown(self: TumSequence, i: int):  # frame 2 recorded at another size
+        rgb, depth, t = real(self, i)
+        if i == 2:
+            rgb, depth = np.pad(rgb, ((0, 2), (0, 0), (0, 0))), np.pad(depth, ((0, 2), (0, 0)))
+        return rgb, depth, t
+
+    monkeypatch.setattr(TumSequence, "load", grown)
+    bag = tmp_path / "s.mcap"
+    tum_to_bag(seq, bag, camera_info=False)
+    s = BagSequence(bag)
+    s.load(0)
+    s.load(1)
+    with pytest.raises(SlimsegError, match=r"s\.mcap at .* s: 64x50 px, but .* is 64x48"):
+        s.load(2)
+    s.close()
