@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev,slam,ray,ros]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,slam,ray,ros,viz]"
 	touch $(STAMP)
 
 demo: $(STAMP)  ## the main job on the embedded default (no download)

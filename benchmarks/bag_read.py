@@ -4,13 +4,16 @@ for a recording of 300 and of 1,200 frames (memory must stay flat as the bag gro
 The same synthetic 640x480 frames (a gradient with a moving disc, depth a tilted plane with
 holes) are written as a TUM folder and, with ``slimseg data tum2bag``'s writer, as a ROS 1
 bag, a rosbag2 folder (SQLite and MCAP) and a bare MCAP file (raw ``rgb8`` + ``16UC1``, and
-PNG + ``compressedDepth``). Each is then read in a fresh process through
-``slimseg.data.sequence_source.open_sequence`` (what every command uses), every frame
-``load``-ed in order; the table gives the opening time, frames per second, the resident
+PNG + ``compressedDepth``), and as an MCAP of Foxglove protobuf schemas (``RawImage`` ``rgb8`` +
+``16UC1``, ``CameraCalibration``; slimseg's Foxglove writer; zstd chunks as the Foxglove SDK
+writes them, and without). Each is then read in a fresh
+process through ``slimseg.data.sequence_source.open_sequence`` (what every command uses), every
+frame ``load``-ed in order; the table gives the opening time, frames per second, the resident
 memory after the imports (``import slimseg`` loads torch) and the most it grew above that
 while opening and reading (resident memory sampled after every frame).
 
-    python benchmarks/bag_read.py --work /tmp/bag-bench [--frames 300 1200] [--size 640 480]
+    python benchmarks/bag_read.py --work /tmp/bag-bench [--frames 300 1200] [--size 640 480] \
+        [--kinds 'bare .mcap raw' 'Foxglove protobuf .mcap raw']
 
 Needs the ``[ros]`` extra. The files are kept in ``--work`` (several GB for raw bags of 1,200
 frames at 640x480); a second run reuses them.
@@ -35,6 +38,8 @@ KINDS = {  # name → (output name, storage, colour, depth)
     "rosbag2 MCAP raw": ("mcap_raw", "mcap", "rgb8", "16UC1"),
     "bare .mcap raw": ("raw.mcap", None, "rgb8", "16UC1"),
     "bare .mcap PNG+compressedDepth": ("png.mcap", None, "png", "compressedDepth"),
+    "Foxglove protobuf .mcap raw": ("foxglove_raw.mcap", "foxglove", "rgb8", "16UC1"),
+    "Foxglove .mcap raw, no zstd": ("foxglove_plain.mcap", "foxglove-plain", "rgb8", "16UC1"),
 }
 
 
@@ -73,8 +78,8 @@ def write_folder(folder: Path, frames: int, size: tuple[int, int]) -> None:
     write_text(folder / "rgb.txt", "".join(rgb_lines))  # last: its presence marks the folder done
 
 
-def make(work: Path, frames: int, size: tuple[int, int]) -> dict[str, Path]:
-    """Every kind of :data:`KINDS` for ``frames`` frames under ``work/<frames>/``."""
+def make(work: Path, frames: int, size: tuple[int, int], kinds: list[str]) -> dict[str, Path]:
+    """The ``kinds`` (of :data:`KINDS`) for ``frames`` frames under ``work/<frames>/``."""
     from slimseg.data.tum_to_bag import tum_to_bag
 
     root = work / str(frames)
@@ -83,12 +88,38 @@ def make(work: Path, frames: int, size: tuple[int, int]) -> dict[str, Path]:
         print(f"writing {frames} frames as a TUM folder ...", flush=True)
         write_folder(folder, frames, size)
     paths = {}
-    for kind, (name, storage, colour, depth) in KINDS.items():
+    for kind in kinds:
+        name, storage, colour, depth = KINDS[kind]
         paths[kind] = root / name
         if not paths[kind].exists():
             print(f"writing {frames} frames as {kind} ...", flush=True)
-            tum_to_bag(folder, paths[kind], storage, colour, depth)
+            if (storage or "").startswith("foxglove"):
+                write_foxglove(folder, paths[kind], compress=storage == "foxglove")
+            else:
+                tum_to_bag(folder, paths[kind], storage, colour, depth)
     return paths
+
+
+def write_foxglove(folder: Path, out: Path, compress: bool) -> None:
+    """The TUM folder as Foxglove protobuf messages, streamed in time order: ``RawImage`` rgb8
+    colour and 16UC1 depth (mm), a ``CameraCalibration`` per colour frame; chunks
+    zstd-compressed (the Foxglove SDK's default) or not."""
+    from slimseg.data.bag_reader import Header, stamp_ns
+    from slimseg.data.foxglove_writer import FoxgloveWriter
+    from slimseg.data.tum import TumSequence
+
+    seq = TumSequence(folder)
+    c = seq.camera
+    with FoxgloveWriter(out, compress=compress) as w:
+        for i in range(len(seq)):
+            rgb, depth_m, t = seq.load(i)
+            head = Header(stamp_ns(t), "camera")
+            w.write_calibration("/camera/color/camera_info", head, (rgb.shape[1], rgb.shape[0]),
+                                (c.fx, c.fy, c.cx, c.cy))  # fmt: skip
+            w.write_image("/camera/color/image_raw", head, rgb, "rgb8")
+            mm = np.round(depth_m * 1000).astype(np.uint16)
+            w.write_image("/camera/depth/image_raw", Header(stamp_ns(seq.frames[i][1][0]),
+                          "camera"), mm, "16UC1")  # fmt: skip
 
 
 def read_one(path: Path) -> dict:
@@ -122,14 +153,15 @@ def main() -> None:
     ap.add_argument("--work", type=Path, required=True)
     ap.add_argument("--frames", type=int, nargs="+", default=[300, 1200])
     ap.add_argument("--size", type=int, nargs=2, default=[640, 480], metavar=("W", "H"))
+    ap.add_argument("--kinds", nargs="+", choices=list(KINDS), default=list(KINDS))
     ap.add_argument("--read", type=Path, help=argparse.SUPPRESS)  # the child process
     args = ap.parse_args()
     if args.read is not None:
         print(json.dumps(read_one(args.read)))
         return
-    results: dict[str, dict[int, dict]] = {k: {} for k in KINDS}
+    results: dict[str, dict[int, dict]] = {k: {} for k in args.kinds}
     for n in args.frames:
-        for kind, path in make(args.work, n, tuple(args.size)).items():
+        for kind, path in make(args.work, n, tuple(args.size), args.kinds).items():
             out = subprocess.run(
                 [sys.executable, __file__, "--work", str(args.work), "--read", str(path)],
                 check=True, capture_output=True, text=True,

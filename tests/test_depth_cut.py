@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
@@ -62,3 +64,63 @@ def test_the_pipeline_cuts_seg_masks_and_eq4_boxes_and_only_when_asked() -> None
     )
     assert fused.used_seg == [False]
     assert fused.mask[30, 20] == 255 and fused.mask[40, 35] == 0  # person in, wall out
+
+
+def test_a_coarse_mask_mostly_on_the_wall_is_cut_to_the_person_in_front() -> None:
+    """The failure of a median reference: a mask holding more wall (4 m) than person (2 m) put
+    its object on the wall, and the box cut to that layer kept the wall whole."""
+    depth = np.full(HW, 4.0, np.float32)
+    depth[10:50, 20:30] = 2.0  # the person: 400 px of the mask's 1200
+    mask = np.zeros(HW, bool)
+    mask[10:50, 10:40] = True
+    boxes = np.array([[10, 10, 40, 50]], np.float32)
+    assert np.median(depth[mask]) == 4.0
+    ref = reference_depths(mask[None], boxes, depth)
+    assert ref.tolist() == [2.0]
+    cut = cut_behind(mask[None].copy(), boxes, depth, ref, 0.5)[0]
+    assert cut[10:50, 20:30].all() and cut.sum() == 400
+
+
+def test_the_reference_is_the_sorted_sample_at_the_quantile_index() -> None:
+    """The order statistic the C++ consumer mirrors: sorted valid samples, index
+    int(REFERENCE_QUANTILE * (S - 1)), no interpolation."""
+    from slimseg.dynamic.depth_cut import REFERENCE_QUANTILE
+
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.5, 6.0, HW).astype(np.float32)
+    depth[rng.random(HW) < 0.2] = 0.0  # no depth: not sampled
+    mask = np.zeros(HW, bool)
+    mask[5:55, 7:70] = True
+    boxes = np.array([[7, 5, 70, 55]], np.float32)
+    area = int(mask.sum())
+    step = max(1, int(np.sqrt(area / 400)))
+    d = depth[5:55:step, 7:70:step]
+    d = np.sort(d[d > 0])
+    expected = d[int(REFERENCE_QUANTILE * (len(d) - 1))]
+    assert reference_depths(mask[None], boxes, depth)[0] == expected
+
+
+def test_without_depth_eq4_replaces_only_thin_masks() -> None:
+    """RGB-only: a box nothing can cut is the room behind the object, so with the depth cut
+    asked for and no depth (for the frame, or under one object's mask) Eq. 4 falls back to the
+    papers' t_o: a seg mask covering 30 % of its box stays, one covering 10 % becomes the box."""
+    hw = (60, 80)
+    boxes = np.array([[0, 0, 40, 40], [40, 0, 80, 40]], np.float32)
+    masks = np.zeros((2, *hw), bool)
+    masks[0, 0:40, 0:12] = True  # 30 % of its box
+    masks[1, 0:40, 40:44] = True  # 10 %
+    kps = np.array([[20, 20], [60, 20], [5, 5], [42, 5]], np.float32)
+    mob = np.array([1.0], np.float32)
+    inputs = FrameInputs(kps, boxes, np.zeros(2, np.int64), masks, hw)
+    rules = FrameRules(mob, "fusion", min_static=0, frame_ratio=0.0, t_o=1.0, cut_behind_m=0.5)
+    out = process_frame(inputs=inputs, settings=rules)
+    assert out.used_seg == [True, False]
+    assert out.dynamic.tolist() == [False, True, True, True]
+    # the cut switched off: t_o 1 is asked for as it is, both masks become boxes
+    whole = process_frame(inputs=inputs, settings=replace(rules, cut_behind_m=0.0))
+    assert whole.used_seg == [False, False] and whole.dynamic.all()
+    # depth for the frame but none under the first mask: that object alone falls back
+    depth = np.full(hw, 3.0, np.float32)
+    depth[0:40, 0:40] = 0.0
+    per_object = process_frame(inputs=replace(inputs, depth_m=depth), settings=rules)
+    assert per_object.used_seg == [True, False]

@@ -128,3 +128,18 @@ def test_the_rules_report_what_they_gave_up(small_sequence: Path, tmp_path: Path
     assert f"left out in {gave_up} frames" in eq1  # score-1 walkers among what it gave up
     assert "masking rule (degrade): 0 candidate masks left out" in deg
     assert "the frame given up in 0" in deg
+
+
+def test_no_depth_masks_from_colour_alone_and_says_so(
+    small_sequence: Path, tmp_path: Path, capsys
+) -> None:
+    """``--no-depth``: the chain sees no depth (an RGB-only camera): one line says the depth cut
+    cannot act and Eq. 4 falls back to the papers' t_o; with depth that line is absent."""
+    base = ["dynamic", "--gt-instances", "--sequence", str(small_sequence), "--quiet"]
+    assert main([*base, "--out", str(tmp_path / "d"), "--mode", "fusion"]) == 0
+    assert "no depth image" not in capsys.readouterr().out
+    assert main([*base, "--out", str(tmp_path / "n"), "--mode", "fusion", "--no-depth"]) == 0
+    lines = [x for x in capsys.readouterr().out.splitlines() if "no depth image" in x]
+    assert len(lines) == 1 and "at most 0.25" in lines[0]
+    names = sorted(p.name for p in (tmp_path / "d" / "masks").glob("*.png"))
+    assert names == sorted(p.name for p in (tmp_path / "n" / "masks").glob("*.png"))

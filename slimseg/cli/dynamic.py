@@ -18,6 +18,7 @@ import numpy as np
 from slimseg.cli.arg_types import count, threads
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import (
     add_dropout_arg,
     add_rate_args,
@@ -31,7 +32,15 @@ from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
-from slimseg.dynamic.mask_bag import MASK_TOPIC, MASKED_TOPIC, write_mask_bag
+from slimseg.dynamic.mask_bag import (
+    MASK_TOPIC,
+    MASKED_TOPIC,
+    OBJECTS_TOPIC,
+    FrameBoxes,
+    frame_boxes,
+    write_mask_bag,
+    writes_foxglove,
+)
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import (
     REPORT_HEADERS,
@@ -86,6 +95,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help=f"bag output: also the colour frames with dynamic pixels black on {MASKED_TOPIC}",
     )
+    add_rerun_arg(p, "every frame: image, depth, class-coloured mask, boxes, keypoints, timing")
     p.add_argument("--mode", default="fusion", choices=MODES)
     p.add_argument(
         "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features per frame"
@@ -98,6 +108,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="epipolar modes: with the previous depth, use the PnP reprojection error (sees "
         "motion along epipolar lines) where depth is valid",
+    )
+    p.add_argument(
+        "--no-depth",
+        action="store_true",
+        help="mask from the colour frames alone, as for an RGB-only camera (no depth cut; "
+        "Eq. 4 keeps seg masks covering more than the papers' t_o of their box)",
     )
     p.add_argument(
         "--restore",
@@ -135,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
     sequence = Path(args.sequence)
     out = Path(args.out)
     bag_out = _bag_output(args, out)
+    rerun = rerun_path(args, out, {"--sequence": args.sequence, "--model": args.model})
     seq = open_sequence(sequence, bag_options_from_args(args))  # fails before the model loads
     if isinstance(seq, BagSequence):
         if args.gt_instances:
@@ -159,22 +176,46 @@ def run(args: argparse.Namespace) -> int:
             f"--restore-mask gt needs ground-truth masks in {sequence / 'dynamic'}; "
             "use --restore-mask pred"
         )
-    with _staged_output(out, seq, bag_out, args) as stage:  # complete or not at all
-        report = run_sequence(
-            predictor,
-            seq,
-            stage,
-            args.mode,
-            masking,
-            args.keypoints,
-            progress=not args.quiet,
-            epipolar_depth=args.epipolar_depth,
-            track=track,
-            fps=args.fps,
-        )
-        restored = _restore(args, seq, stage, restore_mask) if args.restore else None
+    names = list(predictor.names)
+    boxes: list[FrameBoxes] | None = None
+    observers = []
+    if bag_out and writes_foxglove(seq, out, args.bag_storage):
+        boxes = []
+        observers.append(lambda f, rgb, depth: boxes.append(frame_boxes(f.objects, names)))
+    viz = None
+    if rerun is not None:
+        from slimseg.dynamic.rerun_frames import RerunFrames
+
+        truth = seq.root / "dynamic"  # a synthetic sequence's ground-truth masks, if any
+        viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)
+        observers.append(viz)
+    try:
+        with _staged_output(out, seq, bag_out, args, boxes) as stage:  # complete or not at all
+            report = run_sequence(
+                predictor,
+                seq,
+                stage,
+                args.mode,
+                masking,
+                args.keypoints,
+                progress=not args.quiet,
+                epipolar_depth=args.epipolar_depth,
+                track=track,
+                fps=args.fps,
+                observers=observers,
+                use_depth=not args.no_depth,
+            )
+            restored = _restore(args, seq, stage, restore_mask) if args.restore else None
+    except BaseException:
+        if viz is not None:
+            viz.discard()
+        raise
+    if viz is not None:
+        print(f"Rerun recording of {viz.frames} frames: {viz.finish()}")
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     where = f"bag {out} on {MASK_TOPIC}" if bag_out else out / "masks"
+    if boxes is not None:
+        where = f"{where} (foxglove.RawImage), objects on {OBJECTS_TOPIC} (ImageAnnotations)"
     print(f"{report.frames} frames, mode {args.mode}: masks in {where}; per frame {timing}")
     print(f"masking settings: {masking.describe()}")
     print(
@@ -186,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
         total = report.ms_per_frame["model"] + report.ms_per_frame["masking_logic"]
         print(f"track stage: {track.describe()}; model on {report.model_frames} of "
               f"{report.frames} frames, {report.coasted} predicted masks emitted; {total:.1f} "
-              f"ms per frame in all (model + masking logic); {out / 'tracks.csv'}")  # fmt: skip
+              f"ms per frame in all (model + masking logic)"
+              + ("" if bag_out else f"; {out / 'tracks.csv'}"))  # fmt: skip
         parts = ", ".join(f"{k} {v:.2f}" for k, v in report.stage_parts_ms.items())
         print(f"track stage per frame by part (ms): {parts}")
     _print_latency(report, track.rate.thread)
@@ -272,7 +314,11 @@ def _bag_output(args: argparse.Namespace, out: Path) -> bool:
 
 @contextmanager
 def _staged_output(
-    out: Path, seq: Sequence, bag_out: bool, args: argparse.Namespace
+    out: Path,
+    seq: Sequence,
+    bag_out: bool,
+    args: argparse.Namespace,
+    boxes: list[FrameBoxes] | None = None,
 ) -> Iterator[Path]:
     """A staging folder for the run's files; on a clean exit they move into the ``out``
     folder, or, for a bag ``out``, the masks are written into the bag (the rest dropped).
@@ -289,7 +335,7 @@ def _staged_output(
     work.mkdir()
     try:
         yield work
-        write_mask_bag(seq, work / "masks", out, args.bag_storage, args.bag_masked_rgb)
+        write_mask_bag(seq, work / "masks", out, args.bag_storage, args.bag_masked_rgb, boxes)
     finally:
         shutil.rmtree(work, ignore_errors=True)
         for p in created:  # innermost first; only folders this run made and left empty

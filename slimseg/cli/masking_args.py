@@ -26,12 +26,18 @@ FLAGS: dict[str, tuple[str, type, str]] = {
     "--cut-behind": (
         "cut_behind_m",
         float,
-        "metres behind its object's median depth from which mask pixels are cut (0: off)",
+        "metres behind its object's near depth from which mask pixels are cut (0: off)",
     ),
     "--keep-score": (
         "keep_score",
         float,
         "degrade: a mover scoring this or more is never given up",
+    ),
+    "--motion-odds": (
+        "motion_odds",
+        float,
+        "seg/fusion: odds by which the epipolar check's moving/static decision weighs on an "
+        "object's mobility prior (1: no check)",
     ),
 }
 

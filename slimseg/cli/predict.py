@@ -39,6 +39,7 @@ import numpy as np
 from tqdm import tqdm
 
 from slimseg.cli.arg_types import FRACTION, count, multiple_of, threads
+from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.bag_colour import BagColour
 from slimseg.data.bag_reader import is_bag
@@ -111,6 +112,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )
     add_track_args(p)
+    add_rerun_arg(p, "--track's frames: image, class-coloured mask, boxes, keypoints, timing")
     p.set_defaults(run=run)
 
 
@@ -229,6 +231,8 @@ def run(args: argparse.Namespace) -> int:
         if args.dump_raw:
             raise SlimsegError("--dump-raw writes per-frame outputs; drop --track to use it")
         return run_tracked(args, plan)
+    if args.rerun is not None:
+        raise SlimsegError("--rerun records the track stage's frames: add --track")
     frames, total, is_video = open_source(args.source, args.rgb_topic)
     predictor = Predictor.from_path(
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
@@ -322,6 +326,7 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
             f"--track follows objects across frames: give a folder of frames or a video, "
             f"not one image ({source})"
         )
+    rerun = rerun_path(args, Path(args.out), _inputs(args))
     if is_bag(source):  # the rate of the header stamps
         bag = BagColour(source, args.rgb_topic)
         frames, total, fps = bag.frames(), len(bag.stamps), bag.fps
@@ -337,10 +342,22 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
     if not args.quiet:
         print(f"{predictor} -> {out_dir}")
         print(f"track stage: {plan.describe()}")
-    report = track_predict(
-        predictor, frames, out_dir, plan, args.conf, args.iou, args.max_det, fps=fps,
-        total=total, progress=not args.quiet,
-    )  # fmt: skip
+    viz = None
+    if rerun is not None:
+        from slimseg.dynamic.rerun_frames import RerunFrames
+
+        viz = RerunFrames(rerun, list(predictor.names), "slimseg predict --track")
+    try:
+        report = track_predict(
+            predictor, frames, out_dir, plan, args.conf, args.iou, args.max_det, fps=fps,
+            total=total, progress=not args.quiet, observers=[] if viz is None else [viz],
+        )  # fmt: skip
+    except BaseException:
+        if viz is not None:
+            viz.discard()
+        raise
+    if viz is not None:
+        print(f"Rerun recording of {viz.frames} frames: {viz.finish()}")
     print(report.summary())
     for note in report.notes:
         print(note)

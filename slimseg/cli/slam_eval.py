@@ -11,6 +11,7 @@ from pathlib import Path
 from slimseg.cli.arg_types import count, number, threads
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
+from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import (
     add_dropout_arg,
     add_track_args,
@@ -121,6 +122,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--threads", type=threads(), default=None, help="model threads")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_rerun_arg(p, "every condition's trajectory beside the ground truth (3-D) and its ATE")
     p.set_defaults(run=run)
 
 
@@ -180,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")
     if not 0 < args.speed <= 10:
         raise SlimsegError(f"--speed {args.speed}: expected a factor in (0, 10]")
+    if args.sweep and args.rerun is not None:
+        raise SlimsegError("--rerun records one sequence's conditions: drop --sweep to use it")
     if args.sweep:
         from slimseg.cli.slam_sweep import run_sweep_command
 
@@ -190,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
     names = parse_modes(
         args.modes, args.model is not None or args.gt_instances, args.masks is not None
     )
+    rerun = rerun_path(args, Path(args.out), _inputs(args))
     seq = open_sequence(args.sequence, bag_options_from_args(args))
     gt = partial(ground_truth, seq.root, args.groundtruth, args.pose_topic, args.pose_frame)
     session.refuse_masks_inside(args.out, args.masks)
@@ -213,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
         speed=args.speed,
         threads=args.threads,
         progress=not args.quiet,
+        rerun=rerun,
     )
     out = args.out
     # every file appears when the session is done, replacing an earlier session's folder

@@ -24,7 +24,9 @@ class BagColour:
     def __init__(self, path: str | Path, rgb_topic: str | None = None) -> None:
         self.path = Path(path)
         self._bag = BagFile(self.path)
-        self.topic, self.why = choose_colour(str(self.path), self._bag.topics, rgb_topic)
+        self.topic, self.why = choose_colour(
+            str(self.path), self._bag.topics, rgb_topic, self._bag.held
+        )
         self._type = self._bag.topics[self.topic]
         self.stamps: list[float] = []
         for _, _, raw in self._bag.messages([self.topic]):

@@ -106,6 +106,7 @@ class BagFile:
         self.path = Path(path)
         if not self.path.exists():
             raise SlimsegError(f"bag {self.path} does not exist")
+        check_inputs(self.path)  # regular files only, MCAP data-section CRCs: before any open
         require_rosbags(self.path)
         from rosbags.typesys import Stores, get_typestore
 
@@ -117,6 +118,16 @@ class BagFile:
             self._store.register(
                 get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF)
             )
+        self._mcap = self._open_mcap() if self.path.suffix.lower() == ".mcap" else None
+        self.topics: dict[str, str] = {}
+        self.held: dict[str, str] = {}  # the types as an MCAP of any profile names them
+        if self._mcap is not None:
+            self._reader = self._mcap
+            self.cdr = all(c.message_encoding != "ros1" for c in self._mcap.channels)
+            for ch in self._mcap.channels:
+                self.topics.setdefault(ch.topic, ch.role or ch.kind)
+                self.held.setdefault(ch.topic, ch.kind)
+            return
         try:
             self._reader = self._open()
         except SlimsegError:
@@ -124,9 +135,27 @@ class BagFile:
         except Exception as e:  # the third-party parser's errors on a damaged file, all of them
             raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
         self._connections = list(self._reader.connections)
-        self.topics: dict[str, str] = {}
         for c in self._connections:
             self.topics.setdefault(c.topic, c.msgtype)
+
+    def _open_mcap(self) -> object:
+        """A :class:`~slimseg.data.bag_mcap.McapFile` for an MCAP file rosbags does not read
+        (any profile but ``ros2``: ``ros1``, Foxglove schemas); None for a ``ros2`` one, or
+        one whose summary does not parse (rosbags' reader then names the damage)."""
+        from slimseg.data import bag_mcap
+
+        try:
+            import mcap  # noqa: F401
+        except ImportError:
+            raise SlimsegError(
+                f"{self.path} is an MCAP file; reading it needs the mcap and protobuf "
+                f"packages: {INSTALL_HINT}"
+            ) from None
+        held = bag_mcap.mcap_channels(self.path)
+        if held is None or bag_mcap.rosbags_reads(*held):
+            return None
+        bag_mcap.refuse_unreadable(self.path, *held)
+        return bag_mcap.McapFile(self.path, held[1])
 
     def _open(self) -> object:
         if self.path.is_dir():
@@ -139,10 +168,16 @@ class BagFile:
             from rosbags.rosbag2.storage_mcap import McapReader as Reader
         else:
             from rosbags.rosbag1 import Reader
-        check_inputs(self.path)  # regular files only; MCAP data-section CRCs
         reader = Reader(self.path)
         reader.open()
         return reader
+
+    def profile(self, topic: str) -> str:
+        """How ``topic`` is encoded: ``ros1``, ``ros2``, ``foxglove protobuf`` or ``foxglove
+        JSON``."""
+        if self._mcap is not None:
+            return self._mcap.profile(topic)
+        return "ros2" if self.cdr else "ros1"
 
     def __enter__(self) -> BagFile:
         return self
@@ -163,10 +198,13 @@ class BagFile:
     ) -> Iterator[tuple[str, int, bytes]]:
         """``(topic, log time ns, raw bytes)`` of ``topics`` in log-time order, from
         ``start_ns`` on (None: the start). A damaged file raises ``SlimsegError``."""
-        conns = [c for c in self._connections if c.topic in topics]
-        if not conns:
-            return
         try:
+            if self._mcap is not None:
+                yield from self._mcap.messages(topics, start_ns)
+                return
+            conns = [c for c in self._connections if c.topic in topics]
+            if not conns:
+                return
             for conn, t, raw in self._reader.messages(connections=conns, start=start_ns):
                 yield conn.topic, t, raw
         except Exception as e:  # the third-party parser's errors on a damaged file, all of them
@@ -175,6 +213,8 @@ class BagFile:
     def decode(self, raw: bytes, msgtype: str, topic: str) -> object:
         """The message object of ``raw`` (a ``msgtype`` message on ``topic``)."""
         try:
+            if self._mcap is not None:
+                return self._mcap.decode(raw, topic)
             if self.cdr:
                 return self._store.deserialize_cdr(raw, msgtype)
             return self._store.deserialize_ros1(raw, msgtype)
@@ -186,6 +226,8 @@ class BagFile:
     def header(self, raw: bytes, topic: str) -> Header:
         """:func:`header_of` with the bag's wire format, ``SlimsegError`` naming the topic."""
         try:
+            if self._mcap is not None:
+                return self._mcap.header(raw, topic)
             return header_of(raw, self.cdr)
         except (ValueError, struct.error) as e:
             raise SlimsegError(

@@ -88,9 +88,10 @@ class BagSequence:
         self._bag = BagFile(self.root)
         self.topics: TopicChoice = choose_topics(
             str(self.root), self._bag.topics, options.rgb_topic, options.depth_topic,
-            options.camera_info_topic,
+            options.camera_info_topic, self._bag.held,
         )  # fmt: skip
         self._types = {t: self._bag.topics[t] for t in (self.topics.rgb, self.topics.depth)}
+        self.profile = self._bag.profile(self.topics.rgb)  # how its colour topic is encoded
         info = self._index()
         self.camera, self.camera_source = self._intrinsics(info)
         # (w, h) the camera_info was calibrated at; 0 x 0 when it does not say

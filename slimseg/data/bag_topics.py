@@ -29,26 +29,40 @@ class TopicChoice:
     why: dict[str, str] = field(default_factory=dict)
 
 
-def _listing(topics: dict[str, str]) -> str:
-    return ", ".join(f"{t} ({ty.rsplit('/', 1)[-1]})" for t, ty in sorted(topics.items())) or "none"
+Held = dict[str, str] | None
+"""``{topic: the type as the recording names it}`` where that differs from its role (a Foxglove
+``foxglove.RawImage (protobuf)`` topic plays ``sensor_msgs/msg/Image``): what listings show."""
 
 
-def _given(bag: str, topics: dict[str, str], topic: str, types: tuple[str, ...], opt: str) -> str:
+def _listing(topics: dict[str, str], held: Held = None) -> str:
+    names = {t: (held or {}).get(t, ty).rsplit("/", 1)[-1] for t, ty in topics.items()}
+    return ", ".join(f"{t} ({names[t]})" for t in sorted(topics)) or "none"
+
+
+def _given(
+    bag: str, topics: dict[str, str], topic: str, types: tuple[str, ...], opt: str, held: Held
+) -> str:
     if topic not in topics:
-        raise SlimsegError(f"{opt} {topic}: bag {bag} has no such topic; it has {_listing(topics)}")
-    if topics[topic] not in types:
         raise SlimsegError(
-            f"{opt} {topic}: in bag {bag} it carries {topics[topic]}, expected {' or '.join(types)}"
+            f"{opt} {topic}: bag {bag} has no such topic; it has {_listing(topics, held)}"
+        )
+    if topics[topic] not in types:
+        shown = (held or {}).get(topic, topics[topic])
+        raise SlimsegError(
+            f"{opt} {topic}: in bag {bag} it carries {shown}, expected {' or '.join(types)}"
         )
     return topic
 
 
-def _only(bag: str, kind: str, found: list[str], opt: str, topics: dict[str, str]) -> str:
+def _only(
+    bag: str, kind: str, found: list[str], opt: str, topics: dict[str, str], held: Held
+) -> str:
     if len(found) == 1:
         return found[0]
     if not found:
         raise SlimsegError(
-            f"bag {bag} has no {kind} image topic (topics: {_listing(topics)}); name one with {opt}"
+            f"bag {bag} has no {kind} image topic (topics: {_listing(topics, held)}); name one "
+            f"with {opt}"
         )
     raise SlimsegError(
         f"bag {bag} has {len(found)} candidate {kind} topics ({', '.join(sorted(found))}): "
@@ -56,12 +70,15 @@ def _only(bag: str, kind: str, found: list[str], opt: str, topics: dict[str, str
     )
 
 
-def choose_colour(bag: str, topics: dict[str, str], rgb: str | None = None) -> tuple[str, str]:
+def choose_colour(
+    bag: str, topics: dict[str, str], rgb: str | None = None, held: Held = None
+) -> tuple[str, str]:
     """The colour topic (``rgb``: the user's choice, checked) and how it was chosen."""
     if rgb is not None:
-        return _given(bag, topics, rgb, IMAGE_TYPES, "--rgb-topic"), "--rgb-topic"
+        return _given(bag, topics, rgb, IMAGE_TYPES, "--rgb-topic", held), "--rgb-topic"
     images = [t for t, ty in topics.items() if ty in IMAGE_TYPES and "depth" not in t.lower()]
-    return _only(bag, "colour", images, "--rgb-topic", topics), "the only colour image topic"
+    chosen = _only(bag, "colour", images, "--rgb-topic", topics, held)
+    return chosen, "the only colour image topic"
 
 
 def choose_topics(
@@ -70,25 +87,27 @@ def choose_topics(
     rgb: str | None = None,
     depth: str | None = None,
     info: str | None = None,
+    held: Held = None,
 ) -> TopicChoice:
     """Pick the colour, depth and ``camera_info`` topics of a bag holding ``topics``
-    (``{topic: message type}``); ``rgb`` / ``depth`` / ``info``: the user's choice, if any."""
+    (``{topic: message type}``, the ROS 2 name of its role); ``rgb`` / ``depth`` / ``info``:
+    the user's choice, if any; ``held``: the types as the recording names them, for listings."""
     why: dict[str, str] = {}
     images = [t for t, ty in topics.items() if ty in IMAGE_TYPES]
-    rgb, why["colour"] = choose_colour(bag, topics, rgb)
+    rgb, why["colour"] = choose_colour(bag, topics, rgb, held)
     if depth is None:
         depth = _only(bag, "depth", [t for t in images if "depth" in t.lower() and t != rgb],
-                      "--depth-topic", topics)  # fmt: skip
+                      "--depth-topic", topics, held)  # fmt: skip
         why["depth"] = "the only depth image topic"
     else:
-        depth = _given(bag, topics, depth, IMAGE_TYPES, "--depth-topic")
+        depth = _given(bag, topics, depth, IMAGE_TYPES, "--depth-topic", held)
         why["depth"] = "--depth-topic"
     if depth == rgb:
         raise SlimsegError(f"bag {bag}: {rgb} is given as both the colour and the depth topic")
     if info is not None:
         why["camera_info"] = "--camera-info-topic"
         return TopicChoice(rgb, depth, _given(bag, topics, info, (CAMERA_INFO,),
-                                              "--camera-info-topic"), why)  # fmt: skip
+                                              "--camera-info-topic", held), why)  # fmt: skip
     infos = sorted(t for t, ty in topics.items() if ty == CAMERA_INFO)
     space = rgb.rsplit("/", 1)[0] + "/"
     beside = [t for t in infos if t.startswith(space)]

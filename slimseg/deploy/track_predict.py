@@ -35,7 +35,7 @@ import csv
 import io
 import itertools
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,7 +47,7 @@ from tqdm import tqdm
 from slimseg.data.visualize import class_color
 from slimseg.deploy.predictor import Predictor
 from slimseg.detections import Prediction
-from slimseg.dynamic.frame_masker import FrameError, FrameMasker
+from slimseg.dynamic.frame_masker import FrameError, FrameMasker, MaskedFrame
 from slimseg.dynamic.masking_settings import DEFAULT
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_types import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
@@ -123,10 +123,12 @@ def track_predict(
     total: int = 0,
     progress: bool = True,
     keypoints: int = 1000,
+    observers: Sequence[Callable[[MaskedFrame, np.ndarray, None], None]] = (),
 ) -> TrackReport:
     """Track ``frames`` (in order; ``total``: their count for the progress bar, 0 unknown) with
     ``predictor`` under ``plan`` (must be on); ``conf``: the score above which a detection is
-    emitted. Writes the files of the module docstring under ``out``."""
+    emitted. Writes the files of the module docstring under ``out``; ``observers``: called
+    with every frame's outcome and colour image."""
     if not plan.on:
         raise ValueError("track_predict needs a TrackPlan with settings (the stage on)")
     out = Path(out)
@@ -158,6 +160,8 @@ def track_predict(
                     f = masker.step(rgb)
                 except FrameError as e:
                     raise SlimsegError(f"{source}: {e}") from None
+                for observe in observers:  # a Rerun recording (no depth here)
+                    observe(f, rgb, None)
                 hw = f.mask.shape
                 tracked = f.tracked
                 report.model_frames += f.model_ran

@@ -11,6 +11,7 @@ this one takes any :data:`Segmenter` (a predictor, ground-truth instances, cache
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -32,13 +33,16 @@ from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.pipeline import (
     EPIPOLAR_MODES,
     MODES,
+    WEIGHED_MODES,
     FrameInputs,
     FrameResult,
     FrameRules,
     MotionEvidence,
     epipolar_priors,
     process_modes,
+    weighed_mobility,
 )
+from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import instances_of
 from slimseg.dynamic.track_run import TrackedSequence, frame_dets
 from slimseg.dynamic.track_settings import TrackSettings, detection_floor
@@ -50,6 +54,7 @@ Segmenter = Callable[[np.ndarray, float, float], Prediction]
 (detections scoring above ``conf``, in frame pixels)."""
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
+log = logging.getLogger(__name__)
 
 
 MAX_KEYPOINTS = 100_000  # ORB features per frame (ORB-SLAM uses ~1000): bounds the extractor
@@ -219,6 +224,7 @@ class FrameMasker:
         self._hw: tuple[int, int] | None = None
         self._closed = False
         self._busy = threading.Lock()  # held by the step in progress: overlapping calls refused
+        self._told_no_depth = False
 
     # -- the loop's calls ---------------------------------------------------------------------
 
@@ -265,6 +271,14 @@ class FrameMasker:
         i = self.frames
         hw = self._check(rgb, depth, keypoints)
         depth_m = self._metres(depth)
+        if depth_m is None and self.masking.cut_behind_m > 0 and not self._told_no_depth:
+            self._told_no_depth = True
+            log.warning(
+                "no depth image: the depth cut (cut_behind_m %g) cannot act, so Eq. 4 puts a "
+                "box only in place of a seg mask covering at most %g of it (RGB-only masking, "
+                "docs/slam_defaults.md §6)", self.masking.cut_behind_m,
+                min(self.masking.t_o, T_O),
+            )  # fmt: skip
         stamp = i / self.fps if stamp is None else float(stamp)
         t0 = time.perf_counter()
         got = self.feed.frame(i, rgb, stamp)
@@ -385,10 +399,18 @@ class FrameMasker:
     def _with_keypoints(self, inputs: FrameInputs, kps: np.ndarray) -> FrameInputs:
         """The caller's keypoints classified instead of the chain's ORB; the epipolar check
         still runs on the chain's own features (it needs their descriptors)."""
-        if self.mode in EPIPOLAR_MODES and inputs.evidence is None:
-            mob = self.mobility[np.asarray(inputs.classes, int)]
-            priors, result, checked = epipolar_priors(inputs, mob, self.rules.mover_prior)
-            inputs = replace(inputs, mobility=priors, evidence=MotionEvidence(result, checked))
+        weighed = self.mode in WEIGHED_MODES and self.rules.motion_odds > 1
+        if inputs.evidence is None and (self.mode in EPIPOLAR_MODES or weighed):
+            mob = inputs.mobility
+            if mob is None:
+                mob = self.mobility[np.asarray(inputs.classes, int)]
+            if weighed:  # the evidence weighed in now (a check without result: not again)
+                mob = weighed_mobility(inputs, mob, self.rules.motion_odds)
+                evidence = MotionEvidence(None, [])
+            else:
+                mob, result, checked = epipolar_priors(inputs, mob, self.rules.mover_prior)
+                evidence = MotionEvidence(result, checked)
+            inputs = replace(inputs, mobility=mob, evidence=evidence)
         return replace(inputs, keypoints=kps, descriptors=None)
 
     def _objects(self, inputs: FrameInputs, tracked: TrackedFrame | None) -> FrameObjects:

@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 
 from slimseg.dynamic.degrade import KEEP_SCORE
+from slimseg.dynamic.motion_evidence import MOTION_ODDS
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
 from slimseg.errors import SlimsegError
@@ -54,8 +55,10 @@ class MaskingSettings:
     give up the frame: the paper's Eq. 1) or ``degrade`` (give up the least certain masks one
     at a time, :mod:`slimseg.dynamic.degrade`); ``keep_score``: ``degrade`` never gives up a
     candidate scoring at least this; ``cut_behind_m``: with depth, mask pixels more than this
-    many metres behind their object's median depth are cut (0: off,
-    :mod:`slimseg.dynamic.depth_cut`).
+    many metres behind their object's near depth are cut (0: off,
+    :mod:`slimseg.dynamic.depth_cut`); ``motion_odds``: seg and fusion modes, the odds by
+    which an epipolar check's decision moves an object's mobility (1: no check,
+    :mod:`slimseg.dynamic.motion_evidence`).
     """
 
     conf: float
@@ -68,6 +71,7 @@ class MaskingSettings:
     rule: str
     keep_score: float
     cut_behind_m: float
+    motion_odds: float
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -96,6 +100,7 @@ RANGES: dict[str, Range] = {
     "t_o": (0.0, 1.0, False, "Eq. 4 coverage threshold, 0-1"),
     "keep_score": (0.0, 1.0, False, "score from which the degrading rule keeps a mask, 0-1"),
     "cut_behind_m": (0.0, 100.0, False, "metres behind its object a mask pixel is cut, 0: off"),
+    "motion_odds": (1.0, 1e6, False, "odds a motion check's decision weighs by, 1 (off) - 1e6"),
 }
 # what to do when static support runs short (docs/slam_defaults.md §1)
 RULES = ("eq1", "degrade")
@@ -124,12 +129,16 @@ PAPERS = MaskingSettings(
     rule="eq1",
     keep_score=KEEP_SCORE,
     cut_behind_m=0.0,
+    motion_odds=1.0,
 )
 # Chosen from the sweeps of docs/slam_defaults.md.
 # t_o 1 with cut_behind_m 0.5: on dynamic keyframes every detection's box cut to its depth
 # layer replaces the 320-px seg mask (keypoint precision 36 -> 66 %, recall 81 -> 98 % on the
 # demo's sequence); without depth that is the whole box: pass t_o 0.25 for RGB-only frames.
-SLIMSEG = PAPERS.with_values(conf=0.1, dilation_px=5, t_o=1.0, rule="degrade", cut_behind_m=0.5)
+# motion_odds 10: objects of a class that may move, seen static, give their keypoints back (§5).
+SLIMSEG = PAPERS.with_values(
+    conf=0.1, dilation_px=5, t_o=1.0, rule="degrade", cut_behind_m=0.5, motion_odds=MOTION_ODDS
+)
 PRESETS: dict[str, MaskingSettings] = {"papers": PAPERS, "slimseg": SLIMSEG}
 DEFAULT_PRESET = "slimseg"
 DEFAULT = PRESETS[DEFAULT_PRESET]

@@ -34,7 +34,9 @@ from slimseg.dynamic.degrade import degrade
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
+from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
 from slimseg.dynamic.seg_box import (
+    T_O,
     box_keypoint_mobility,
     box_masks,
     dilate,
@@ -45,6 +47,8 @@ from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keyp
 
 MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
 EPIPOLAR_MODES = {"semantic+epipolar": "seg", "fusion+epipolar": "fusion"}
+# modes whose mobilities the epipolar check weighs on with ``motion_odds`` > 1
+WEIGHED_MODES = ("seg", "fusion")
 
 
 @dataclass
@@ -127,7 +131,9 @@ class FrameRules:
     """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
     ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
     Eq. 3's ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``,
-    the depth cut ``cut_behind_m`` (needs ``FrameInputs.depth_m``) (defaults: the equations
+    the depth cut ``cut_behind_m`` (needs ``FrameInputs.depth_m``), ``motion_odds`` (seg and
+    fusion: the epipolar check's decisions weigh on the mobilities, needs the previous frame's
+    features, :mod:`slimseg.dynamic.motion_evidence`) (defaults: the equations
     as printed, the ``papers`` preset of :mod:`slimseg.dynamic.masking_settings`, no
     dilation; sequence runs and the CLI pass the ``slimseg`` preset through
     :meth:`from_masking`), and ``dynamic_mobility``: the prior above which a class counts
@@ -145,6 +151,7 @@ class FrameRules:
     rule: str = PAPERS.rule
     keep_score: float = PAPERS.keep_score
     cut_behind_m: float = PAPERS.cut_behind_m
+    motion_odds: float = PAPERS.motion_odds
 
     @classmethod
     def from_masking(
@@ -156,7 +163,7 @@ class FrameRules:
             dilation_px=masking.dilation_px, m_th_start=masking.m_th_start,
             m_th_step=masking.m_th_step, frame_ratio=masking.frame_ratio, t_o=masking.t_o,
             rule=masking.rule, keep_score=masking.keep_score,
-            cut_behind_m=masking.cut_behind_m,
+            cut_behind_m=masking.cut_behind_m, motion_odds=masking.motion_odds,
         )  # fmt: skip
 
     @property
@@ -191,7 +198,7 @@ def process_modes(
     mob = np.asarray(settings.class_mobility, np.float32)[np.asarray(inputs.classes, int)]
     if inputs.mobility is not None:
         mob = np.asarray(inputs.mobility, np.float32)
-    check = None
+    check = weighed = None
     if inputs.evidence is not None:
         check = mob, inputs.evidence.result, inputs.evidence.checked
     out = {}
@@ -205,6 +212,10 @@ def process_modes(
             priors, epi, checked = check
             res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng)
             res.epipolar, res.checked = epi, list(checked)
+        elif mode in WEIGHED_MODES and settings.motion_odds > 1 and inputs.evidence is None:
+            if weighed is None:
+                weighed = weighed_mobility(inputs, mob, settings.motion_odds)
+            res = _one_mode(inputs, settings, mode, weighed, rng)
         else:
             res = _one_mode(inputs, settings, mode, mob, rng)
         res.seconds = time.perf_counter() - t0
@@ -234,6 +245,7 @@ def _one_mode(
         return FrameResult(dynamic, _mask(region, settings.dilation_px), None, flag)
     regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
     depth = inputs.depth_m if settings.cut_behind_m > 0 and mode != "box" else None
+    reference = None
     if depth is not None:  # masks that stay on their object (seg masks, before dilation)
         reference = reference_depths(regions, boxes, depth)
         regions = cut_behind(regions.copy(), boxes, depth, reference, settings.cut_behind_m)
@@ -245,7 +257,7 @@ def _one_mode(
     box_mob = box_keypoint_mobility(keypoints, boxes, hw, mob)
     dynamic_frame = is_dynamic_frame(box_mob, settings.frame_ratio)
     if mode == "fusion" and dynamic_frame and len(boxes):
-        fused, used = fuse_seg_box(regions, boxes, settings.t_o)
+        fused, used = fuse_seg_box(regions, boxes, eq4_thresholds(settings, reference, len(boxes)))
         if inputs.predicted is not None:  # Eq. 4 acts on detection masks only
             keep = np.asarray(inputs.predicted, bool)
             fused[keep] = regions[keep]
@@ -280,6 +292,31 @@ def _one_mode(
     dropped = np.flatnonzero(candidates & ~kept).tolist()
     return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg,
                        dropped=dropped)  # fmt: skip
+
+
+def eq4_thresholds(settings: FrameRules, reference: np.ndarray | None, n: int) -> np.ndarray:
+    """Eq. 4's ``t_o`` per object ``[n]``: the setting's; but where the depth cut is asked for
+    and cannot act on an object (no depth image: an RGB-only stream; or no valid depth under
+    its mask, ``reference`` NaN), at most the papers' :data:`~slimseg.dynamic.seg_box.T_O`: a
+    box nothing trims is the room behind the object, so only a seg mask too thin to trust is
+    replaced by it."""
+    t_o = np.full(n, settings.t_o)
+    if settings.cut_behind_m > 0:
+        uncut = np.ones(n, bool) if reference is None else ~np.isfinite(reference)
+        t_o[uncut] = min(settings.t_o, T_O)
+    return t_o
+
+
+def weighed_mobility(inputs: FrameInputs, mob: np.ndarray, odds: float) -> np.ndarray:
+    """``mob [M]`` with the epipolar check's decisions on the objects whose mobility is
+    uncertain (0 < p < 1) weighed in at ``odds`` (:mod:`slimseg.dynamic.motion_evidence`);
+    unchanged without a previous frame or such an object."""
+    if inputs.previous is None or inputs.masks is None or not uncertain(mob).any():
+        return mob
+    ev = epipolar_evidence(inputs, np.where(uncertain(mob), mob, 0.0), 0.0)
+    if ev.result is None:
+        return mob
+    return weigh_motion(mob, ev.checked, ev.result.decided, ev.result.moving, odds)
 
 
 def epipolar_priors(

@@ -34,19 +34,21 @@ def box_spans(boxes: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
 
 
 def fuse_seg_box(
-    seg_masks: np.ndarray, boxes: np.ndarray, t_o: float = T_O
+    seg_masks: np.ndarray, boxes: np.ndarray, t_o: float | np.ndarray = T_O
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. 4: ``s_o = area(seg ∩ box) / area(box)``; seg mask if ``s_o > t_o``, else the box.
 
-    ``seg_masks bool [M, H, W]``, ``boxes [M, 4]`` → ``(fused bool [M, H, W], used_seg [M])``.
-    Each box's pixels are counted on its own span (the cost of the boxes, not of M frames).
+    ``seg_masks bool [M, H, W]``, ``boxes [M, 4]``, ``t_o`` one for all or ``[M]`` →
+    ``(fused bool [M, H, W], used_seg [M])``. Each box's pixels are counted on its own span
+    (the cost of the boxes, not of M frames).
     """
     spans = box_spans(boxes, seg_masks.shape[1:])
     fused = seg_masks.copy()
     used_seg = np.zeros(len(spans), bool)
+    t_o = np.broadcast_to(np.asarray(t_o, np.float64), (len(spans),))
     for k, (y0, y1, x0, x1) in enumerate(spans):
         box_area = max((y1 - y0) * (x1 - x0), 1)
-        used_seg[k] = int(seg_masks[k, y0:y1, x0:x1].sum()) / box_area > t_o
+        used_seg[k] = int(seg_masks[k, y0:y1, x0:x1].sum()) / box_area > t_o[k]
         if not used_seg[k]:
             fused[k] = False
             fused[k, y0:y1, x0:x1] = True

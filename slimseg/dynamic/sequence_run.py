@@ -50,6 +50,9 @@ from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.dynamic.track_types import TrackedFrame
 from slimseg.utils.atomic import write_png
 
+Observer = Callable[[MaskedFrame, np.ndarray, np.ndarray], None]
+"""Called per frame with its outcome, ``rgb uint8 [H, W, 3]`` and ``depth_m float32 [H, W]``."""
+
 
 def sequence_masker(
     predictor: object,
@@ -94,6 +97,8 @@ def run_sequence(
     epipolar_depth: bool = False,
     track: TrackPlan = TRACK_OFF,
     fps: float | None = None,
+    observers: Sequence_[Observer] = (),
+    use_depth: bool = True,
 ) -> SequenceReport:
     """Process every associated frame of ``sequence`` with ``predictor`` (a slimseg
     ``Predictor`` or ``AnnotationInstances``) under the ``masking`` settings (score threshold,
@@ -103,7 +108,10 @@ def run_sequence(
     ``track``: the track stage and the model's rate (off by default: every frame judged
     alone); with it on, ``tracks.csv`` lists every emitted object with its track id and
     source. With the model on its own thread the frames are replayed in real time at ``fps``
-    (None: the sequence's own timestamps; 0: as fast as the loop goes). A loop over
+    (None: the sequence's own timestamps; 0: as fast as the loop goes). ``observers``: called
+    with every frame's outcome, colour and depth as the run makes it (a Rerun recording, the
+    boxes of a Foxglove write-back). ``use_depth`` False: the chain sees no depth image (what
+    an RGB-only camera gives). A loop over
     :class:`~slimseg.dynamic.frame_masker.FrameMasker` (:func:`sequence_masker`)."""
     seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
     gt = predictor if isinstance(predictor, AnnotationInstances) else None
@@ -114,13 +122,14 @@ def run_sequence(
     report = SequenceReport(scores={m: ModeScore() for m in MODES} if scored else {})
     analysis = _Analysis(seq, gt, report)
     with sequence_masker(*args, score=() if live else score) as m:
-        live_frames = _loop(m, seq, out, report, None if live else analysis, progress, fps)
+        live_frames = _loop(m, seq, out, report, None if live else analysis, progress, fps,
+                            observers, use_depth)  # fmt: skip
     if live:
         feed = RecordedFeed([lf.delivery for lf in live_frames], lambda p: p.prediction(-1.0))
         with sequence_masker(*args, score=score, feed=feed) as m:
             for i in tqdm(range(len(seq.frames)), desc="scoring", disable=not progress):
                 rgb, depth, stamp = seq.load(i)
-                f = m.step(rgb, depth, stamp)
+                f = m.step(rgb, depth if use_depth else None, stamp)
                 report.replay_differs += not np.array_equal(f.mask, live_frames[i].mask)
                 analysis.frame(f, rgb, live_frames[i].dynamic)
     analysis.finish(out)
@@ -192,6 +201,8 @@ def _loop(
     analysis: _Analysis | None,
     progress: bool,
     fps: float | None,
+    observers: Sequence_[Observer] = (),
+    use_depth: bool = True,
 ) -> list[_LiveFrame]:
     """The run: masks, ``frames.csv``, ``tracks.csv`` and the timing figures of ``report``;
     ``analysis`` per frame (None: a real-time run, which returns what the analysis replays)."""
@@ -206,7 +217,10 @@ def _loop(
         rgb, depth, stamp = seq.load(i)
         arrival = clock.arrive(i, stamp)
         taken = masker.clock()
+        depth = depth if use_depth else None
         f = masker.step(rgb, depth, stamp)
+        for observe in observers:
+            observe(f, rgb, depth)
         result, tracked, hw = f.result, f.tracked, f.mask.shape
         report.model_frames += f.model_ran
         report.latency_ms.append(f.timing.latency)

@@ -61,11 +61,16 @@ def median_depth(patch: Patch, depth_m: np.ndarray | None, fallback: float) -> f
     return fallback if math.isnan(d) else d
 
 
-def sampled_median_depth(depth: np.ndarray, mask: np.ndarray, area: int) -> float:
-    """Median valid depth (finite, > 0; metres) of ``depth [h, w]`` under ``mask bool [h, w]``
+def sampled_depths(depth: np.ndarray, mask: np.ndarray, area: int) -> np.ndarray:
+    """The valid depths (finite, > 0; metres) of ``depth [h, w]`` under ``mask bool [h, w]``
     (``area`` pixels set) on a regular grid of about :data:`DEPTH_SAMPLES` of its pixels (a
-    person's thousands of pixels are not needed); NaN without any valid one."""
+    person's thousands of pixels are not needed) → ``[S]``, row-major grid order."""
     k = max(1, int(math.sqrt(area / DEPTH_SAMPLES)))
     d = depth[::k, ::k][mask[::k, ::k]]
-    d = d[np.isfinite(d) & (d > 0)]
+    return d[np.isfinite(d) & (d > 0)]
+
+
+def sampled_median_depth(depth: np.ndarray, mask: np.ndarray, area: int) -> float:
+    """Median of :func:`sampled_depths` (metres); NaN without any valid depth."""
+    d = sampled_depths(depth, mask, area)
     return float(np.median(d)) if len(d) else math.nan

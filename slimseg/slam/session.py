@@ -73,6 +73,8 @@ class Plan:
     speed: float = 1.0
     threads: int | None = None
     progress: bool = True
+    rerun: Path | None = None
+    """a Rerun recording of the trajectories to write (``--rerun``), None: none"""
 
 
 def gt_at_frames(gt: np.ndarray, seq: TumSequence, max_dt: float = MAX_DT) -> np.ndarray:
@@ -298,4 +300,10 @@ def run_plan(plan: Plan, out: Path, say: Callable[[str], None]) -> tuple[list[di
         runs=plan.runs, groundtruth=gt,
     )  # fmt: skip
     rows = write_report(out, info, results, still_floor(gt_at_frames(gt, seq)))
+    if plan.rerun is not None:
+        from slimseg.slam.report import table_lines
+        from slimseg.slam.rerun_trajectories import write_trajectories
+
+        rrd, shown = write_trajectories(plan.rerun, gt, results, table_lines(rows, True))
+        say(f"Rerun recording of {shown} condition trajectories and the ground truth: {rrd}")
     return rows, info

@@ -31,6 +31,7 @@ SWEEP_KEYS: dict[str, str] = {
     "rule": "rule",
     "keep_score": "keep_score",
     "cut_behind": "cut_behind_m",
+    "motion_odds": "motion_odds",
 }
 # sweep key -> TrackSettings field (the track stage's knobs; they need --track)
 TRACK_SWEEP_KEYS: dict[str, str] = {
@@ -55,6 +56,7 @@ ACTS_IN: dict[str, tuple[str, ...]] = {
     "rule": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "keep_score": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
     "cut_behind": ("seg", "fusion", "semantic+epipolar", "fusion+epipolar"),
+    "motion_odds": ("seg", "fusion"),
     "p_alpha": ("semantic+epipolar", "fusion+epipolar"),
 }
 

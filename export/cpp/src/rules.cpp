@@ -6,10 +6,16 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstddef>
 #include <cstdlib>
 
 namespace slimseg {
 namespace {
+
+// slimseg.dynamic.depth_cut.REFERENCE_QUANTILE: an object's depth is this quantile of its mask's.
+constexpr double kReferenceQuantile = 0.1;
+// slimseg.dynamic.seg_box.T_O: Eq. 4's t_o where the depth cut cannot act (no depth under it).
+constexpr double kUncutTO = 0.25;
 
 // Frame pixels whose centre lies in an xyxy box (c + 0.5 >= x1 and c + 0.5 < x2), as a window.
 WindowMask box_window(const std::array<float, 4>& b, int h, int w) {
@@ -69,8 +75,9 @@ void paint(std::vector<std::uint8_t>& mask, int w, const WindowMask& m) {
                 mask[static_cast<size_t>(m.y0 + y) * w + (m.x0 + x)] = 255;
 }
 
-// slimseg.dynamic.depth_cut.reference_depths: the median valid depth under the mask inside
-// its box, on a grid of step max(1, int(sqrt(area / 400))); NaN without any.
+// slimseg.dynamic.depth_cut.reference_depths: of the valid depths under the mask inside its
+// box, sampled on a grid of step max(1, int(sqrt(area / 400))), the one at sorted index
+// int(0.1 * (n - 1)) (REFERENCE_QUANTILE: the object's near layer); NaN without any.
 float reference_depth(const WindowMask& mask, const WindowMask& box, const float* depth, int w) {
     std::int64_t area = 0;
     for (int y = box.y0; y < box.y0 + box.h; ++y)
@@ -84,9 +91,9 @@ float reference_depth(const WindowMask& mask, const WindowMask& box, const float
             if (mask.at(y, x) && std::isfinite(v) && v > 0) d.push_back(v);
         }
     if (d.empty()) return std::nanf("");
-    std::sort(d.begin(), d.end());
-    const size_t n = d.size();
-    return n % 2 ? d[n / 2] : (d[n / 2 - 1] + d[n / 2]) / 2.0f;  // NumPy's float32 median
+    const auto i = static_cast<std::ptrdiff_t>(kReferenceQuantile * static_cast<double>(d.size() - 1));
+    std::nth_element(d.begin(), d.begin() + i, d.end());
+    return d[static_cast<size_t>(i)];
 }
 
 // slimseg.dynamic.depth_cut.cut_behind: the region's pixels inside the box deeper than
@@ -309,7 +316,11 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
             }
             double s_o = static_cast<double>(inter) /
                          static_cast<double>(std::max<std::int64_t>(b.area(), 1));
-            res.used_seg[i] = s_o > rules.t_o;
+            // slimseg.dynamic.pipeline.eq4_thresholds: a box no depth cut can trim replaces only
+            // a seg mask covering at most the papers' t_o of it
+            const double t_o = rules.cut_behind_m > 0 && !std::isfinite(ref[i])
+                                   ? std::min(rules.t_o, kUncutTO) : rules.t_o;
+            res.used_seg[i] = s_o > t_o;
             if (!res.used_seg[i]) {
                 regions[i] = b;
                 if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], rules.cut_behind_m);

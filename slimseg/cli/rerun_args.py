@@ -1,0 +1,36 @@
+"""``--rerun FILE.rrd`` (``dynamic``, ``predict --track``, ``slam-eval``): a Rerun recording of
+the run beside its usual outputs (the ``slimseg[viz]`` extra; docs/viewers.md)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from slimseg.errors import SlimsegError
+
+
+def add_rerun_arg(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument(
+        "--rerun",
+        metavar="FILE.rrd",
+        type=Path,
+        help=f"also write a Rerun recording of {what} (needs slimseg[viz]; open it with "
+        "`rerun FILE.rrd`)",
+    )
+
+
+def rerun_path(args: argparse.Namespace, out: Path, inputs: dict) -> Path | None:
+    """``--rerun`` checked before any work (None: not given): a ``.rrd`` name, not an input,
+    not inside a folder ``--out`` (which a run replaces whole), not a file of another kind;
+    ``rerun-sdk`` installed."""
+    if args.rerun is None:
+        return None
+    from slimseg.dynamic.rerun_frames import check_rrd_path
+    from slimseg.utils.outputs import refuse_inputs
+
+    path = Path(args.rerun)
+    refuse_inputs(path, "--rerun", inputs)
+    target, folder = path.expanduser().resolve(), out.expanduser().resolve()
+    if target == folder or folder in target.parents:
+        raise SlimsegError(f"--rerun {path} lies in --out {out}: write it beside the folder")
+    return check_rrd_path(path)
