@@ -93,7 +93,7 @@ def prepare_sweep_dir(cfg: AblationConfig, out: Path) -> None:
     process can write in it (a clear error before any run starts). A folder holding anything
     a sweep did not write (a user's ``results.csv``) is refused; the manifest
     (:mod:`slimseg.utils.outputs`) lists :data:`SWEEP_ENTRIES` before any is written."""
-    claim_folder(out, "--out")
+    claim_folder(out, "--out", own=SWEEP_ENTRIES)
     marker = out / "sweep.json"
     if marker.is_file():
         stored = json.loads(marker.read_text())

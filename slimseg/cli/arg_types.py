@@ -14,6 +14,7 @@ import math
 from collections.abc import Callable
 
 from slimseg.deploy.preprocess import MAX_STRIDE as STRIDE  # image sides are multiples of it
+from slimseg.utils.threads import available_cpus
 
 
 def count(low: int = 1, high: int | None = None) -> Callable[[str], int]:
@@ -30,6 +31,27 @@ def count(low: int = 1, high: int | None = None) -> Callable[[str], int]:
         return value
 
     parse.__name__ = "count"
+    return parse
+
+
+def threads() -> Callable[[str], int]:
+    """A thread count: 0 (the default) up to the CPU cores this process may use
+    (:func:`slimseg.utils.threads.available_cpus`); more is refused, never capped silently."""
+    cpus = available_cpus()
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = -1
+        if not 0 <= value <= cpus:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a thread count in 0..{cpus} (the CPU cores this process may "
+                "use; 0: the default)"
+            )
+        return value
+
+    parse.__name__ = "threads"
     return parse
 
 
@@ -74,6 +96,20 @@ def multiple_of(stride: int = STRIDE, low: int | None = None) -> Callable[[str],
         return value
 
     parse.__name__ = "multiple_of"
+    return parse
+
+
+def image_side(high: int, stride: int = STRIDE) -> Callable[[str], int]:
+    """An image side: a multiple of ``stride`` from ``stride`` to ``high``."""
+    base = multiple_of(stride)
+
+    def parse(text: str) -> int:
+        value = base(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"{value} is over {high} (the largest side allowed)")
+        return value
+
+    parse.__name__ = "image_side"
     return parse
 
 

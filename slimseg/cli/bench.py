@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from slimseg.cli.arg_types import count, multiple_of
+from slimseg.cli.arg_types import count, multiple_of, threads
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.deploy.bench import INT8_FORMS, bench_model, machine_info
 from slimseg.deploy.calibration import load_calibration_set
@@ -15,6 +15,7 @@ from slimseg.deploy.int8_quantize import CALIB_METHODS
 from slimseg.errors import SlimsegError
 from slimseg.models.registry import build_model
 from slimseg.utils.table import format_table
+from slimseg.utils.threads import available_cpus
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", nargs="+", default=["yolov8s-seg", "yolov8s-seg-gs-rep"])
     p.add_argument("--nc", type=count(1), default=20)
     p.add_argument("--imgsz", type=multiple_of(), default=640)
-    p.add_argument("--threads", type=count(0), default=2)
+    p.add_argument("--threads", type=threads(), default=min(2, available_cpus()))
     p.add_argument("--runs", type=count(1), default=10)
     p.add_argument("--warmup", type=count(0), default=3)
     p.add_argument("--int8", action="store_true", help="add onnxruntime INT8 Q/DQ (needs --calib)")

@@ -3,9 +3,25 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from slimseg.cli.arg_types import count, multiple_of
+from slimseg.errors import SlimsegError
+from slimseg.utils.outputs import claim_file, refuse_inputs
+
+_PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _is_png(path: Path) -> bool:
+    """``path`` is a PNG file (what ``data show`` writes), judged by its signature."""
+    try:
+        if not path.is_file():  # a folder, a FIFO, a device: never a grid of ours
+            return False
+        with path.open("rb") as f:
+            return f.read(len(_PNG)) == _PNG
+    except OSError:
+        return False
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -36,12 +52,29 @@ def run(args: argparse.Namespace) -> int:
     from slimseg.utils.atomic import write_png
 
     cfg = load_data_config(args.data)
-    base = CocoDataset.from_config(cfg, "val" if args.val else "train")
+    split = "val" if args.val else "train"
+    base = CocoDataset.from_config(cfg, split)
     augment = None if args.val else load_augment_config(args.augment)
+    refuse_inputs(
+        args.out,
+        "--out",
+        {
+            "--data": args.data,
+            "--augment": args.augment,
+            "annotations": base.annotations_json,
+            "image": [base.image_path(i) for i in range(len(base))],
+        },
+    )
+    claim_file(args.out, "--out", _is_png, "PNG")  # a grid of an earlier run, not a user's file
     ds = ZooDataset(base, args.imgsz, augment, seed=args.seed)
     count = min(args.count, len(ds))
+    if count == 0:
+        why = base.report.summary().replace("\n", "; ") or "it lists none"
+        raise SlimsegError(f"{args.data}: its {split} split has no usable image to show ({why})")
     panels = [draw_sample(ds[i], cfg.names) for i in range(count)]
     out = write_png(Path(args.out), tile(panels, args.columns))
     kind = "validation (letterbox)" if args.val else "augmented training"
+    if base.report.summary():
+        print(base.report.summary(), file=sys.stderr)  # images skipped, and why
     print(f"wrote {count} {kind} samples of {args.data} to {out}")
     return 0

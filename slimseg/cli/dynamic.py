@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.cli.arg_types import count
+from slimseg.cli.arg_types import count, threads
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
@@ -32,6 +32,7 @@ from slimseg.data.bag_writer import STORAGES
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
+from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.mask_bag import (
     MASK_TOPIC,
     MASKED_TOPIC,
@@ -54,6 +55,8 @@ from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.outputs import refuse_inputs
 from slimseg.utils.table import format_table
+
+MAX_DILATION_PX = 256  # far wider than any object's edge; a kernel grows as its square
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -95,7 +98,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     add_rerun_arg(p, "every frame: image, depth, class-coloured mask, boxes, keypoints, timing")
     p.add_argument("--mode", default="fusion", choices=MODES)
-    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features per frame")
+    p.add_argument(
+        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features per frame"
+    )
     add_masking_args(p)
     add_track_args(p)
     add_rate_args(p)
@@ -124,9 +129,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "dynamic/ masks (gt, default without --model)",
     )
     p.add_argument(
-        "--restore-dilation", type=count(0), default=2, help="px added around the removed region"
+        "--restore-dilation",
+        type=count(0, MAX_DILATION_PX),
+        default=2,
+        help=f"px added around the removed region (0-{MAX_DILATION_PX})",
     )
-    p.add_argument("--threads", type=count(0), default=None)
+    p.add_argument("--threads", type=threads(), default=None)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(run=run)
 

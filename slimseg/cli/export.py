@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slimseg.cli.arg_types import count, number
+from slimseg.cli.arg_types import count, image_side, number
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
@@ -17,6 +17,8 @@ from slimseg.errors import SlimsegError
 from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_model
 from slimseg.utils.outputs import refuse_inputs
+
+MAX_EXPORT_SIDE = 4096  # a 4096 x 4096 trace already holds GBs of activations
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +35,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "the checks hold; otherwise the command fails and leaves nothing.",
     )
     p.add_argument("--weights", required=True, help="weights .pt/.ckpt, or a model name")
-    p.add_argument("--imgsz", type=int, nargs="+", default=[640], help="H [W], multiples of 32")
+    p.add_argument(
+        "--imgsz",
+        type=image_side(MAX_EXPORT_SIDE),
+        nargs="+",
+        default=[640],
+        help=f"H [W], multiples of 32 up to {MAX_EXPORT_SIDE}",
+    )
     p.add_argument("--nc", type=count(1), default=None, help="classes, when --weights is a name")
     p.add_argument("--half", action="store_true", help="FP16 weights, compute, input, outputs")
     p.add_argument("--dynamic", action="store_true", help="dynamic batch, height and width")
@@ -84,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         model = build_model(args.weights, num_classes=args.nc).eval()
         names, mobility = [], []
+    if len(args.imgsz) > 2:
+        raise SlimsegError(f"--imgsz {' '.join(map(str, args.imgsz))}: give H, or H W")
     imgsz = (args.imgsz[0], args.imgsz[-1])
     target = args.int8_target or DEFAULT_INT8_TARGET
     int8_suffix = "-int8" if target == DEFAULT_INT8_TARGET else "-int8-ort"

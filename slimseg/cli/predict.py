@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.cli.arg_types import FRACTION, count, multiple_of
+from slimseg.cli.arg_types import FRACTION, count, multiple_of, threads
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
@@ -54,6 +54,7 @@ from slimseg.deploy.raw_dump import frame_dump, write_raw
 from slimseg.deploy.track_predict import DEFAULT_FPS, track_predict
 from slimseg.detections import Prediction
 from slimseg.dynamic.epipolar import orb_features
+from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
@@ -93,7 +94,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="network input H [W] (default: the model's; static ONNX graphs only run at theirs)",
     )
     p.add_argument("--backend", default="auto", choices=BACKENDS)
-    p.add_argument("--threads", type=count(0), default=None, help="intra-op CPU threads")
+    p.add_argument("--threads", type=threads(), default=None, help="intra-op CPU threads")
     p.add_argument("--max-det", type=count(1), default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -107,7 +108,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--keypoints",
-        type=count(1),
+        type=count(1, MAX_KEYPOINTS),
         default=1000,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )

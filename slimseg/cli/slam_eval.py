@@ -8,7 +8,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from slimseg.cli.arg_types import count, number
+from slimseg.cli.arg_types import count, number, threads
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
@@ -19,6 +19,7 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
+from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.pipeline import MODES
 from slimseg.errors import SlimsegError
 from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
@@ -88,7 +89,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vocab", type=Path, help="ORBvoc.txt, or one from slimseg slam vocab")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
-    p.add_argument("--keypoints", type=count(1), default=1000, help="ORB features (mask modes)")
+    p.add_argument(
+        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features (mask modes)"
+    )
     add_masking_args(p)
     add_track_args(p)
     p.add_argument(
@@ -118,7 +121,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="realtime replay speed (0.5: half the frame rate, so the schedule holds on a "
         "loaded machine; the late column counts frames fed behind it)",
     )
-    p.add_argument("--threads", type=count(0), default=None, help="model threads")
+    p.add_argument("--threads", type=threads(), default=None, help="model threads")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_rerun_arg(p, "every condition's trajectory beside the ground truth (3-D) and its ATE")
     p.set_defaults(run=run)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slimseg.cli.arg_types import count, multiple_of, number
+from slimseg.cli.arg_types import count, multiple_of, number, threads
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.augment import load_augment_config
 from slimseg.data.config import SPLITS, load_data_config
@@ -42,7 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=count(0), default=None)
     p.add_argument("--seed", type=count(0), default=None)
     p.add_argument(
-        "--threads", type=count(0), default=None, help="torch CPU threads (0 = all cores)"
+        "--threads", type=threads(), default=None, help="torch CPU threads (0 = all cores)"
     )
     p.add_argument(
         "--precision",

@@ -14,7 +14,9 @@ import numpy as np
 
 from slimseg.data.bag_reader import ODOMETRY, POSE, TF, BagFile, Header, is_bag
 from slimseg.data.tum import read_trajectory
+from slimseg.data.value_checks import check_pose
 from slimseg.errors import SlimsegError
+from slimseg.utils.text import printable
 
 POSE_TYPES = (POSE, ODOMETRY, TF)
 MIN_POSES = 3  # an ATE needs at least three poses to align
@@ -38,17 +40,18 @@ def read_poses(bag: str | Path, topic: str, child_frame: str | None = None) -> n
                 f"--pose-topic {topic} carries {kind}, expected one of {', '.join(POSE_TYPES)}"
             )
         children: set[str] = set()
-        for _, _, raw in f.messages([topic]):
+        for index, (_, _, raw) in enumerate(f.messages([topic])):
             msg = f.decode(raw, kind, topic)
+            where = f"bag {bag}: message {index} on {printable(topic)}"
             if kind == TF:
                 for tr in msg.transforms:
                     children.add(tr.child_frame_id)
                     if child_frame is None or tr.child_frame_id == child_frame:
                         t, r = tr.transform.translation, tr.transform.rotation
-                        rows.append(_row(tr.header, t, r))
+                        rows.append(_row(tr.header, t, r, where))
                 continue
             pose = msg.pose.pose if kind == ODOMETRY else msg.pose
-            rows.append(_row(msg.header, pose.position, pose.orientation))
+            rows.append(_row(msg.header, pose.position, pose.orientation, where))
     if kind == TF and child_frame is None and len(children) > 1:
         raise SlimsegError(
             f"--pose-topic {topic} holds transforms of {len(children)} child frames "
@@ -63,9 +66,13 @@ def read_poses(bag: str | Path, topic: str, child_frame: str | None = None) -> n
     return out[np.argsort(out[:, 0], kind="stable")]
 
 
-def _row(header: object, t: object, q: object) -> list[float]:
+def _row(header: object, t: object, q: object, where: str) -> list[float]:
+    """One TUM row, checked (:func:`~slimseg.data.tum.check_pose`: finite, a usable
+    quaternion), ``SlimsegError`` naming ``where`` (the bag, message index and topic)."""
     stamp = Header(int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec), "")
-    return [stamp.seconds, t.x, t.y, t.z, q.x, q.y, q.z, q.w]
+    row = [stamp.seconds, t.x, t.y, t.z, q.x, q.y, q.z, q.w]
+    check_pose(row, where)
+    return row
 
 
 def ground_truth(
@@ -99,4 +106,24 @@ def ground_truth(
         gt, source = read_trajectory(path), str(path)
     if len(gt) < MIN_POSES:
         raise SlimsegError(f"{source} has {len(gt)} poses: need {MIN_POSES} or more")
+    why = degenerate(gt[:, 1:4])
+    if why:
+        raise SlimsegError(
+            f"{source}: the ground truth {why}, so no trajectory can be aligned to it (the ATE "
+            "needs a camera path that spans a plane)"
+        )
     return gt
+
+
+def degenerate(positions: np.ndarray) -> str:
+    """Why ``positions [K, 3]`` cannot anchor a rigid alignment (empty: they can): fewer than
+    :data:`MIN_POSES` distinct positions, or all on one line (Umeyama's covariance then has
+    rank < 2)."""
+    p = np.asarray(positions, np.float64).reshape(-1, 3)
+    distinct = len(np.unique(p, axis=0))
+    if distinct < MIN_POSES:
+        return f"has {distinct} distinct position{'s' * (distinct != 1)}"
+    s = np.linalg.svd(p - p.mean(0), compute_uv=False)
+    if s[1] <= max(1e-9 * s[0], 1e-12):
+        return "has all its positions on one line"
+    return ""

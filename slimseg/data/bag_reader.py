@@ -18,7 +18,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from slimseg.data.mcap_crc import check_data_crc
 from slimseg.errors import SlimsegError
+from slimseg.utils.input_files import check_regular
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +106,7 @@ class BagFile:
         self.path = Path(path)
         if not self.path.exists():
             raise SlimsegError(f"bag {self.path} does not exist")
+        check_inputs(self.path)  # regular files only, MCAP data-section CRCs: before any open
         require_rosbags(self.path)
         from rosbags.typesys import Stores, get_typestore
 
@@ -230,6 +233,19 @@ class BagFile:
             raise SlimsegError(
                 f"bag {self.path}: a message on {topic} has no header: {e}"
             ) from None
+
+
+def check_inputs(path: Path) -> None:
+    """Before a recording is opened: ``path`` (or, for a rosbag2 folder, its
+    ``metadata.yaml`` and storage files) must be regular files (a FIFO or a device would
+    block or never end) and each MCAP's recorded data-section CRC must match its bytes;
+    ``SlimsegError`` naming the file otherwise."""
+    files = sorted(p for p in path.iterdir() if p.name == "metadata.yaml" or p.suffix in
+                   (".mcap", ".db3")) if path.is_dir() else [path]  # fmt: skip
+    for f in files:
+        check_regular(f, "bag" if f == path else "bag file")
+        if f.suffix.lower() == ".mcap":
+            check_data_crc(f)
 
 
 def _why(e: Exception) -> str:

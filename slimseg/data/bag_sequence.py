@@ -46,7 +46,9 @@ from slimseg.data.tum import (
     mask_name,
     read_camera,
 )
+from slimseg.data.value_checks import FrameChecks, check_intrinsics
 from slimseg.errors import SlimsegError
+from slimseg.utils.text import printable
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +101,7 @@ class BagSequence:
         self._ahead: dict[Key, bytes] = {}
         self._counts: dict[tuple[str, int], int] = {}  # the cursor's messages per (topic, time)
         self._cached: tuple[int, tuple[np.ndarray, np.ndarray, float]] | None = None
+        self._frames_seen = FrameChecks(str(self.root))
         self.load(0)  # an unknown encoding, a size mismatch or a wrong depth unit fails here
 
     # --- index -------------------------------------------------------------------------
@@ -171,6 +174,10 @@ class BagSequence:
                     "with --camera camera.yaml"
                     + ("" if self.options.camera_info_topic else " or --camera-info-topic")
                 )
+            check_intrinsics(
+                {"fx": fx, "fy": fy, "cx": cx, "cy": cy},
+                f"bag {self.root}: camera_info on {printable(self.topics.info)}",
+            )
             model = str(info.distortion_model) or "no model"
             return Camera(fx, fy, cx, cy, TUM_DEPTH_SCALE), (
                 f"camera_info {self.topics.info} (distortion model {model}; frames used as "
@@ -191,13 +198,14 @@ class BagSequence:
 
     # --- the frame interface -----------------------------------------------------------
     def describe(self) -> str:
-        """One line: the topics chosen (and why) and how the stamps paired."""
+        """One line: the topics chosen (and why) and how the stamps paired, with every
+        non-printable character of the recording's text escaped."""
         t, why = self.topics, self.topics.why
         parts = [f"colour {t.rgb} ({why['colour']})", f"depth {t.depth} ({why['depth']})"]
         if t.info:
             parts.append(f"camera_info {t.info} ({why['camera_info']})")
         f = self.frames
-        return (
+        return printable(  # topic names come from the recording: escaped for the terminal
             f"bag {self.root}: {', '.join(parts)}; {len(f)} frames paired within "
             f"{self.options.max_dt} s, {f.unmatched_rgb} colour and {f.unmatched_depth} depth "
             "messages without a partner"
@@ -206,7 +214,8 @@ class BagSequence:
     def describe_camera(self) -> str:
         """One line for a command: the intrinsics in use and where they came from."""
         c = self.camera
-        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {self.camera_source}"
+        source = printable(self.camera_source)  # names the camera_info topic: escaped
+        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
 
     @property
     def fps(self) -> float:
@@ -241,6 +250,7 @@ class BagSequence:
                 f"{rgb.shape[1]}x{rgb.shape[0]} but depth ({self.topics.depth}) is "
                 f"{depth.shape[1]}x{depth.shape[0]}"
             )
+        self._frames_seen.check(rgb.shape[:2], depth, f"bag {self.root} at {t_rgb:.6f} s")
         if self._cached is None:
             self._check_depth(depth)
             self._check_info_size(rgb.shape[1], rgb.shape[0])

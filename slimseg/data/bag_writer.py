@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from slimseg.data.bag_reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, Header, require_rosbags
+from slimseg.data.mcap_crc import seal
 from slimseg.errors import SlimsegError
-from slimseg.utils.atomic import stage_name
+from slimseg.utils.atomic import publish_new, stage_name
 
 STORAGES = ("mcap", "sqlite3")  # rosbag2 folder storage plugins
 
@@ -46,6 +47,7 @@ class BagWriter:
     def __init__(self, path: str | Path, storage: str | None = None, option: str = "--out"):
         self.path = Path(path)
         self.kind = bag_kind(self.path, storage)
+        self._option = option
         if os.path.lexists(self.path):
             raise SlimsegError(f"{option} {self.path} exists: a bag is never overwritten")
         require_rosbags(self.path)
@@ -84,7 +86,9 @@ class BagWriter:
             if exc_type is None:
                 self._writer.close()
                 made = self._target / f"{self.path.name}.mcap" if self.kind == "mcap" else None
-                os.replace(made or self._target, self.path)
+                for mcap in [made] if made else sorted(self._target.glob("*.mcap")):
+                    seal(mcap)  # chunk and data-section CRCs, checked when read back
+                publish_new(made or self._target, self.path, self._option)
         finally:
             shutil.rmtree(self._stage, ignore_errors=True)
 

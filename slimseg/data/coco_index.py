@@ -17,6 +17,7 @@ from pycocotools import mask as mask_utils
 
 from slimseg.data.problems import LoadReport
 from slimseg.errors import SlimsegError
+from slimseg.utils.input_files import check_regular
 from slimseg.utils.outputs import escapes_root
 
 
@@ -59,11 +60,14 @@ class CocoIndex:
 def load_coco_json(path: str | Path) -> dict:
     """Read a COCO json and check its top-level structure (SlimsegError naming the file)."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise SlimsegError(f"{path}: annotation file not found")
+    check_regular(path, "annotation file")  # a FIFO would block the read
     try:
         with open(path, encoding="utf-8") as f:
             data = json.load(f)
+    except RecursionError:
+        raise SlimsegError(f"{path}: not a readable JSON file (nested too deeply)") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SlimsegError(f"{path}: not a readable JSON file ({exc})") from None
     if not isinstance(data, dict):

@@ -47,6 +47,7 @@ from typing import Any
 
 from slimseg.data.sequence_split import SEQUENCE_ANNOTATIONS, SplitPart
 from slimseg.errors import SlimsegError
+from slimseg.utils.input_files import check_regular
 from slimseg.utils.outputs import inside_root
 from slimseg.utils.shipped import resolve_config
 from slimseg.utils.yaml_io import read_yaml
@@ -221,10 +222,13 @@ def _sequences(
 
 def _json_categories(path: Path, src: Path, field: str) -> list[dict]:
     try:
+        check_regular(path, "annotation file")  # a FIFO would block the read
         with open(path, encoding="utf-8") as f:
             cats = json.load(f).get("categories")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError) as exc:
         raise _err(src, field, f"cannot read categories from {path} ({exc})") from None
+    except RecursionError:
+        raise _err(src, field, f"cannot read categories from {path} (nested too deeply)") from None
     if not isinstance(cats, list) or not all(
         isinstance(c, dict) and isinstance(c.get("id"), int) and isinstance(c.get("name"), str)
         for c in cats

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import os
+import stat
 from pathlib import Path
 
 import cv2
@@ -78,10 +79,13 @@ def _header_size(buf: np.ndarray) -> tuple[int, int] | None:
 
 
 def decode_file(path: Path, flags: int) -> np.ndarray | None:
-    """``cv2.imdecode`` of the file's bytes with ``flags``; None if unreadable or empty.
+    """``cv2.imdecode`` of the file's bytes with ``flags``; None if unreadable, empty or not a
+    regular file (a FIFO, a device).
     A header over the pixel cap raises :class:`ImageProblem` (:func:`check_declared_size`)."""
     path = Path(path)
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):  # a FIFO or a device: never read
+            return None
         buf = np.fromfile(path, dtype=np.uint8)
     except OSError:
         return None

@@ -40,12 +40,15 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from slimseg.data.images import decode_file
+from slimseg.data.value_checks import FrameChecks, check_intrinsics, check_pose
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
+from slimseg.utils.input_files import read_capped
 from slimseg.utils.outputs import inside_root
+from slimseg.utils.text import printable
+from slimseg.utils.yaml_io import MAX_YAML_BYTES, load_yaml_text
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +89,6 @@ def calibration_for(folder: str | Path) -> str | None:
 # TUM freiburg1: the fallback for a folder whose name and files say nothing (see intrinsics)
 TUM_FR1 = {**CALIBRATIONS["tum-fr1"], "depth_scale": TUM_DEPTH_SCALE}
 MAX_DT = 0.02  # s, associate.py's default max_difference
-MIN_QUATERNION_NORM = 1e-6  # a trajectory quaternion shorter than this cannot be normalised
 
 
 class Associations(list[tuple[Stamped, Stamped]]):
@@ -108,10 +110,13 @@ class Camera:
     depth_scale: float
 
 
+MAX_LIST_BYTES = 1 << 30  # rgb.txt / depth.txt / groundtruth.txt: ~40 bytes a line
+
+
 def _read_lines(path: Path) -> list[tuple[int, str]]:
     """Non-empty, non-comment lines of a text file with their 1-based numbers."""
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = read_capped(path, "list", MAX_LIST_BYTES).decode("utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise SlimsegError(f"cannot read {path}: {e}") from None
     out = []
@@ -185,7 +190,7 @@ def read_trajectory(path: str | Path) -> np.ndarray:
     """Parse a TUM trajectory (``groundtruth.txt`` or an estimate): ``float64 [K, 8]`` rows
     ``t tx ty tz qx qy qz qw`` (s, m, quaternion last). Raises ``SlimsegError`` naming the file
     and line for a malformed line: not 8 numbers, a value that is not finite, or a quaternion
-    of (near) zero length, which no unit rotation is."""
+    whose norm is outside 0.5..2 (:func:`slimseg.data.value_checks.check_pose`)."""
     path = Path(path)
     rows = []
     for no, line in _read_lines(path):
@@ -197,13 +202,7 @@ def read_trajectory(path: str | Path) -> np.ndarray:
             raise SlimsegError(
                 f"{path}:{no}: expected 8 numbers 't tx ty tz qx qy qz qw', got {line!r}"
             ) from None
-        if not np.all(np.isfinite(vals)):
-            raise SlimsegError(f"{path}:{no}: a value is not finite (nan or inf): {line!r}")
-        if np.linalg.norm(vals[4:]) < MIN_QUATERNION_NORM:
-            raise SlimsegError(
-                f"{path}:{no}: quaternion qx qy qz qw = {' '.join(line.split()[4:])} has no "
-                f"length, so it is no rotation: {line!r}"
-            )
+        check_pose(vals, f"{path}:{no}", f": {line!r}")
         rows.append(vals)
     return np.array(rows, np.float64).reshape(-1, 8)
 
@@ -280,11 +279,11 @@ def read_camera(path: Path) -> dict[str, float]:
     ``RGBD.DepthMapFactor`` also accepted). ``SlimsegError`` naming the file and key for an
     unknown or misspelled key, a value that is not a finite number > 0, or a key given twice."""
     try:
-        text = path.read_text(encoding="utf-8")
-        lines = [ln for ln in text.splitlines() if not ln.startswith("%YAML")]
-        cfg = yaml.safe_load("\n".join(lines)) or {}
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        text = read_capped(path, "camera file", MAX_YAML_BYTES).decode("utf-8")
+    except (OSError, UnicodeDecodeError) as e:
         raise SlimsegError(f"cannot read camera file {path}: {e}") from None
+    lines = [ln for ln in text.splitlines() if not ln.startswith("%YAML")]
+    cfg = load_yaml_text("\n".join(lines), f"cannot read camera file {path}") or {}
     if not isinstance(cfg, dict):
         raise SlimsegError(f"camera file {path}: expected a mapping of fx, fy, cx, cy")
     _check_camera_keys(path, cfg)
@@ -298,8 +297,11 @@ def read_camera(path: Path) -> dict[str, float]:
         v = cfg[given[0]]
         ok = isinstance(v, int | float) and not isinstance(v, bool)
         if not ok or not np.isfinite(v) or v <= 0:
-            raise SlimsegError(f"camera file {path}: {given[0]} must be a number > 0, got {v!r}")
+            shown = printable(repr(v))
+            shown = shown if len(shown) <= 60 else shown[:57] + "..."
+            raise SlimsegError(f"camera file {path}: {given[0]} must be a number > 0, got {shown}")
         vals[name] = float(v)
+    check_intrinsics({k: v for k, v in vals.items() if k != "depth_scale"}, f"camera file {path}")
     return vals
 
 
@@ -355,6 +357,7 @@ class TumSequence:
         if self.camera_source != "camera.yaml":
             log.info("sequence %s: intrinsics %s", self.root, self.camera_source)
         self._depth_checked = False
+        self._frames_seen = FrameChecks(str(self.root))
 
     def describe_camera(self) -> str:
         """One line for a command: the intrinsics in use and where they came from."""
@@ -362,7 +365,7 @@ class TumSequence:
         if source == f"{DEFAULT} (default)":
             source = f"{DEFAULT} (the default: no camera.yaml, no known camera in the folder name)"
         source = source.replace("camera.yaml", str(self.root / "camera.yaml"), 1)
-        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
+        return printable(f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}")
 
     @property
     def fps(self) -> float:
@@ -396,6 +399,7 @@ class TumSequence:
             )
         depth = depth_metres(raw, self.camera.depth_scale)
         depth[~np.isfinite(depth) | (depth < 0)] = 0.0
+        self._frames_seen.check(bgr.shape[:2], depth, str(rgb_path))
         if not self._depth_checked:
             self._check_depth_scale(depth, depth_path)
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)

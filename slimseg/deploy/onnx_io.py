@@ -26,8 +26,17 @@ from slimseg.utils.outputs import claim_file, json_with
 log = logging.getLogger(__name__)
 
 
+def check_onnx_name(out: Path) -> None:
+    """``SlimsegError`` unless ``out`` names a ``.onnx`` file (``.``, ``..`` or ``''`` do not:
+    its sidecar would have no name, or be itself)."""
+    if out.suffix.lower() != ".onnx" or out.name in ("", ".", ".."):
+        raise SlimsegError(f"--out {out}: give a file name ending in .onnx")
+
+
 def sidecar_path(out: Path) -> Path:
-    """The metadata sidecar of an export: ``NAME.onnx`` → ``NAME.json``."""
+    """The metadata sidecar of an export: ``NAME.onnx`` → ``NAME.json`` (``out`` passed
+    :func:`check_onnx_name`)."""
+    check_onnx_name(out)
     return out.with_suffix(".json")
 
 
@@ -45,8 +54,7 @@ def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
     does not end in ``.onnx`` (its sidecar would be itself), or when either is an existing
     file slimseg did not write (:func:`owned_export`): an export replaces an earlier export
     only, never a user's ``annotations.json`` that happens to share the stem."""
-    if out.suffix.lower() != ".onnx":
-        raise SlimsegError(f"--out {out}: give a file name ending in .onnx")
+    check_onnx_name(out)
     for path in (out, sidecar_path(out)):
         if path.is_dir():
             raise SlimsegError(

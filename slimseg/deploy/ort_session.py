@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.threads import check_threads
 
 
 def cpu_session(path: str | Path, threads: int | None = None):
@@ -12,6 +13,7 @@ def cpu_session(path: str | Path, threads: int | None = None):
     idle spinning (spinning sessions steal the cores from everything else in the process)."""
     import onnxruntime as ort
 
+    check_threads(threads)  # before a pool of that size exists
     opts = ort.SessionOptions()
     if threads:
         opts.intra_op_num_threads = threads

@@ -37,7 +37,7 @@ from slimseg.deploy.runners import OnnxRunner, TorchRunner
 from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
-from slimseg.utils.threads import torch_threads
+from slimseg.utils.threads import check_threads, torch_threads
 
 __all__ = ["BACKENDS", "Prediction", "Predictor", "combined_mask"]
 
@@ -124,6 +124,7 @@ class Predictor:
         hw = parse_imgsz(imgsz)
         if threads is not None and threads < 1:
             raise SlimsegError(f"threads must be >= 1, got {threads}")
+        check_threads(threads)  # no more than the cores this process may use
         if backend == "torch":
             return cls._from_torch(path, hw, threads)
         return cls._from_onnx(path, hw, threads)

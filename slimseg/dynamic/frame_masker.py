@@ -13,14 +13,17 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from numbers import Integral
 from typing import Protocol
 
 import numpy as np
 
 from slimseg.data.tum import depth_metres
+from slimseg.data.value_checks import check_intrinsics
 from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
@@ -52,6 +55,9 @@ Segmenter = Callable[[np.ndarray, float, float], Prediction]
 
 BOX_MODES = ("box", "box+depth-ransac")  # modes that work without instance masks
 log = logging.getLogger(__name__)
+
+
+MAX_KEYPOINTS = 100_000  # ORB features per frame (ORB-SLAM uses ~1000): bounds the extractor
 
 
 class FrameError(SlimsegError):
@@ -173,6 +179,23 @@ class FrameMasker:
             )
         if depth_scale is not None and not (math.isfinite(depth_scale) and depth_scale > 0):
             raise SlimsegError(f"depth_scale {depth_scale}: expected units per metre > 0")
+        if (
+            isinstance(keypoints, bool)
+            or not isinstance(keypoints, Integral)
+            or not (1 <= keypoints <= MAX_KEYPOINTS)
+        ):
+            raise SlimsegError(f"keypoints {keypoints!r}: expected 1 to {MAX_KEYPOINTS} per frame")
+        if camera is not None:
+            if len(camera) != 4:
+                raise SlimsegError(f"camera {camera!r}: expected (fx, fy, cx, cy)")
+            names = ("fx", "fy", "cx", "cy")
+            check_intrinsics(dict(zip(names, map(float, camera), strict=True)), "camera")
+        if (
+            isinstance(fps, bool)
+            or not isinstance(fps, int | float)
+            or not (math.isfinite(fps) and fps > 0)
+        ):
+            raise SlimsegError(f"fps {fps!r}: expected the sequence's frames per second, > 0")
         self.mobility = np.asarray(class_mobility, np.float32)
         self.mode = mode
         self.masking = masking
@@ -199,6 +222,8 @@ class FrameMasker:
         self._rng = np.random.default_rng(0)  # depth-RANSAC's sampling
         self._previous: PreviousFrame | None = None
         self._hw: tuple[int, int] | None = None
+        self._closed = False
+        self._busy = threading.Lock()  # held by the step in progress: overlapping calls refused
         self._told_no_depth = False
 
     # -- the loop's calls ---------------------------------------------------------------------
@@ -219,7 +244,30 @@ class FrameMasker:
         """Mask one frame: ``rgb uint8 [H, W, 3]``, ``depth [H, W]`` (float metres, 0/NaN =
         none; integer with ``depth_scale``), ``stamp`` s (default: index / fps);
         ``keypoints float32 [N, 2]`` (x, y) px to classify (default: the chain's own ORB);
-        ``features``: this frame's ORB features when already computed (a cache)."""
+        ``features``: this frame's ORB features when already computed (a cache).
+
+        One frame at a time, in order: a step while another is in progress (from another
+        thread) is refused, and so is a step after :meth:`close` (``SlimsegError``)."""
+        if self._closed:
+            raise SlimsegError("step() after close(): this masker is closed; build a new one")
+        if not self._busy.acquire(blocking=False):
+            raise SlimsegError(
+                "step() while another step() of this masker is in progress: a masker masks one "
+                "sequence, one frame at a time; give each thread its own masker"
+            )
+        try:
+            return self._step(rgb, depth, stamp, keypoints, features)
+        finally:
+            self._busy.release()
+
+    def _step(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray | None,
+        stamp: float | None,
+        keypoints: np.ndarray | None,
+        features: OrbFeatures | None,
+    ) -> MaskedFrame:
         i = self.frames
         hw = self._check(rgb, depth, keypoints)
         depth_m = self._metres(depth)
@@ -283,7 +331,9 @@ class FrameMasker:
         )  # fmt: skip
 
     def close(self) -> None:
-        """Wait for a model run still in flight and stop the worker."""
+        """Wait for a model run still in flight and stop the worker; :meth:`step` refuses
+        to run afterwards (closing twice is harmless)."""
+        self._closed = True
         self.feed.close()
 
     def __enter__(self) -> FrameMasker:

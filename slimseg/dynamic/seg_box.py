@@ -79,6 +79,7 @@ def dilate_masks(masks: np.ndarray, radius: int) -> np.ndarray:
     if radius <= 0 or len(masks) == 0:
         return masks
     h, w = masks.shape[1:]
+    radius = min(radius, h + w)  # a disc that wide already covers the image: same result
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     out = np.zeros(masks.shape, bool)
     for k, m in enumerate(masks):
@@ -97,5 +98,6 @@ def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     """Dilate a ``[H, W]`` mask by ``radius`` px with a disc (0: unchanged)."""
     if radius <= 0:
         return mask
+    radius = min(radius, sum(mask.shape[:2]))  # wider covers the image all the same: bounded
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(mask.dtype)

@@ -8,7 +8,9 @@ evaluating process's threads or locks is inherited; ``spawn`` where there is no 
 e.g. Windows), which tracks the
 frames with :func:`~slimseg.slam.engines.run_orbslam3` and sends back plain data (trajectory
 array, state names, timings). A child killed by a signal, one that outlives its timeout (it is
-killed), or one whose engine raised, comes back as a :class:`RunFailure` naming the cause.
+killed), or one whose engine raised, comes back as a :class:`RunFailure` naming the cause. The
+fork server itself may die (the OOM killer picks the largest process): the run it was to
+serve fails and the next run starts a fresh server (:func:`start_child`).
 
 Frames travel through shared memory, packed once per condition by :class:`SharedFrames`
 (``rgb uint8 [N, H, W, 3]``, ``depth float32 [N, H, W]``, ``stamp float64 [N]``): every run of
@@ -17,15 +19,17 @@ the condition maps the same block instead of receiving a copy through a pipe.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from multiprocessing import get_all_start_methods, get_context, shared_memory
+from multiprocessing import forkserver, get_all_start_methods, get_context, shared_memory
 from multiprocessing.connection import Connection
 from multiprocessing.context import BaseContext
+from multiprocessing.process import BaseProcess
 from pathlib import Path
 
 import numpy as np
@@ -144,9 +148,14 @@ def run_orbslam3_isolated(
     recv, send = ctx.Pipe(duplex=False)
     args = (frames.spec, str(vocab), str(settings), realtime, str(log_path), speed,
             _fault(run), send)  # fmt: skip
-    child = ctx.Process(target=_child, args=args, name=f"orbslam3-run{run}", daemon=True)
     t0 = time.perf_counter()
-    child.start()
+    try:
+        child = start_child(ctx, _child, args, f"orbslam3-run{run}")
+    except ServerDied as e:
+        send.close()
+        recv.close()
+        log.warning("ORB-SLAM3 run %d: %s", run, e)
+        return RunFailure(str(e))
     send.close()  # the child holds the only writer: its death reads as EOF here
     try:
         msg = _receive(recv, timeout_s)
@@ -187,6 +196,51 @@ def _context() -> BaseContext:
     ctx = get_context("forkserver")
     ctx.set_forkserver_preload(_PRELOAD)  # read when the server starts (first run)
     return ctx
+
+
+class ServerDied(Exception):
+    """The fork server was gone when a run was to start (the kernel's OOM killer picks the
+    largest process, and the server holds the engine and its vocabulary)."""
+
+
+def start_child(ctx: BaseContext, target: object, args: tuple, name: str) -> BaseProcess:
+    """Start ``target(*args)`` in a daemon child of ``ctx``. When the fork server died (its
+    socket refuses, or closes before the child's pid arrives), it is cleared so that the next
+    start launches a fresh one, and :class:`ServerDied` is raised: the run it was to serve
+    fails, the batch goes on."""
+    child = ctx.Process(target=target, args=args, name=name, daemon=True)
+    try:
+        child.start()
+    except (OSError, EOFError) as e:
+        if ctx.get_start_method() != "forkserver":
+            raise
+        _clear_fork_server()
+        raise ServerDied(
+            f"the engines' fork server died ({type(e).__name__}: {e}); this run failed, the "
+            "next one starts a fresh server"
+        ) from None
+    return child
+
+
+def _clear_fork_server() -> None:
+    """Forget a dead fork server so that ``ensure_running`` launches a new one. Python keeps
+    the server in ``multiprocessing.forkserver._forkserver`` and relaunches it only when its
+    ``waitpid`` sees it gone; a server killed mid-request can look alive there, so it is
+    killed for sure, reaped, and its state cleared (the attributes CPython 3.9-3.13 use)."""
+    server = forkserver._forkserver
+    with server._lock:
+        pid, alive_fd = server._forkserver_pid, server._forkserver_alive_fd
+        if pid is not None:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(pid, 0)
+        if alive_fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(alive_fd)
+        server._forkserver_pid = None
+        server._forkserver_alive_fd = None
+        server._forkserver_address = None
 
 
 def _receive(recv: Connection, timeout_s: float) -> tuple | None:

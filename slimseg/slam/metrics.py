@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from slimseg.data.bag_poses import degenerate
 from slimseg.data.tum import MAX_DT
 from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EXTRA_HINT
@@ -69,10 +70,16 @@ def score(gt: np.ndarray, est: np.ndarray, fps: float, max_dt: float = MAX_DT) -
     """Score TUM rows ``est [K, 8]`` against ``gt [G, 8]`` (see the module docstring).
     Raises ``SlimsegError`` when fewer than 3 poses associate (nothing to align)."""
     metrics, sync, _, units, ape, rpe = _evo()
+    bad = np.flatnonzero(~np.isfinite(np.asarray(est, np.float64).reshape(-1, 8)).all(1))
+    if len(bad):
+        raise SlimsegError(f"the estimate's pose {bad[0] + 1} is not finite (nan or inf)")
     ref, cand = sync.associate_trajectories(to_evo(gt), to_evo(est), max_diff=max_dt)
     n = cand.num_poses
     if n < 3:
         raise SlimsegError(f"only {n} estimated poses within {max_dt} s of a ground-truth stamp")
+    why = degenerate(np.asarray(cand.positions_xyz))
+    if why:  # the engine's estimate: no rigid alignment exists, so no ATE
+        raise SlimsegError(f"the estimate {why}: it cannot be aligned to the ground truth")
     a = ape(ref, cand, metrics.PoseRelation.translation_part, align=True, correct_scale=False)
     rel = {}
     for name, delta in (("frame", 1), ("s", max(round(fps), 1))):

@@ -113,9 +113,9 @@ def claim_sweep_out(plan: SweepPlan, out: Path) -> None:
     """Refuse an ``out`` holding anything slimseg did not write (``SlimsegError``), then list
     what the sweep will write there (one folder per sequence, the tables) in its manifest
     (:mod:`slimseg.utils.outputs`), before any of it is written."""
-    claim_folder(out, "--out")
-    out.mkdir(parents=True, exist_ok=True)
     folders = [_slug(label) for label in sequence_labels(plan.sequences)]
+    claim_folder(out, "--out", own=[*folders, *SWEEP_TABLES])
+    out.mkdir(parents=True, exist_ok=True)
     add_to_manifest(out, "slam-eval --sweep", [*folders, *SWEEP_TABLES])
 
 

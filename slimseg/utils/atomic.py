@@ -28,7 +28,15 @@ import numpy as np
 import yaml
 
 from slimseg.errors import SlimsegError
-from slimseg.utils.outputs import claim_folder, foreign_entries, refuse_inputs, write_manifest
+from slimseg.utils.manifest import entry_problems
+from slimseg.utils.outputs import (
+    claim_folder,
+    foreign_entries,
+    named_folder,
+    refuse_inputs,
+    write_manifest,
+)
+from slimseg.utils.text import printable
 
 
 @contextmanager
@@ -78,7 +86,7 @@ def staged_dir(
     over, never deleted. A run that wrote nothing changes nothing. On an exception the
     temporary folder (and any parent folder this call created) is removed and ``path`` is
     as before."""
-    path = Path(path)
+    path = named_folder(path, option)
     if path.is_symlink():
         path = path.resolve()  # replace the folder the link points at, keep the link
     refuse_inputs(path, option, inputs or {}, folder=True)
@@ -102,6 +110,12 @@ def _publish(stage: Path, path: Path, command: str) -> None:
     """Move the finished ``stage`` to ``path``; an earlier folder there ends up in ``stage``
     (deleted by the caller) after its foreign entries (a race) moved into the new one."""
     foreign = foreign_entries(path) if path.is_dir() else []  # appeared while it ran
+    changed = entry_problems(path) if path.is_dir() else []  # edited while it ran
+    if changed:
+        raise SlimsegError(
+            f"{path}: {', '.join(printable(c) for c in changed)} while the command ran; move "
+            "it and run again"
+        )
     taken = [name for name in foreign if os.path.lexists(stage / name)]
     if taken:  # the user's entry would be replaced: keep it, and --out as it was
         raise SlimsegError(
@@ -121,23 +135,61 @@ def _publish(stage: Path, path: Path, command: str) -> None:
 
 
 _AT_FDCWD = -100
+_RENAME_NOREPLACE = 1
 _RENAME_EXCHANGE = 2
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); ``False``
-    where the C library or the file system does not offer it."""
+def _renameat2(a: Path, b: Path, flags: int) -> bool:
+    """Linux ``renameat2(a, b, flags)``; ``False`` where the C library or the file system does
+    not offer it; ``OSError`` (``FileExistsError`` for ``EEXIST``) on any other failure."""
     try:
         fn = ctypes.CDLL(None, use_errno=True).renameat2
     except (OSError, AttributeError):
         return False
     fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+    if fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), flags) == 0:
         return True
     err = ctypes.get_errno()
     if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EXDEV):
         return False
     raise OSError(err, os.strerror(err), str(a), None, str(b))
+
+
+def publish_new(src: Path, dst: Path, option: str = "--out") -> None:
+    """Move the finished output ``src`` (a file or a folder) to ``dst``, which must not exist:
+    never replaces anything that appeared at ``dst`` meanwhile. Linux: one
+    ``renameat2(RENAME_NOREPLACE)``; elsewhere a file is hard-linked (which fails when ``dst``
+    exists) and its staged name removed, a folder renamed after a last check.
+    ``SlimsegError`` naming ``option`` when ``dst`` exists."""
+    taken = SlimsegError(
+        f"{option} {dst} appeared while the command ran; it was kept: move it and run again"
+    )
+    try:
+        if _renameat2(src, dst, _RENAME_NOREPLACE):
+            return
+        if src.is_dir() and not src.is_symlink():
+            if os.path.lexists(dst):
+                raise taken
+            os.rename(src, dst)  # onto an existing non-empty folder this fails too
+            return
+        try:
+            os.link(src, dst, follow_symlinks=False)
+        except FileExistsError:
+            raise
+        except OSError:  # no hard links on this file system: the last check, then rename
+            if os.path.lexists(dst):
+                raise taken from None
+            os.rename(src, dst)
+            return
+        os.unlink(src)
+    except FileExistsError:
+        raise taken from None
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); ``False``
+    where the C library or the file system does not offer it."""
+    return _renameat2(a, b, _RENAME_EXCHANGE)
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -4,9 +4,10 @@
 
 * Every folder output slimseg builds (:func:`slimseg.utils.atomic.staged_dir`, ``data synth``,
   ``ablate``) holds a manifest, :data:`MANIFEST`, listing the top-level entries slimseg wrote
-  there and the command that wrote them. An existing ``--out`` folder may be replaced only
-  when everything in it is listed (or it is empty): :func:`claim_folder` refuses any other in
-  one line naming the foreign entries, before the work starts.
+  there, each with its size and content digest (:mod:`slimseg.utils.manifest`), and the
+  command that wrote them. An existing ``--out`` folder may be replaced only when everything
+  in it is listed and unchanged (or it is empty): :func:`claim_folder` refuses any other in
+  one line naming the foreign, changed or unconfined entries, before the work starts.
 * An output that is also an input (``export --weights best.pt --out best.pt``, ``predict
   --source X --out X``, ``val --save-json`` onto the split's own annotations) is refused by
   :func:`refuse_inputs`; a folder output may not contain an input either (it is replaced
@@ -29,12 +30,20 @@ from __future__ import annotations
 import json
 import os
 import re
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.manifest import (
+    MANIFEST,
+    confined_name,
+    entry_problems,
+    manifest_text,
+    read_entries,
+    record_entries,
+)
+from slimseg.utils.text import printable
 
-MANIFEST = ".slimseg-outputs.json"  # in every folder output: what slimseg wrote there
 ALLOW_OUTSIDE_ENV = "SLIMSEG_ALLOW_OUTSIDE_ROOT"  # set by `slimseg --allow-outside-root`
 ALLOW_OUTSIDE_FLAG = "--allow-outside-root"
 FOLDER_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")  # names that become folders
@@ -42,34 +51,36 @@ _SHOWN = 4  # foreign entries named in a refusal
 
 
 def read_manifest(folder: Path) -> set[str] | None:
-    """The entries slimseg's manifest in ``folder`` lists, or ``None`` without a readable one."""
-    try:
-        data = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    entries = data.get("entries") if isinstance(data, dict) else None
-    if not isinstance(entries, list) or not all(isinstance(e, str) for e in entries):
-        return None
-    return set(entries)
+    """The names ``folder``'s manifest lists (confined or not: :func:`claim_folder` checks),
+    or ``None`` without a readable one."""
+    entries = read_entries(folder)
+    return None if entries is None else set(entries)
 
 
-def manifest_text(command: str, entries: Iterable[str]) -> str:
-    """The manifest of a folder holding ``entries`` (top-level names) written by ``command``."""
-    names = sorted(set(entries) - {MANIFEST})
-    return json.dumps({"written_by": f"slimseg {command}", "entries": names}, indent=1) + "\n"
-
-
-def write_manifest(folder: Path, command: str, entries: Iterable[str] | None = None) -> None:
-    """Record ``entries`` (default: everything now in ``folder``) as slimseg's, atomically."""
+def write_manifest(
+    folder: Path, command: str, entries: Iterable[str] | None = None, announced: Iterable[str] = ()
+) -> None:
+    """Record ``entries`` (default: everything now in ``folder``) as slimseg's, each with what
+    is there now (kind, size, SHA-256: :mod:`slimseg.utils.manifest`), atomically. A name in
+    ``announced`` that does not exist yet is listed as to be written (``null``)."""
     from slimseg.utils.atomic import write_text  # atomic builds on this module
 
+    announced = set(announced)
     names = [p.name for p in folder.iterdir()] if entries is None else list(entries)
-    write_text(folder / MANIFEST, manifest_text(command, names))
+    names += sorted(announced - set(names))
+    write_text(folder / MANIFEST, manifest_text(command, record_entries(folder, names, announced)))
 
 
 def add_to_manifest(folder: Path, command: str, entries: Iterable[str]) -> None:
-    """Add ``entries`` to ``folder``'s manifest (a folder written to as a command goes)."""
-    write_manifest(folder, command, (read_manifest(folder) or set()) | set(entries))
+    """List ``entries`` in ``folder``'s manifest as announced (``null``: a folder written to
+    as a command goes, like a resumable sweep, whose entries change between runs); earlier
+    entries keep their records."""
+    names = set(entries)
+    kept = {n: r for n, r in (read_entries(folder) or {}).items() if n not in names}
+    body = kept | dict.fromkeys(n for n in names if confined_name(n))
+    from slimseg.utils.atomic import write_text  # atomic builds on this module
+
+    write_text(folder / MANIFEST, manifest_text(command, body))
 
 
 def foreign_entries(folder: Path) -> list[str]:
@@ -79,21 +90,45 @@ def foreign_entries(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name != MANIFEST and p.name not in owned)
 
 
-def claim_folder(path: str | Path, option: str = "--out") -> None:
+def _shown(names: list[str]) -> str:
+    more = f" (+{len(names) - _SHOWN} more)" if len(names) > _SHOWN else ""
+    return ", ".join(printable(n) for n in names[:_SHOWN]) + more
+
+
+def named_folder(path: str | Path, option: str = "--out") -> Path:
+    """``path`` as a folder output that can be built beside itself and moved into place:
+    ``SlimsegError`` for an empty path, ``.``, ``..`` or ``/`` (the current folder, a parent
+    or the root would be replaced whole, or written into among the user's files)."""
+    text = os.fspath(path)
+    if not text.strip() or Path(text).name in ("", ".", ".."):
+        raise SlimsegError(
+            f"{option} {text!r}: give a named folder (e.g. {option} runs/out), not the current, "
+            "a parent or the root folder"
+        )
+    return Path(text)
+
+
+def claim_folder(path: str | Path, option: str = "--out", own: Collection[str] = ()) -> None:
     """``SlimsegError`` (one line) unless ``path`` is new, an empty folder or a folder whose
-    every entry slimseg wrote; a file where the folder goes is refused too."""
-    path = Path(path)
+    every entry slimseg wrote and nobody changed since; a file where the folder goes is
+    refused too. ``own``: the names the calling command writes, which may take over an entry
+    listed without a record (a resumable sweep's, an older slimseg's manifest)."""
+    path = named_folder(path, option)
     if not os.path.lexists(path):
         return
     if not path.is_dir():
         raise SlimsegError(f"{option} {path} is a file, not a folder: give a folder path")
     foreign = foreign_entries(path)
     if foreign:
-        shown = ", ".join(foreign[:_SHOWN]) + (f" (+{len(foreign) - _SHOWN} more)"
-                                               if len(foreign) > _SHOWN else "")  # fmt: skip
         raise SlimsegError(
-            f"{option} {path} holds files slimseg did not write ({shown}): give a new or empty "
-            "folder (slimseg replaces its own outputs only)"
+            f"{option} {path} holds files slimseg did not write ({_shown(foreign)}): give a new "
+            "or empty folder (slimseg replaces its own outputs only)"
+        )
+    problems = entry_problems(path, own)
+    if problems:
+        raise SlimsegError(
+            f"{option} {path}: its {MANIFEST} lists entries slimseg may not remove "
+            f"({_shown(problems)}): give a new or empty folder, or clear this one yourself"
         )
 
 
@@ -116,7 +151,10 @@ def refuse_inputs(
             continue
         values = [value] if isinstance(value, str | Path) else list(value)
         for v in values:
-            src = Path(v).expanduser().resolve()
+            try:
+                src = Path(v).expanduser().resolve()
+            except (ValueError, OSError):  # a name no file can have (a lone surrogate, NUL)
+                continue
             if src == target or (folder and _same_or_inside(src, target)):
                 raise SlimsegError(
                     f"{option} {out} would overwrite the input {name} {v}: write the output "

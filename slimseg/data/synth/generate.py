@@ -25,7 +25,8 @@ from slimseg.data.synth.world_frames import (
 )
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_png, write_text
-from slimseg.utils.outputs import claim_folder, read_manifest, write_manifest
+from slimseg.utils.manifest import confined_name
+from slimseg.utils.outputs import claim_folder, named_folder, read_manifest, write_manifest
 
 _WRITES = ("train", "val", "sequences", *FOLDER.values(), "data.yaml")  # every entry it makes
 
@@ -105,12 +106,13 @@ def _check(
         )
     if min(seq_size) < 64:
         raise SlimsegError(f"--seq-size {seq_size[0]} {seq_size[1]}: both must be at least 64")
+    named_folder(out, "--out")
     if out.exists() and not out.is_dir():
         raise SlimsegError(f"--out {out} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise SlimsegError(f"--out {out} is not empty (pass --overwrite to replace the dataset)")
     if overwrite:  # only a folder data synth wrote (its manifest lists every entry)
-        claim_folder(out, "--out")
+        claim_folder(out, "--out", own=_WRITES)
 
 
 def generate(
@@ -153,14 +155,16 @@ def generate(
     )
     start = time.perf_counter()
     if overwrite and out.is_dir():  # claimed by _check: every entry is an earlier synth's
-        for name in sorted(read_manifest(out) or ()):
+        for name in sorted(read_manifest(out) or ()):  # each confined and unchanged (_check)
+            if not confined_name(name):
+                continue
             p = out / name
             if p.is_dir() and not p.is_symlink():
                 shutil.rmtree(p)
             elif os.path.lexists(p):
                 p.unlink()
     out.mkdir(parents=True, exist_ok=True)
-    write_manifest(out, "data synth", _WRITES)  # so an interrupted run can be overwritten
+    write_manifest(out, "data synth", (), announced=_WRITES)  # an interrupted run: overwritable
     report = SynthReport(data_yaml=out / "data.yaml", sequences=sequences, frames=frames)
     total = train + val + sequences * frames + (worlds.train + worlds.val) * worlds.per_world
     world_folders: dict[str, list[str]] = {}
@@ -199,7 +203,7 @@ def generate(
         worlds=worlds,
     )
     _write_data_yaml(out, command, train > 0, sequences, world_folders)
-    write_manifest(out, "data synth")  # what --overwrite may delete next time
+    write_manifest(out, "data synth", _WRITES)  # what --overwrite may delete next time
     report.seconds = time.perf_counter() - start
     return report
 
