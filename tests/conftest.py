@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -49,6 +51,22 @@ def batchnorm_from(model: nn.Module, batch: torch.Tensor) -> nn.Module:
     with torch.no_grad():
         model(batch)
     return model.eval()
+
+
+def class_map_weights(seq: Path, path: Path) -> Path:
+    """An MSNET-T (64 px; classes person, mobility 1, and chair, 0) whose batch norms are
+    fitted to the frames of the TUM folder ``seq``, saved to ``path``: a class map with a mover
+    on about a quarter of each frame, for the tests that mask recordings."""
+    from slimseg.data.tum import TumSequence
+    from slimseg.models.checkpoint import WeightsInfo, save_weights
+
+    tum = TumSequence(seq)
+    rgb = np.stack([cv2.resize(tum.load(i)[0], (64, 64)) for i in range(len(tum))])
+    torch.manual_seed(4)
+    model = batchnorm_from(build_model("msnet-t", num_classes=2),
+                           torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255)  # fmt: skip
+    info = WeightsInfo(model.spec, ["person", "chair"], [1.0, 0.0], train_config={"imgsz": 64})
+    return save_weights(path, model, info)
 
 
 def open_class_bias(model: nn.Module) -> nn.Module:

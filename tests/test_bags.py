@@ -14,8 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
-from conftest import batchnorm_from
+from conftest import class_map_weights
 from test_bad_inputs_content import png_bomb
 
 from slimseg.cli.main import main
@@ -27,8 +26,6 @@ from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
 from slimseg.data.tum_to_bag import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
 from slimseg.dynamic.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
-from slimseg.models.checkpoint import WeightsInfo, save_weights
-from slimseg.models.registry import build_model
 from slimseg.utils.atomic import write_png
 
 pytest.importorskip("rosbags")
@@ -59,14 +56,7 @@ class Env:
         for name, (storage, colour, depth) in BAGS.items():
             self.bags[name] = root / "bags" / name
             tum_to_bag(self.seq, self.bags[name], storage, colour, depth)
-        tum = TumSequence(self.seq)
-        rgb = np.stack([cv2.resize(tum.load(i)[0], (64, 64)) for i in range(len(tum))])
-        torch.manual_seed(4)  # a class map with a mover on a quarter of the frame
-        model = batchnorm_from(build_model("msnet-t", num_classes=2),
-                               torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255)  # fmt: skip
-        info = WeightsInfo(model.spec, ["person", "chair"], [1.0, 0.0],
-                           train_config={"imgsz": 64})  # fmt: skip
-        self.weights = save_weights(root / "w.pt", model, info)
+        self.weights = class_map_weights(self.seq, root / "w.pt")
         self.folder_out = root / "folder_out"
         assert main(self.dynamic(self.seq, self.folder_out)) == 0
 

@@ -11,14 +11,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
-from conftest import batchnorm_from
+from conftest import class_map_weights
 
 from slimseg.cli.main import main
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name
-from slimseg.models.checkpoint import WeightsInfo, save_weights
-from slimseg.models.registry import build_model
 
 pytest.importorskip("rerun")
 
@@ -30,14 +27,7 @@ class Env:
         generate(root / "d", 0, 0, 64, 0, sequences=1, frames=FRAMES, seq_size=(160, 128),
                  progress=False)  # fmt: skip
         self.seq = root / "d" / "sequences" / "seq_000"
-        tum = TumSequence(self.seq)
-        rgb = np.stack([cv2.resize(tum.load(i)[0], (64, 64)) for i in range(len(tum))])
-        torch.manual_seed(4)  # a class map with a mover on a quarter of the frame
-        model = batchnorm_from(build_model("msnet-t", num_classes=2),
-                               torch.from_numpy(rgb).permute(0, 3, 1, 2).float() / 255)  # fmt: skip
-        info = WeightsInfo(model.spec, ["person", "chair"], [1.0, 0.0],
-                           train_config={"imgsz": 64})  # fmt: skip
-        self.weights = save_weights(root / "w.pt", model, info)
+        self.weights = class_map_weights(self.seq, root / "w.pt")
 
     def common(self) -> list[str]:
         return ["--model", str(self.weights), "--conf", "0", "--threads", "1", "--quiet"]
