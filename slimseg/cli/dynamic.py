@@ -19,7 +19,7 @@ from slimseg.cli.arg_types import count, threads
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
-from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
+from slimseg.cli.rerun_args import add_rerun_arg, kept_recording, rerun_path
 from slimseg.cli.track_args import (
     add_dropout_arg,
     add_rate_args,
@@ -190,29 +190,23 @@ def run(args: argparse.Namespace) -> int:
         truth = seq.root / "dynamic"  # a synthetic sequence's ground-truth masks, if any
         viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)
         observers.append(viz)
-    try:
-        with _staged_output(out, seq, bag_out, args, boxes) as stage:  # complete or not at all
-            report = run_sequence(
-                predictor,
-                seq,
-                stage,
-                args.mode,
-                masking,
-                args.keypoints,
-                progress=not args.quiet,
-                epipolar_depth=args.epipolar_depth,
-                track=track,
-                fps=args.fps,
-                observers=observers,
-                use_depth=not args.no_depth,
-            )
-            restored = _restore(args, seq, stage, restore_mask) if args.restore else None
-    except BaseException:
-        if viz is not None:
-            viz.discard()
-        raise
-    if viz is not None:
-        print(f"Rerun recording of {viz.frames} frames: {viz.finish()}")
+    # the outputs complete or not at all; the recording kept only if they are
+    with kept_recording(viz), _staged_output(out, seq, bag_out, args, boxes) as stage:
+        report = run_sequence(
+            predictor,
+            seq,
+            stage,
+            args.mode,
+            masking,
+            args.keypoints,
+            progress=not args.quiet,
+            epipolar_depth=args.epipolar_depth,
+            track=track,
+            fps=args.fps,
+            observers=observers,
+            use_depth=not args.no_depth,
+        )
+        restored = _restore(args, seq, stage, restore_mask) if args.restore else None
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     where = f"bag {out} on {MASK_TOPIC}" if bag_out else out / "masks"
     if boxes is not None:

@@ -40,7 +40,7 @@ from tqdm import tqdm
 
 from slimseg.cli.arg_types import FRACTION, count, multiple_of, threads
 from slimseg.cli.commands import COMMAND_HELP
-from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
+from slimseg.cli.rerun_args import add_rerun_arg, kept_recording, rerun_path
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
 from slimseg.data.bag_colour import BagColour
 from slimseg.data.bag_reader import is_bag
@@ -348,17 +348,11 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
         from slimseg.dynamic.rerun_frames import RerunFrames
 
         viz = RerunFrames(rerun, list(predictor.names), "slimseg predict --track")
-    try:
+    with kept_recording(viz):
         report = track_predict(
             predictor, frames, out_dir, plan, args.conf, args.iou, args.max_det, fps=fps,
             total=total, progress=not args.quiet, observers=[] if viz is None else [viz],
         )  # fmt: skip
-    except BaseException:
-        if viz is not None:
-            viz.discard()
-        raise
-    if viz is not None:
-        print(f"Rerun recording of {viz.frames} frames: {viz.finish()}")
     print(report.summary())
     for note in report.notes:
         print(note)

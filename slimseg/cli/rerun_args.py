@@ -4,9 +4,15 @@ the run beside its usual outputs (the ``slimseg[viz]`` extra; docs/viewers.md)."
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from slimseg.errors import SlimsegError
+
+if TYPE_CHECKING:
+    from slimseg.dynamic.rerun_frames import RerunFrames
 
 
 def add_rerun_arg(p: argparse.ArgumentParser, what: str) -> None:
@@ -34,3 +40,17 @@ def rerun_path(args: argparse.Namespace, out: Path, inputs: dict) -> Path | None
     if target == folder or folder in target.parents:
         raise SlimsegError(f"--rerun {path} lies in --out {out}: write it beside the folder")
     return check_rrd_path(path)
+
+
+@contextmanager
+def kept_recording(viz: RerunFrames | None) -> Iterator[None]:
+    """The block writes the Rerun recording ``viz`` (None: no ``--rerun``): discarded when the
+    block raises, else finished and named on one printed line."""
+    try:
+        yield
+    except BaseException:
+        if viz is not None:
+            viz.discard()
+        raise
+    if viz is not None:
+        print(f"Rerun recording of {viz.frames} frames: {viz.finish()}")
