@@ -27,11 +27,13 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
-from slimseg.data.bag_sequence import BagSequence
-from slimseg.data.bag_writer import STORAGES
+from slimseg.data.bags.sequence import BagSequence
+from slimseg.data.bags.writer import STORAGES
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.sequence_source import open_sequence
 from slimseg.data.tum import mask_name
+from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.mask_bag import (
     MASK_TOPIC,
@@ -42,6 +44,7 @@ from slimseg.dynamic.mask_bag import (
     write_mask_bag,
     writes_foxglove,
 )
+from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.pipeline import MODES
 from slimseg.dynamic.restore_run import (
     REPORT_HEADERS,
@@ -51,6 +54,7 @@ from slimseg.dynamic.restore_run import (
 )
 from slimseg.dynamic.sequence_report import SequenceReport
 from slimseg.dynamic.sequence_run import run_sequence
+from slimseg.dynamic.track_run import TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.outputs import refuse_inputs
@@ -153,7 +157,21 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     bag_out = _bag_output(args, out)
     rerun = rerun_path(args, out, {"--sequence": args.sequence, "--model": args.model})
-    seq = open_sequence(sequence, bag_options_from_args(args))  # fails before the model loads
+    with open_sequence(sequence, bag_options_from_args(args)) as seq:  # before the model loads
+        return _run(args, seq, masking, track, dropout, bag_out, rerun)
+
+
+def _run(
+    args: argparse.Namespace,
+    seq: FrameSource,
+    masking: MaskingSettings,
+    track: TrackPlan,
+    dropout: Dropout | None,
+    bag_out: bool,
+    rerun: Path | None,
+) -> int:
+    """:func:`run` on the opened sequence (closed by the caller)."""
+    sequence, out = Path(args.sequence), Path(args.out)
     if isinstance(seq, BagSequence):
         if args.gt_instances:
             raise SlimsegError("--gt-instances reads a synthetic TUM folder's annotations.json; "
@@ -310,7 +328,7 @@ def _bag_output(args: argparse.Namespace, out: Path) -> bool:
 @contextmanager
 def _staged_output(
     out: Path,
-    seq: Sequence,
+    seq: FrameSource,
     bag_out: bool,
     args: argparse.Namespace,
     boxes: list[FrameBoxes] | None = None,
@@ -338,7 +356,7 @@ def _staged_output(
                 p.rmdir()
 
 
-def _restore(args: argparse.Namespace, seq: Sequence, out: Path, which: str) -> RestoreReport:
+def _restore(args: argparse.Namespace, seq: FrameSource, out: Path, which: str) -> RestoreReport:
     """Restore the frames into ``out/restored`` (``out``: the staging folder, holding this
     run's ``masks/``); with a true background, the score table in ``out/restoration.csv``."""
     folder = out / "masks" if which == "pred" else seq.root / "dynamic"

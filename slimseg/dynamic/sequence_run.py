@@ -26,8 +26,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.sequence_source import opens_sequence
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
@@ -56,7 +57,7 @@ Observer = Callable[[MaskedFrame, np.ndarray, np.ndarray], None]
 
 def sequence_masker(
     predictor: object,
-    seq: Sequence,
+    seq: FrameSource,
     mode: str = "fusion",
     masking: MaskingSettings = DEFAULT,
     keypoints: int = 1000,
@@ -77,7 +78,7 @@ def sequence_masker(
     )  # fmt: skip
 
 
-def scored_modes(predictor: object, seq: Sequence) -> tuple[str, ...]:
+def scored_modes(predictor: object, seq: FrameSource) -> tuple[str, ...]:
     """The modes a run scores besides its own: every mode where ground-truth ``dynamic/``
     masks exist; with ground-truth instances the epipolar check too, for its tally."""
     score = MODES if (seq.root / "dynamic").is_dir() else ()
@@ -86,9 +87,10 @@ def scored_modes(predictor: object, seq: Sequence) -> tuple[str, ...]:
     return score
 
 
+@opens_sequence
 def run_sequence(
     predictor: object,
-    sequence: Path | Sequence,
+    sequence: Path | FrameSource,
     out: Path,
     mode: str = "fusion",
     masking: MaskingSettings = DEFAULT,
@@ -113,7 +115,7 @@ def run_sequence(
     boxes of a Foxglove write-back). ``use_depth`` False: the chain sees no depth image (what
     an RGB-only camera gives). A loop over
     :class:`~slimseg.dynamic.frame_masker.FrameMasker` (:func:`sequence_masker`)."""
-    seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
+    seq = sequence  # a path was opened by @opens_sequence
     gt = predictor if isinstance(predictor, AnnotationInstances) else None
     score = scored_modes(predictor, seq)
     live = track.rate.thread  # real time: the analysis runs on a replay afterwards
@@ -152,7 +154,7 @@ class _Analysis:
     in the live loop would take the CPU and the GIL from the model's thread)."""
 
     def __init__(
-        self, seq: Sequence, gt_instances: AnnotationInstances | None, report: SequenceReport
+        self, seq: FrameSource, gt_instances: AnnotationInstances | None, report: SequenceReport
     ) -> None:
         self.report, self.gt_instances = report, gt_instances
         self.gt_dir = seq.root / "dynamic"
@@ -195,7 +197,7 @@ class _Analysis:
 
 def _loop(
     masker: FrameMasker,
-    seq: Sequence,
+    seq: FrameSource,
     out: Path,
     report: SequenceReport,
     analysis: _Analysis | None,
