@@ -31,9 +31,7 @@ def is_end2end(meta: dict[str, Any]) -> bool:
     return isinstance(meta.get("end2end"), dict)
 
 
-def end2end_limits(
-    meta: dict[str, Any], conf: float, iou: float, max_det: int, where: str
-) -> None:
+def end2end_limits(meta: dict[str, Any], conf: float, iou: float, max_det: int, where: str) -> None:
     """Log a warning when a request asks for what the graph's baked-in NMS cannot give: a
     ``conf`` below the graph's, another ``iou`` or more than its ``max_det`` rows (the graph's
     values apply there)."""

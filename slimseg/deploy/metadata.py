@@ -293,8 +293,8 @@ def check_graph_outputs(path: str | Path, meta: dict[str, Any], graph: dict[str,
                 f"{path}: the metadata describes output {name!r}, the graph has "
                 f"{', '.join(sorted(graph)) or 'no outputs'}; re-export it with slimseg export"
             )
-        dim = shape[1] if len(shape) > 1 else None
-        if len(shape) != rank or (isinstance(dim, int) and channels is not None and dim != channels):
+        dim = shape[1] if len(shape) > 1 and channels is not None else None
+        if len(shape) != rank or (isinstance(dim, int) and dim != channels):
             raise SlimsegError(
                 f"{path}: output {name!r} has shape {list(shape)}, the metadata "
                 f"({len(meta['names'])} names) implies rank {rank} with {channels} channels; "
