@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+import subprocess
 import warnings
 from pathlib import Path
 
@@ -13,10 +14,11 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import batchnorm_from, open_class_bias
+from conftest import batchnorm_from, have_cpp_toolchain, open_class_bias
 from test_core_install import BLOCK, _python
 
 from slimseg.cli.main import main
+from slimseg.data.synth.scene import STREAM_VAL, render_image
 from slimseg.deploy.end2end_graph import End2EndSettings, append_end2end
 from slimseg.deploy.end2end_parity import (
     FP16_MATCH_FRACTION,
@@ -31,6 +33,7 @@ from slimseg.deploy.onnx_io import publish, stage, staging_dir
 from slimseg.deploy.parity import ExportParityError
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.preprocess import preprocess_frame
+from slimseg.deploy.raw_dump import frame_dump, read_raw, write_raw
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
@@ -209,3 +212,48 @@ def test_val_refuses_an_end2end_export(files) -> None:
     with pytest.raises(SlimsegError, match="end-to-end export"):
         OnnxModel(files["fp32"])
     assert copy.deepcopy(SETTINGS) == SETTINGS
+
+
+def _cpp_results(example: Path, predictor: Predictor, frames, folder: Path, conf: float):
+    """Dump ``frames`` through ``predictor`` (raw or end-to-end outputs) and run the C++
+    example on the dumps; its results per frame."""
+    dumps, out = folder / "dumps", folder / "out"
+    dumps.mkdir(parents=True)
+    (dumps / "metadata.json").write_text(json.dumps(predictor.metadata))
+    rng = np.random.default_rng(0)
+    for i, image in enumerate(frames):
+        (h, w), raw = image.shape[:2], {}
+        predictor.predict(image, conf=1.0, raw=raw)
+        kps = rng.uniform((0, 0), (w, h), (100, 2)).astype(np.float32)
+        write_raw(dumps / f"f{i}.ssraw", frame_dump(raw, (h, w), kps))
+    cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
+    cmd += ["--conf", str(conf), "--max-det", str(MAX_DET), "--results"]
+    done = subprocess.run([*cmd, "--out", str(out)],
+                          capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    return [read_raw(out / f"f{i}.ssres") for i in range(len(frames))]
+
+
+@pytest.mark.skipif(not have_cpp_toolchain(), reason="needs cmake and a C++ compiler")
+def test_cpp_consumer_reads_end2end_outputs_like_the_raw_ones(example, files, tmp_path) -> None:
+    gate = gate_frames(IMGSZ, 2)
+    # no resize (160 x 160), letterboxed 4:3, non-multiples of 32 and upscaled
+    square = render_image(0, 5, 160, STREAM_VAL).rgb
+    frames = [square, gate[0], gate[1][:97, :131], gate[0][:50, :70]]
+    e2e = Predictor.from_path(files["fp32"], threads=1)
+    conf = 0.25
+    cpp_e2e = _cpp_results(example, e2e, frames, tmp_path / "e2e", conf)
+    cpp_raw = _cpp_results(example, Predictor.from_path(files["raw32"], threads=1), frames,
+                           tmp_path / "raw", conf)  # fmt: skip
+    total = 0
+    for i, image in enumerate(frames):
+        py = e2e.predict(image, conf=conf, iou=0.7, max_det=MAX_DET)
+        got, ref = cpp_e2e[i], cpp_raw[i]
+        total += len(py.scores)
+        np.testing.assert_array_equal(got["classes"], py.classes)
+        np.testing.assert_array_equal(got["scores"], py.scores)
+        np.testing.assert_allclose(got["boxes"], py.boxes, rtol=0, atol=1e-3)
+        np.testing.assert_array_equal(got["masks"] > 0, py.masks)  # same probabilities, same rule
+        for key in ("classes", "scores", "boxes", "masks", "dynamic"):  # raw path in C++
+            np.testing.assert_array_equal(got[key], ref[key], err_msg=f"frame {i} {key}")
+    assert total >= 10

@@ -31,16 +31,21 @@ def is_end2end(meta: dict[str, Any]) -> bool:
     return isinstance(meta.get("end2end"), dict)
 
 
-def end2end_limits(meta: dict[str, Any], conf: float, iou: float, max_det: int, where: str) -> None:
-    """Log a warning when a request asks for what the graph's baked-in NMS cannot give: a
-    ``conf`` below the graph's, another ``iou`` or more than its ``max_det`` rows (the graph's
-    values apply there)."""
+_warned: set[tuple] = set()
+
+
+def end2end_limits(meta: dict[str, Any], conf: float, iou: float, where: str) -> None:
+    """Log a warning (once per model and request) when a request asks for what the graph's
+    baked-in NMS cannot give: a ``conf`` below the graph's or another ``iou`` (the graph's
+    values apply). A ``max_det`` above the graph's is bounded by its rows silently."""
     e2e = meta["end2end"]
-    if conf < float(e2e["conf"]) or iou != float(e2e["iou"]) or max_det > int(e2e["max_det"]):
+    key = (where, conf, iou)
+    if (conf < float(e2e["conf"]) or iou != float(e2e["iou"])) and key not in _warned:
+        _warned.add(key)
         log.warning(
-            "%s: end-to-end graph with conf %s, iou %s, max_det %s inside; asked for conf %s, "
-            "iou %s, max_det %s: the graph's values bound these",
-            where, e2e["conf"], e2e["iou"], e2e["max_det"], conf, iou, max_det,
+            "%s: end-to-end graph with conf %s, iou %s inside; asked for conf %s, iou %s: the "
+            "graph's values apply",
+            where, e2e["conf"], e2e["iou"], conf, iou,
         )  # fmt: skip
 
 

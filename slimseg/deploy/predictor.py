@@ -190,7 +190,7 @@ class Predictor:
         max_det: int,
     ) -> list[Prediction]:
         if isinstance(outputs, dict):
-            end2end_limits(self.metadata, conf, iou, max_det, str(self.path))
+            end2end_limits(self.metadata, conf, iou, str(self.path))
             return end2end_predictions(
                 outputs, metas, self.names, self.mobility, conf, max_det
             )  # fmt: skip
