@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import subprocess
 import warnings
 from pathlib import Path
@@ -86,8 +87,10 @@ def _end2end_of(raw: Path, out: Path, settings: End2EndSettings = SETTINGS, meta
     ``meta_settings`` (default: the same)."""
     proto = onnx.load(str(raw))
     meta = json.loads(raw.with_suffix(".json").read_text())
-    batch = "batch" if meta["dynamic_shapes"] else 1
-    append_end2end(proto, len(NAMES), int(meta["num_masks"]), settings, batch)
+    batch, anchors = "batch", None
+    if not meta["dynamic_shapes"]:
+        batch, anchors = 1, sum((IMGSZ[0] // s) * (IMGSZ[1] // s) for s in meta["strides"])
+    append_end2end(proto, len(NAMES), int(meta["num_masks"]), settings, batch, anchors)
     meta = with_end2end(meta, (meta_settings or settings).as_dict())
     with staging_dir(out) as tmp:
         publish(stage(proto, meta, tmp, out.name), meta, out)
@@ -257,3 +260,40 @@ def test_cpp_consumer_reads_end2end_outputs_like_the_raw_ones(example, files, tm
         for key in ("classes", "scores", "boxes", "masks", "dynamic"):  # raw path in C++
             np.testing.assert_array_equal(got[key], ref[key], err_msg=f"frame {i} {key}")
     assert total >= 10
+
+
+@pytest.mark.parametrize(("version", "code"), [("v8500", 2), ("v8601", 0), ("v110000", 0)])
+def test_build_engine_takes_end2end_files_from_tensorrt_8_6(tmp_path, version, code) -> None:
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    fake = bin_dir / "trtexec"
+    fake.write_text(f'#!/usr/bin/env bash\n[ "$1" = --help ] && echo "TensorRT {version}"\ntrue\n')
+    fake.chmod(0o755)
+    (tmp_path / "m.onnx").write_bytes(b"")
+    meta = {"imgsz": [64, 64], "dynamic_shapes": False, "precision": "fp16", "end2end": {}}
+    (tmp_path / "m.json").write_text(json.dumps(meta))
+    script = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+    done = subprocess.run(["bash", str(script), str(tmp_path / "m.onnx")], env=env,
+                          capture_output=True, text=True)  # fmt: skip
+    assert done.returncode == code, done.stderr
+    assert code == 0 or "needs TensorRT >= 8.6" in done.stderr
+
+
+def test_opencv_dnn_runs_the_fp32_end2end_graph(files) -> None:
+    import cv2
+    import onnxruntime as ort
+
+    x = preprocess_frame(gate_frames(IMGSZ, 1)[0], IMGSZ)[0]
+    net = cv2.dnn.readNetFromONNX(str(files["fp32"]))
+    net.setInput(x)
+    names = list(net.getUnconnectedOutLayersNames())
+    got = dict(zip(names, net.forward(names), strict=True))
+    session = ort.InferenceSession(str(files["fp32"]), providers=["CPUExecutionProvider"])
+    ref = dict(zip([o.name for o in session.get_outputs()], session.run(None, {"images": x}),
+                   strict=True))  # fmt: skip
+    assert ref["num_dets"][0] > 0
+    np.testing.assert_array_equal(got["num_dets"], ref["num_dets"])
+    np.testing.assert_array_equal(got["classes"], ref["classes"])
+    np.testing.assert_allclose(got["boxes"], ref["boxes"], rtol=0, atol=2e-3)
+    np.testing.assert_allclose(got["masks"], ref["masks"], rtol=0, atol=1e-3)

@@ -105,11 +105,17 @@ def _output_type(proto: onnx.ModelProto, name: str) -> int:
 
 
 def append_end2end(
-    proto: onnx.ModelProto, nc: int, nm: int, settings: End2EndSettings, batch: int | str
+    proto: onnx.ModelProto,
+    nc: int,
+    nm: int,
+    settings: End2EndSettings,
+    batch: int | str,
+    anchors: int | None = None,
 ) -> onnx.ModelProto:
     """``proto`` (a raw YOLOv8 export, modified in place and returned) with the post-processing
     sub-graph of the module docstring; ``nc`` classes, ``nm`` mask coefficients (0: detector);
-    ``batch``: the static batch size or the name of the dynamic axis."""
+    ``batch``: the static batch size or the name of the dynamic axis; ``anchors``: ``A`` of a
+    static input size (``None``: dynamic H, W)."""
     if settings.max_det < 1:
         raise SlimsegError(f"--max-det {settings.max_det}: need at least 1")
     g, b = proto.graph, _Builder(proto.graph)
@@ -139,10 +145,15 @@ def append_end2end(
     kept = b.one("GatherND", best, pairs)  # [N]
     empty = b.one("Sub", b.one("Mul", best, b.const(0.0, np.float32)), b.const(1.0, np.float32))
     grid = b.one("ScatterND", empty, pairs, kept)  # [B, A]: survivors' scores, -1 elsewhere
-    anchors = b.one("Gather", b.one("Shape", grid), b.const([1]), axis=0)
-    k = b.one("Min", anchors, b.const([settings.max_det]))
+    if anchors is None:  # dynamic H, W: K = min(A, max_det) from the shape
+        count_a = b.one("Gather", b.one("Shape", grid), b.const([1]), axis=0)
+        k = b.one("Min", count_a, b.const([settings.max_det]))
+        pad = b.one("Sub", b.const([settings.max_det]), k)
+    else:  # static: constants (TensorRT's TopK takes K as an initializer)
+        k = b.const([min(anchors, settings.max_det)])
+        pad = b.const([settings.max_det - min(anchors, settings.max_det)])
     top_v, top_i = b.op("TopK", [grid, k], n_out=2, axis=1, largest=1, sorted=1)
-    pads = b.one("Concat", b.const([0, 0, 0]), b.one("Sub", b.const([settings.max_det]), k), axis=0)
+    pads = b.one("Concat", b.const([0, 0, 0]), pad, axis=0)
     top_v = b.one("Pad", top_v, pads, b.const(-1.0, np.float32))  # [B, K]
     top_i = b.one("Pad", top_i, pads, b.const(0))
     valid = b.one("Greater", top_v, b.const(-0.5, np.float32))  # [B, K]

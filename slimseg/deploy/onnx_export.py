@@ -194,7 +194,8 @@ def export_onnx(
             nm = int(meta.get("num_masks", 0))
             batch = "batch" if dynamic else 1
             end2end = replace(end2end, proto_stride=int(meta.get("proto_stride", 4)))
-            proto = append_end2end(proto, model.num_classes, nm, end2end, batch)
+            anchors = None if dynamic else sum((h // s) * (w // s) for s in meta["strides"])
+            proto = append_end2end(proto, model.num_classes, nm, end2end, batch, anchors)
             meta = with_end2end(meta, end2end.as_dict())
             candidate = stage(proto, meta, tmp_dir, out.name)
             parity.update(verify_end2end(raw_path, candidate, imgsz, dynamic))
