@@ -13,7 +13,7 @@ so that about ``--density`` of the anchor-class scores exceed 0.5 (tens of detec
 frame, as a trained model on a busy scene; a random head scores nothing or everything).
 
     python benchmarks/end2end_latency.py [--model yolov8n-seg] [--imgsz 320 640] [--threads 1]
-        [--runs 30] [--nc 80]
+        [--runs 30] [--nc 80] [--max-det 300]
 
 Prints per size: milliseconds (median) of the network and the post-processing of each path,
 their totals and the ratios end2end / raw, and the detections both kept (score > 0.25).
@@ -67,21 +67,26 @@ def scored_model(name: str, nc: int, imgsz: int, density: float) -> nn.Module:
     return model
 
 
-def timed(predictor: Predictor, frame: np.ndarray, runs: int) -> dict[str, float]:
-    """Median ms of the network, the post-processing and the whole ``predict`` call."""
+def timed(predictors: dict[str, Predictor], frame: np.ndarray, runs: int) -> dict[str, dict]:
+    """Median ms of the network, the post-processing and the whole ``predict`` call of each
+    predictor; the predictors alternate call by call, so a busy machine slows both alike."""
     keys = ("inference", "postprocess", "total")
-    samples: dict[str, list[float]] = {k: [] for k in keys}
+    samples: dict[str, dict[str, list[float]]] = {t: {k: [] for k in keys} for t in predictors}
+    dets = {}
     for i in range(runs + 3):
-        t0 = time.perf_counter()
-        pred = predictor.predict(frame, conf=PREDICT_CONF)
-        total = 1000 * (time.perf_counter() - t0)
-        if i >= 3:  # warm-up
-            samples["inference"].append(pred.timings["inference"])
-            samples["postprocess"].append(pred.timings["postprocess"])
-            samples["total"].append(total)
-    out = {k: statistics.median(v) for k, v in samples.items()}
-    out["detections"] = len(pred.scores)
-    return out
+        for tag, predictor in predictors.items():
+            t0 = time.perf_counter()
+            pred = predictor.predict(frame, conf=PREDICT_CONF)
+            total = 1000 * (time.perf_counter() - t0)
+            dets[tag] = len(pred.scores)
+            if i >= 3:  # warm-up
+                samples[tag]["inference"].append(pred.timings["inference"])
+                samples[tag]["postprocess"].append(pred.timings["postprocess"])
+                samples[tag]["total"].append(total)
+    return {
+        tag: {**{k: statistics.median(v) for k, v in s.items()}, "detections": dets[tag]}
+        for tag, s in samples.items()
+    }
 
 
 def main() -> None:
@@ -92,13 +97,14 @@ def main() -> None:
     ap.add_argument("--density", type=float, default=0.0005)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--runs", type=int, default=30)
+    ap.add_argument("--max-det", type=int, default=MAX_DET, help="the end-to-end graph's K")
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(args.threads)
     frame = render_image(7, 0, 640, STREAM_VAL).rgb[:480]  # 640 x 480
-    settings = End2EndSettings(DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, MAX_DET)
-    print(f"{args.model}, {args.nc} classes, frame 640x480, onnxruntime CPU, "
-          f"{args.threads} thread(s), median of {args.runs}")  # fmt: skip
+    settings = End2EndSettings(DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, args.max_det)
+    print(f"{args.model}, {args.nc} classes, frame 640x480, onnxruntime CPU, {args.threads} "
+          f"thread(s), median of {args.runs}, end-to-end K {args.max_det}")  # fmt: skip
     header = f"{'imgsz':>6} {'path':>8} {'network':>9} {'post':>8} {'total':>8} {'dets':>5}"
     print(header)
     with tempfile.TemporaryDirectory() as tmp:
@@ -107,11 +113,12 @@ def main() -> None:
             raw, e2e = Path(tmp) / f"raw{side}.onnx", Path(tmp) / f"e2e{side}.onnx"
             export_onnx(model, raw, (side, side))
             export_onnx(model, e2e, (side, side), end2end=settings)
-            res = {}
-            for tag, path in (("raw", raw), ("end2end", e2e)):
-                res[tag] = r = timed(
-                    Predictor.from_path(path, threads=args.threads), frame, args.runs
-                )
+            predictors = {
+                tag: Predictor.from_path(path, threads=args.threads)
+                for tag, path in (("raw", raw), ("end2end", e2e))
+            }
+            res = timed(predictors, frame, args.runs)
+            for tag, r in res.items():
                 print(f"{side:>6} {tag:>8} {r['inference']:>9.2f} {r['postprocess']:>8.2f} "
                       f"{r['total']:>8.2f} {r['detections']:>5}")  # fmt: skip
             a, b = res["raw"], res["end2end"]
