@@ -94,6 +94,7 @@ class Predictor:
 
     def __repr__(self) -> str:
         target = f" for {self.int8_target}" if self.int8_target else ""
+        target += ", end-to-end" if self.end2end else ""
         return (
             f"Predictor({self.metadata.get('model', '?')}, backend={self.backend}, "
             f"imgsz={list(self.imgsz)}, {self.precision}{target}, {self.num_classes} classes)"
