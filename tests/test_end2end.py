@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+import onnxslim
 import pytest
 import torch
 from conftest import batchnorm_from, have_cpp_toolchain, open_class_bias
@@ -24,6 +25,7 @@ from slimseg.deploy.end2end_graph import End2EndSettings, append_end2end
 from slimseg.deploy.end2end_parity import (
     FP16_MATCH_FRACTION,
     MATCH_FRACTION,
+    box_iou,
     gate_frames,
     match_predictions,
     verify_end2end,
@@ -77,7 +79,7 @@ def _raw_export(model, out: Path, half: bool, dynamic: bool = False) -> Path:
             output_names=output_names(fused), opset_version=18, dynamo=False,
             dynamic_axes=axes if dynamic else None,
         )  # fmt: skip
-        proto = onnx.load(str(raw))
+        proto = onnxslim.slim(onnx.load(str(raw)))  # as slimseg export does
         publish(stage(to_fp16(proto) if half else proto, meta, tmp, out.name), meta, out)
     return out
 
@@ -280,20 +282,29 @@ def test_build_engine_takes_end2end_files_from_tensorrt_8_6(tmp_path, version, c
     assert code == 0 or "needs TensorRT >= 8.6" in done.stderr
 
 
-def test_opencv_dnn_runs_the_fp32_end2end_graph(files) -> None:
+@pytest.mark.parametrize("key", ["fp32", "fp16"])
+def test_opencv_dnn_runs_the_end2end_graph(files, key) -> None:
     import cv2
     import onnxruntime as ort
 
     x = preprocess_frame(gate_frames(IMGSZ, 1)[0], IMGSZ)[0]
-    net = cv2.dnn.readNetFromONNX(str(files["fp32"]))
+    x = x.astype(np.float16) if key == "fp16" else x
+    net = cv2.dnn.readNetFromONNX(str(files[key]))
     net.setInput(x)
     names = list(net.getUnconnectedOutLayersNames())
     got = dict(zip(names, net.forward(names), strict=True))
-    session = ort.InferenceSession(str(files["fp32"]), providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(str(files[key]), providers=["CPUExecutionProvider"])
     ref = dict(zip([o.name for o in session.get_outputs()], session.run(None, {"images": x}),
                    strict=True))  # fmt: skip
-    assert ref["num_dets"][0] > 0
+    n = int(ref["num_dets"][0])
+    assert n > 0
     np.testing.assert_array_equal(got["num_dets"], ref["num_dets"])
-    np.testing.assert_array_equal(got["classes"], ref["classes"])
-    np.testing.assert_allclose(got["boxes"], ref["boxes"], rtol=0, atol=2e-3)
-    np.testing.assert_allclose(got["masks"], ref["masks"], rtol=0, atol=1e-3)
+    if key == "fp32":
+        np.testing.assert_array_equal(got["classes"], ref["classes"])
+        np.testing.assert_allclose(got["boxes"], ref["boxes"], rtol=0, atol=2e-3)
+        np.testing.assert_allclose(got["masks"], ref["masks"], rtol=0, atol=1e-3)
+        return
+    # FP16: rounding reorders near-equal scores; every row has its counterpart
+    same = ref["classes"][0, :n, None] == got["classes"][0, None, :n]
+    iou = np.where(same, box_iou(ref["boxes"][0, :n], got["boxes"][0, :n]), 0)
+    assert iou.max(1).min() >= 0.99

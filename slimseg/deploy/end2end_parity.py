@@ -38,7 +38,7 @@ def gate_frames(imgsz: tuple[int, int], count: int = GATE_FRAMES) -> list[np.nda
     return [render_image(0, i, w, STREAM_VAL).rgb[: w * 3 // 4] for i in range(count)]
 
 
-def _box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """IoU ``[N, M]`` of xyxy boxes ``a [N, 4]`` and ``b [M, 4]`` (float64)."""
     a, b = a.astype(np.float64), b.astype(np.float64)
     lt = np.maximum(a[:, None, :2], b[None, :, :2])
@@ -64,7 +64,7 @@ def match_predictions(refs: list[Prediction], gots: list[Prediction]) -> dict[st
     worst = {"min_box_iou": 1.0, "max_score_diff": 0.0, "min_mask_iou": 1.0}
     for ref, got in zip(refs, gots, strict=True):
         total += len(ref.scores)
-        iou = _box_iou(ref.boxes, got.boxes)
+        iou = box_iou(ref.boxes, got.boxes)
         taken = np.zeros(len(got.scores), bool)
         for i in range(len(ref.scores)):
             same = (got.classes == ref.classes[i]) & ~taken
