@@ -308,3 +308,15 @@ def test_opencv_dnn_runs_the_end2end_graph(files, key) -> None:
     same = ref["classes"][0, :n, None] == got["classes"][0, None, :n]
     iou = np.where(same, box_iou(ref["boxes"][0, :n], got["boxes"][0, :n]), 0)
     assert iou.max(1).min() >= 0.99
+
+
+def test_detector_end2end_at_opset_17(tmp_path) -> None:
+    """A detector (no masks output) at the lowest opset (ReduceMax's axes an attribute)."""
+    out = tmp_path / "det.onnx"
+    argv = ["export", "--weights", "yolov8n", "--nc", "3", "--imgsz", "64", "--opset", "17"]
+    assert main([*argv, "--end2end", "--max-det", "5", "--out", str(out)]) == 0
+    model = onnx.load(str(out))
+    assert [o.name for o in model.graph.output] == ["num_dets", "boxes", "scores", "classes"]
+    predictor = Predictor.from_path(out, threads=1)
+    pred = predictor.predict(gate_frames((64, 64), 1)[0], conf=0.1, iou=0.7, max_det=5)
+    assert predictor.end2end and pred.masks is None and len(pred.scores) <= 5

@@ -68,8 +68,9 @@ class End2EndSettings:
 class _Builder:
     """Nodes and constants appended to a graph under unique ``e2e/`` names."""
 
-    def __init__(self, graph: onnx.GraphProto) -> None:
+    def __init__(self, graph: onnx.GraphProto, opset: int) -> None:
         self.graph = graph
+        self.opset = opset
         self.count = 0
 
     def name(self, hint: str) -> str:
@@ -89,6 +90,13 @@ class _Builder:
 
     def one(self, op_type: str, *inputs: str, **attrs) -> str:
         return self.op(op_type, list(inputs), **attrs)[0]
+
+    def reduce_max(self, x: str, axis: int, keepdims: int) -> str:
+        """``ReduceMax`` over ``axis``: its axes are an input from opset 18, an attribute
+        before (``--opset 17``)."""
+        if self.opset >= 18:
+            return self.one("ReduceMax", x, self.const([axis]), keepdims=keepdims)
+        return self.one("ReduceMax", x, axes=[axis], keepdims=keepdims)
 
     def slice(self, x: str, start: int, end: int, axis: int) -> str:
         return self.one("Slice", x, self.const([start]), self.const([end]), self.const([axis]))
@@ -118,7 +126,8 @@ def append_end2end(
     static input size (``None``: dynamic H, W)."""
     if settings.max_det < 1:
         raise SlimsegError(f"--max-det {settings.max_det}: need at least 1")
-    g, b = proto.graph, _Builder(proto.graph)
+    opset = next(o.version for o in proto.opset_import if o.domain in ("", "ai.onnx"))
+    g, b = proto.graph, _Builder(proto.graph, opset)
     float_type = _output_type(proto, "output0")
     raw = "output0"
     pred = raw if float_type == TensorProto.FLOAT else b.one("Cast", raw, to=TensorProto.FLOAT)
@@ -128,7 +137,7 @@ def append_end2end(
     xyxy = b.one("Concat", b.one("Sub", xy, half), b.one("Add", xy, half), axis=1)
     boxes = b.one("Transpose", xyxy, perm=[0, 2, 1])
     cls = b.slice(pred, 4, 4 + nc, 1)  # [B, nc, A]
-    best = b.one("ReduceMax", cls, b.const([1]), keepdims=0)  # [B, A]
+    best = b.reduce_max(cls, 1, keepdims=0)  # [B, A]
     arg = b.one("ArgMax", cls, axis=1, keepdims=1, select_last_index=0)  # [B, 1, A]
     onehot = b.one("Equal", arg, b.const(np.arange(nc).reshape(1, nc, 1)))
     per_class = b.one("Where", onehot, cls, b.const(0.0, np.float32))  # [B, nc, A]
@@ -190,7 +199,7 @@ def _append_masks(
     """``masks [B, K, Hp, Wp]``: the rows up to the batch's largest ``num_dets`` computed,
     the rest zero padding."""
     dtype = np.float16 if float_type == TensorProto.FLOAT16 else np.float32
-    rows = b.one("ReduceMax", count, b.const([0]), keepdims=1)  # [1]
+    rows = b.reduce_max(count, 0, keepdims=1)  # [1]
     top_k = b.one("Slice", top_i, b.const([0]), rows, b.const([1]))  # [B, k]
     valid_k = b.one("Slice", valid, b.const([0]), rows, b.const([1]))
     at = b.one("Unsqueeze", top_k, b.const([2]))
