@@ -21,7 +21,7 @@ from test_core_install import BLOCK, _python
 
 from slimseg.cli.main import main
 from slimseg.data.synth.scene import STREAM_VAL, render_image
-from slimseg.deploy.end2end_graph import End2EndSettings, append_end2end
+from slimseg.deploy.end2end_graph import PREFIX, End2EndSettings, append_end2end
 from slimseg.deploy.end2end_parity import (
     FP16_MATCH_FRACTION,
     MATCH_FRACTION,
@@ -37,6 +37,7 @@ from slimseg.deploy.parity import ExportParityError
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.preprocess import preprocess_frame
 from slimseg.deploy.raw_dump import frame_dump, read_raw, write_raw
+from slimseg.deploy.trt_ops import DYNAMIC_SHAPE_OPS, END2END_OPS, TENSORRT_SUPPORTED_OPS
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
@@ -153,6 +154,9 @@ def test_the_graph_uses_standard_operators_and_the_contract_tensors(files) -> No
     assert {n.domain for n in model.graph.node} <= {"", "ai.onnx"}
     ops = {n.op_type for n in model.graph.node}
     assert {"NonMaxSuppression", "TopK", "MatMul", "GatherND"} <= ops
+    post = {n.op_type for n in model.graph.node if n.name.startswith(PREFIX)}
+    assert post <= END2END_OPS, post - END2END_OPS
+    assert ops <= TENSORRT_SUPPORTED_OPS | DYNAMIC_SHAPE_OPS | END2END_OPS
     outs = {o.name: o.type.tensor_type for o in model.graph.output}
     assert list(outs) == ["num_dets", "boxes", "scores", "classes", "masks"]
     dims = {k: [d.dim_param or d.dim_value for d in t.shape.dim] for k, t in outs.items()}
