@@ -66,22 +66,27 @@ def scored_model(name: str = "yolov8n-seg", imgsz: tuple[int, int] = IMGSZ) -> t
     return model
 
 
-def _raw_export(model, out: Path, half: bool, dynamic: bool = False) -> Path:
-    """The raw graph as ``slimseg export`` traces it (no parity gate: an FP16 random head
-    would not pass the raw FP16 gate, which is not what these tests are about)."""
+def _raw_exports(model, root: Path) -> dict[str, Path]:
+    """The raw graph as ``slimseg export`` traces it, FP32 and FP16, static (no parity gate: an
+    FP16 random head would not pass the raw FP16 gate, which is not what these tests are
+    about)."""
     fused = model.fuse().float().eval()
-    meta = build_metadata(fused, NAMES, MOBILITY, IMGSZ, "fp16" if half else "fp32", dynamic)
-    axes = {"images": {0: "batch"}, "output0": {0: "batch"}, "output1": {0: "batch"}}
-    with staging_dir(out) as tmp, warnings.catch_warnings():
+    with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        raw = Path(tmp) / "raw.onnx"
+        traced = root / "traced.onnx"
         torch.onnx.export(
-            fused, torch.zeros(1, 3, *IMGSZ), str(raw), input_names=["images"],
+            fused, torch.zeros(1, 3, *IMGSZ), str(traced), input_names=["images"],
             output_names=output_names(fused), opset_version=18, dynamo=False,
-            dynamic_axes=axes if dynamic else None,
         )  # fmt: skip
-        proto = onnxslim.slim(onnx.load(str(raw)))  # as slimseg export does
-        publish(stage(to_fp16(proto) if half else proto, meta, tmp, out.name), meta, out)
+    proto = onnxslim.slim(onnx.load(str(traced)))  # as slimseg export does
+    out = {}
+    for key, precision in (("raw32", "fp32"), ("raw16", "fp16")):
+        path = root / f"{key}.onnx"
+        meta = build_metadata(fused, NAMES, MOBILITY, IMGSZ, precision)
+        graph = to_fp16(copy.deepcopy(proto)) if precision == "fp16" else proto
+        with staging_dir(path) as tmp:
+            publish(stage(graph, meta, tmp, path.name), meta, path)
+        out[key] = path
     return out
 
 
@@ -111,12 +116,11 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     e2e = root / "e2e.onnx"
     args = ["export", "--weights", str(weights), "--imgsz", "160", "--end2end", "--dynamic"]
     assert main([*args, "--max-det", str(MAX_DET), "--out", str(e2e)]) == 0
-    raw16 = _raw_export(model, root / "raw16.onnx", half=True)
+    raws = _raw_exports(model, root)
     return {
         "fp32": e2e,
-        "raw32": _raw_export(model, root / "raw32.onnx", half=False),
-        "raw16": raw16,
-        "fp16": _end2end_of(raw16, root / "e2e16.onnx"),
+        **raws,
+        "fp16": _end2end_of(raws["raw16"], root / "e2e16.onnx"),
     }
 
 
@@ -317,10 +321,10 @@ def test_opencv_dnn_runs_the_end2end_graph(files, key) -> None:
 def test_detector_end2end_at_opset_17(tmp_path) -> None:
     """A detector (no masks output) at the lowest opset (ReduceMax's axes an attribute)."""
     out = tmp_path / "det.onnx"
-    argv = ["export", "--weights", "yolov8n", "--nc", "3", "--imgsz", "64", "--opset", "17"]
+    argv = ["export", "--weights", "yolov8n", "--nc", "3", "--imgsz", "32", "--opset", "17"]
     assert main([*argv, "--end2end", "--max-det", "5", "--out", str(out)]) == 0
     model = onnx.load(str(out))
     assert [o.name for o in model.graph.output] == ["num_dets", "boxes", "scores", "classes"]
     predictor = Predictor.from_path(out, threads=1)
-    pred = predictor.predict(gate_frames((64, 64), 1)[0], conf=0.1, iou=0.7, max_det=5)
+    pred = predictor.predict(gate_frames((32, 32), 1)[0], conf=0.1, iou=0.7, max_det=5)
     assert predictor.end2end and pred.masks is None and len(pred.scores) <= 5
