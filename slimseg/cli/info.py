@@ -10,8 +10,8 @@ import platform
 from slimseg.cli.arg_types import count, multiple_of
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.errors import SlimsegError
-from slimseg.utils.extras import is_train_module, train_hint
-from slimseg.utils.install_state import CORE, EXTRA_USES, install_command, install_state
+from slimseg.utils.extras import install_command, is_train_module, train_hint
+from slimseg.utils.install_state import CORE, EXTRA_USES, install_state
 from slimseg.utils.table import format_table
 from slimseg.version import __version__
 

@@ -89,8 +89,3 @@ def install_state() -> list[ExtraState]:
         first = reqs[name][0] if reqs.get(name) else ""
         states.append(ExtraState(name, first, versions, missing))
     return states
-
-
-def install_command(extra: str) -> str:
-    """``pip install 'slimseg[<extra>]'``."""
-    return f"pip install 'slimseg[{extra}]'"

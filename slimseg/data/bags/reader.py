@@ -20,12 +20,13 @@ from pathlib import Path
 
 from slimseg.data.bags.mcap_crc import check_data_crc
 from slimseg.errors import SlimsegError
+from slimseg.utils.extras import install_command
 from slimseg.utils.input_files import check_regular
 
 log = logging.getLogger(__name__)
 
 BAG_SUFFIXES = (".bag", ".mcap")
-INSTALL_HINT = "pip install 'slimseg[ros]'"
+INSTALL_HINT = install_command("ros")
 DAMAGED = "a truncated or damaged recording: record it again, or repair it with its reindex tool"
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
