@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 from slimseg.models.registry import build_model
+from slimseg.objects import Objects
 
 
 def disc_scene(rng: np.random.Generator, h: int, w: int, discs: int) -> np.ndarray:
@@ -93,3 +94,9 @@ def _seed() -> None:
 @pytest.fixture
 def build():
     return build_model
+
+
+def frame_objects(boxes, classes, masks, hw, scores=None) -> Objects:
+    """A frame's :class:`~slimseg.objects.Objects` from its columns (scores: all 1 if None)."""
+    scores = np.ones(len(classes), np.float32) if scores is None else scores
+    return Objects(boxes, scores, classes, masks, hw)

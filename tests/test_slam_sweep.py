@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from slimseg.dynamic.packed_detections import PackedDetections
 
 from slimseg.cli.main import main
 from slimseg.cli.masking_args import add_masking_args, masking_from_args
@@ -31,7 +32,6 @@ from slimseg.dynamic.masking_settings import (
     SettingsError,
     preset,
 )
-from slimseg.dynamic.packed_detections import PackedDetections
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
 from slimseg.slam.sweep import (
     SweepError,

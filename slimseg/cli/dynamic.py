@@ -32,7 +32,6 @@ from slimseg.data.bag_writer import STORAGES
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
-from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
 from slimseg.dynamic.mask_bag import (
     MASK_TOPIC,
     MASKED_TOPIC,
@@ -42,7 +41,7 @@ from slimseg.dynamic.mask_bag import (
     write_mask_bag,
     writes_foxglove,
 )
-from slimseg.dynamic.pipeline import MODES
+from slimseg.dynamic.modes import MAX_KEYPOINTS, MODES
 from slimseg.dynamic.restore_run import (
     REPORT_HEADERS,
     RestoreReport,
@@ -250,10 +249,6 @@ def _print_latency(report: SequenceReport, live: bool) -> None:
         print(f"replay kept up with {int((late < 1).sum())} of {len(late)} frames (taken up "
               f"late by up to {late.max():.0f} ms: reading and writing frames cost the replay "
               f"time a runtime does not spend)")  # fmt: skip
-    if report.replay_differs:
-        print(f"the replay that scored the modes masked {report.replay_differs} frame(s) "
-              "unlike the live run (the epipolar check's RANSAC draws); masks/ is the live "
-              "run's")  # fmt: skip
     if live and report.model_lags:
         lags = np.asarray(report.model_lags)
         print(f"model results used: {len(lags)} for {report.frames} frames, lag median "

@@ -19,8 +19,7 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
-from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
-from slimseg.dynamic.pipeline import MODES
+from slimseg.dynamic.modes import MAX_KEYPOINTS, MODES
 from slimseg.errors import SlimsegError
 from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
 from slimseg.utils.atomic import staged_dir

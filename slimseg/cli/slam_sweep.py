@@ -7,9 +7,9 @@ import json
 from collections.abc import Callable
 
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import MaskingSettings
-from slimseg.dynamic.pipeline import MODES
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.modes import MODES
 from slimseg.errors import SlimsegError
 from slimseg.utils.outputs import refuse_inputs
 

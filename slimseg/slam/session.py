@@ -24,8 +24,8 @@ import numpy as np
 from slimseg.data.images import decode_file
 from slimseg.data.tum import MAX_DT, TumSequence, mask_name, read_trajectory
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.errors import SlimsegError
 from slimseg.slam.condition_runs import ConditionResult, EngineRunConfig, evaluate_condition
 from slimseg.slam.conditions import (
