@@ -41,7 +41,7 @@ from slimseg.dynamic.mask_bag import (
     write_mask_bag,
     writes_foxglove,
 )
-from slimseg.dynamic.modes import MAX_KEYPOINTS, MODES
+from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES
 from slimseg.dynamic.restore_run import (
     REPORT_HEADERS,
     RestoreReport,
@@ -98,7 +98,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_rerun_arg(p, "every frame: image, depth, class-coloured mask, boxes, keypoints, timing")
     p.add_argument("--mode", default="fusion", choices=MODES)
     p.add_argument(
-        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features per frame"
+        "--keypoints",
+        type=count(1, MAX_KEYPOINTS),
+        default=KEYPOINTS,
+        help="ORB features per frame",
     )
     add_masking_args(p)
     add_track_args(p)

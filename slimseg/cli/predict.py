@@ -55,7 +55,7 @@ from slimseg.deploy.track_predict import track_predict
 from slimseg.detections import Prediction
 from slimseg.dynamic.chain_config import TrackPlan
 from slimseg.dynamic.epipolar import orb_features
-from slimseg.dynamic.modes import FPS, MAX_KEYPOINTS
+from slimseg.dynamic.modes import FPS, KEYPOINTS, MAX_KEYPOINTS
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
@@ -109,7 +109,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--keypoints",
         type=count(1, MAX_KEYPOINTS),
-        default=1000,
+        default=KEYPOINTS,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )
     add_track_args(p)

@@ -28,6 +28,7 @@ from tqdm import tqdm
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import depth_metres, mask_name
+from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.dynamic.restore import (
     MAX_REFS,
     STRIDE,
@@ -88,7 +89,7 @@ def ssim_in(a: np.ndarray, b: np.ndarray, region: np.ndarray) -> float:
     return float(s[region].mean())
 
 
-def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = 1000) -> int:
+def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = KEYPOINTS) -> int:
     """ORB features of the whole frame whose keypoint falls inside ``region``."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     kps = cv2.ORB_create(nfeatures=count).detect(gray, None)
@@ -104,7 +105,7 @@ def restore_sequence(
     window: int = WINDOW,
     stride: int = STRIDE,
     max_refs: int = MAX_REFS,
-    keypoints: int = 1000,
+    keypoints: int = KEYPOINTS,
     progress: bool = True,
 ) -> RestoreReport:
     """Restore every associated frame of ``sequence``; ``masks(i, rgb_timestamp)`` gives frame

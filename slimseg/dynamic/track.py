@@ -53,6 +53,7 @@ from slimseg.dynamic.mask_patch import (
     warp_patch,
     whole_pixel_shift,
 )
+from slimseg.dynamic.modes import FPS
 from slimseg.dynamic.track_geometry import (
     box_iou,
     box_iou_matrix,
@@ -81,7 +82,7 @@ class Tracker:
         settings: TrackSettings,
         class_mobility: np.ndarray,
         *,
-        fps: float = 30.0,
+        fps: float = FPS,
         mover_prior: float = 0.0,
     ) -> None:
         """``class_mobility [K]``: class priors; only classes above ``mover_prior`` are
@@ -89,7 +90,7 @@ class Tracker:
         self.s = settings
         self.mover_prior = mover_prior
         self.priors = np.asarray(class_mobility, np.float32)
-        self.dt = 1.0 / fps if fps > 0 else 1.0 / 30
+        self.dt = 1.0 / (fps if fps > 0 else FPS)
         self.tracks: list[Track] = []
         self._next_id = 1
         self._hw: tuple[int, int] | None = None

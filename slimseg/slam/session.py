@@ -26,6 +26,7 @@ from slimseg.data.tum import MAX_DT, TumSequence, mask_name, read_trajectory
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
+from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.errors import SlimsegError
 from slimseg.slam.condition_runs import ConditionResult, EngineRunConfig, evaluate_condition
 from slimseg.slam.conditions import (
@@ -63,12 +64,12 @@ class Plan:
     masking: MaskingSettings = DEFAULT
     """score threshold, dilation and Eq. 1/3/4 parameters of the mask modes; its dilation also
     widens the ground-truth masks"""
-    keypoints: int = 1000
+    keypoints: int = KEYPOINTS
     track: TrackPlan = TRACK_OFF
     """the track stage of the mask modes (off: every frame judged alone)"""
     dropout: Dropout | None = None
     """ground-truth instances only: simulated missed detections"""
-    features: int = 1000
+    features: int = KEYPOINTS
     realtime: bool = True
     speed: float = 1.0
     threads: int | None = None
