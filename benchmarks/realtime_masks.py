@@ -40,8 +40,8 @@ from slimseg.deploy.predictor import Predictor
 from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.model_feed import FedDetections
-from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
 from slimseg.dynamic.track_settings import COAST, detection_floor
+from slimseg.runs.sequence_report import ModeScore, at_keypoints
 from slimseg.utils.table import format_table
 
 

@@ -22,12 +22,12 @@ from slimseg.dynamic.object_motion import (
     inside_boxes,
     object_shifts,
 )
-from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.dynamic.track_settings import COAST
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
+from slimseg.runs.sequence_run import run_sequence
 
 
 @pytest.fixture(scope="module")

@@ -17,12 +17,12 @@ from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker
 from slimseg.dynamic.model_feed import MAX_EVERY, ModelFeed
 from slimseg.dynamic.model_rate import ModelRate
-from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_run import move_dets
 from slimseg.dynamic.track_settings import COAST
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
+from slimseg.runs.sequence_run import run_sequence
 
 HW = (120, 160)
 
@@ -175,8 +175,8 @@ def test_a_real_time_runs_kept_trace_is_analysed_as_inline(sequence: Path, tmp_p
     from slimseg.dynamic.frame_masker import segmenter_for
     from slimseg.dynamic.modes import MODES
     from slimseg.dynamic.pipeline import process_frame
-    from slimseg.dynamic.sequence_report import ModeScore, SequenceReport
-    from slimseg.dynamic.trace_analysis import TraceAnalysis
+    from slimseg.runs.sequence_report import ModeScore, SequenceReport
+    from slimseg.runs.trace_analysis import TraceAnalysis
 
     inst, seq = AnnotationInstances(sequence), TumSequence(sequence)
     slow = segmenter_for(inst)

@@ -23,7 +23,6 @@ from slimseg.deploy.metadata import (
     masking_from_metadata,
 )
 from slimseg.detections import Prediction
-from slimseg.dynamic.detection_cache import CachedFrame, build_cache, mask_with
 from slimseg.dynamic.epipolar import OrbFeatures
 from slimseg.dynamic.mask_patch import pack_masks
 from slimseg.dynamic.masking_settings import (
@@ -36,6 +35,7 @@ from slimseg.dynamic.masking_settings import (
 )
 from slimseg.objects import Objects
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
+from slimseg.runs.detection_cache import CachedFrame, build_cache, mask_with
 from slimseg.slam.sweep import (
     SweepError,
     check_mode,
@@ -246,7 +246,7 @@ def test_cached_masks_equal_a_direct_run(seq: Path, tmp_path: Path) -> None:
     """mask_with on the cache writes what slimseg dynamic writes for the same settings."""
     import cv2
 
-    from slimseg.dynamic.sequence_run import run_sequence
+    from slimseg.runs.sequence_run import run_sequence
 
     settings = PAPERS.with_values(conf=0.1, dilation_px=3, t_o=0.4)
     direct = run_sequence(CountingPredictor(seq), seq, tmp_path / "d", "fusion", settings,

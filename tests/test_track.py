@@ -25,11 +25,11 @@ from slimseg.dynamic.mask_patch import (
     warp_patch,
 )
 from slimseg.dynamic.model_rate import ModelRate
-from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
+from slimseg.runs.sequence_run import run_sequence
 
 HW = (120, 160)
 
@@ -311,8 +311,8 @@ def test_cached_sweep_loop_gives_the_same_tracked_masks(
     """slam-eval --sweep (cached detections) and slimseg dynamic agree under the stage: one
     chain (FrameMasker), the same depth, previous frame and model schedule in both."""
     from slimseg.data.tum import TumSequence
-    from slimseg.dynamic.detection_cache import build_cache, mask_with
     from slimseg.dynamic.masking_settings import DEFAULT
+    from slimseg.runs.detection_cache import build_cache, mask_with
 
     inst = AnnotationInstances(sequence, Dropout(0.2, 3, seed=2))
     plan = TrackPlan(COAST, ModelRate.every_n(every))

@@ -1,5 +1,5 @@
 """What a sequence run reports and draws: keypoint scores per mode, the report, the overlay
-panels, the CSV rows (used by :mod:`slimseg.dynamic.sequence_run` and the sweeps' cache)."""
+panels, the CSV rows (used by :mod:`slimseg.runs.sequence_run` and the sweeps' cache)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.dynamic.recall_loss import RecallLoss
+from slimseg.runs.recall_loss import RecallLoss
 from slimseg.dynamic.threshold import inside
 from slimseg.objects import Objects
 
