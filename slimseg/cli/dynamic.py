@@ -32,7 +32,7 @@ from slimseg.data.bag_writer import STORAGES
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
-from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES
+from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES, Mode
 from slimseg.errors import SlimsegError
 from slimseg.runs.mask_bag import (
     MASK_TOPIC,
@@ -96,7 +96,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"bag output: also the colour frames with dynamic pixels black on {MASKED_TOPIC}",
     )
     add_rerun_arg(p, "every frame: image, depth, class-coloured mask, boxes, keypoints, timing")
-    p.add_argument("--mode", default="fusion", choices=MODES)
+    p.add_argument("--mode", default=Mode.FUSION.value, choices=MODES)
     p.add_argument(
         "--keypoints",
         type=count(1, MAX_KEYPOINTS),

@@ -34,7 +34,7 @@ from slimseg.dynamic.degrade import degrade
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
-from slimseg.dynamic.modes import EPIPOLAR_MODES, KEYPOINTS, MODES, WEIGHED_MODES, Mode
+from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, KEYPOINTS, MODES, WEIGHED_MODES, Mode
 from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
 from slimseg.dynamic.seg_box import (
     T_O,
@@ -173,7 +173,7 @@ def process_modes(
     out = {}
     for mode in modes:
         t0 = time.perf_counter()
-        if mode in ("seg", "fusion", *EPIPOLAR_MODES) and inputs.objects.masks is None:
+        if mode not in BOX_MODES and inputs.objects.masks is None:
             raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
         if mode in EPIPOLAR_MODES:
             if check is None:
@@ -202,7 +202,7 @@ def _one_mode(
     keypoints, hw, objects = inputs.keypoints, inputs.hw, inputs.objects
     boxes, masks, s = objects.boxes, objects.masks, settings.masking
     used_seg: list[bool] = []
-    if mode == "box+depth-ransac":
+    if mode == Mode.BOX_DEPTH_RANSAC:
         from slimseg.dynamic.depth_ransac import screen_box_keypoints
 
         if inputs.depth_m is None:
@@ -212,8 +212,8 @@ def _one_mode(
         region = box_masks(movers, hw).any(0) if len(movers) else np.zeros(hw, bool)
         flag = bool(dynamic.mean() > 0) if len(dynamic) else False
         return FrameResult(dynamic, _mask(region, s.dilation_px), None, flag)
-    regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
-    depth = inputs.depth_m if s.cut_behind_m > 0 and mode != "box" else None
+    regions = box_masks(boxes, hw) if mode == Mode.BOX else np.asarray(masks, bool)
+    depth = inputs.depth_m if s.cut_behind_m > 0 and mode != Mode.BOX else None
     reference = None
     if depth is not None:  # masks that stay on their object (seg masks, before dilation)
         reference = reference_depths(regions, boxes, depth)
@@ -225,7 +225,7 @@ def _one_mode(
     # exactly the one that needs the box fallback of Eq. 4
     box_mob = box_keypoint_mobility(keypoints, boxes, hw, mob)
     dynamic_frame = is_dynamic_frame(box_mob, s.frame_ratio)
-    if mode == "fusion" and dynamic_frame and len(boxes):
+    if mode == Mode.FUSION and dynamic_frame and len(boxes):
         fused, used = fuse_seg_box(regions, boxes, eq4_thresholds(settings, reference, len(boxes)))
         keep = objects.misses > 0  # Eq. 4 acts on detection masks only
         if keep.any():

@@ -59,8 +59,8 @@ def scored_modes(predictor: object, seq: Sequence) -> tuple[str, ...]:
     """The modes a run scores besides its own: every mode where ground-truth ``dynamic/``
     masks exist; with ground-truth instances the epipolar check too, for its tally."""
     score = MODES if (seq.root / "dynamic").is_dir() else ()
-    if isinstance(predictor, AnnotationInstances) and "semantic+epipolar" not in score:
-        score = (*score, "semantic+epipolar")
+    if isinstance(predictor, AnnotationInstances) and Mode.SEMANTIC_EPIPOLAR not in score:
+        score = (*score, Mode.SEMANTIC_EPIPOLAR.value)
     return score
 
 
