@@ -219,9 +219,10 @@ class FrameMasker:
         result = process_frame(inputs=inputs, settings=self.rules, rng=self._rng)
         t4 = time.perf_counter()
         self.feed.other_time(t4 - t1)
-        camera = config.camera
-        self._previous = PreviousFrame(features, depth_m, camera) if camera else PreviousFrame(
-            features)  # fmt: skip
+        if config.camera is not None:  # the depth-aided residual needs this frame's depth
+            self._previous = PreviousFrame(features, depth_m, config.camera)
+        else:
+            self._previous = PreviousFrame(features)
         self.frames += 1
         timing = FrameTiming(
             model=1000 * (t1 - t0), features=1000 * (t2 - t1), track=1000 * (t3 - t2),
