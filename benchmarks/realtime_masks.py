@@ -41,7 +41,7 @@ from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.model_feed import FedDetections
 from slimseg.dynamic.track_settings import COAST, detection_floor
-from slimseg.runs.sequence_report import ModeScore, at_keypoints
+from slimseg.sequence.sequence_report import ModeScore, at_keypoints
 from slimseg.utils.table import format_table
 
 

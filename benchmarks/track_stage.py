@@ -21,7 +21,7 @@ from pathlib import Path
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
 from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.track_settings import COAST
-from slimseg.runs.sequence_run import run_sequence
+from slimseg.sequence.sequence_run import run_sequence
 from slimseg.utils.table import format_table
 
 

@@ -25,7 +25,7 @@ from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
 from slimseg.data.tum_to_bag import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
-from slimseg.runs.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
+from slimseg.sequence.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
 from slimseg.utils.atomic import write_png
 
 pytest.importorskip("rosbags")

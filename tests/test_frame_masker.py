@@ -27,7 +27,7 @@ from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.dynamic.track_settings import COAST
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
-from slimseg.runs.sequence_run import run_sequence
+from slimseg.sequence.sequence_run import run_sequence
 
 
 @pytest.fixture(scope="module")

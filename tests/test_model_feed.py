@@ -22,7 +22,7 @@ from slimseg.dynamic.track_run import move_dets
 from slimseg.dynamic.track_settings import COAST
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
-from slimseg.runs.sequence_run import run_sequence
+from slimseg.sequence.sequence_run import run_sequence
 
 HW = (120, 160)
 
@@ -175,8 +175,8 @@ def test_a_real_time_runs_kept_trace_is_analysed_as_inline(sequence: Path, tmp_p
     from slimseg.dynamic.frame_masker import segmenter_for
     from slimseg.dynamic.modes import MODES
     from slimseg.dynamic.pipeline import process_frame
-    from slimseg.runs.sequence_report import ModeScore, SequenceReport
-    from slimseg.runs.trace_analysis import TraceAnalysis
+    from slimseg.sequence.sequence_report import ModeScore, SequenceReport
+    from slimseg.sequence.trace_analysis import TraceAnalysis
 
     inst, seq = AnnotationInstances(sequence), TumSequence(sequence)
     slow = segmenter_for(inst)

@@ -35,7 +35,7 @@ from slimseg.dynamic.masking_settings import (
 )
 from slimseg.objects import Objects
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
-from slimseg.runs.detection_cache import CachedFrame, build_cache, mask_with
+from slimseg.sequence.detection_cache import CachedFrame, build_cache, mask_with
 from slimseg.slam.sweep import (
     SweepError,
     check_mode,
@@ -246,7 +246,7 @@ def test_cached_masks_equal_a_direct_run(seq: Path, tmp_path: Path) -> None:
     """mask_with on the cache writes what slimseg dynamic writes for the same settings."""
     import cv2
 
-    from slimseg.runs.sequence_run import run_sequence
+    from slimseg.sequence.sequence_run import run_sequence
 
     settings = PAPERS.with_values(conf=0.1, dilation_px=3, t_o=0.4)
     direct = run_sequence(CountingPredictor(seq), seq, tmp_path / "d", "fusion", settings,

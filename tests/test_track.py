@@ -29,7 +29,7 @@ from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
-from slimseg.runs.sequence_run import run_sequence
+from slimseg.sequence.sequence_run import run_sequence
 
 HW = (120, 160)
 
@@ -312,7 +312,7 @@ def test_cached_sweep_loop_gives_the_same_tracked_masks(
     chain (FrameMasker), the same depth, previous frame and model schedule in both."""
     from slimseg.data.tum import TumSequence
     from slimseg.dynamic.masking_settings import DEFAULT
-    from slimseg.runs.detection_cache import build_cache, mask_with
+    from slimseg.sequence.detection_cache import build_cache, mask_with
 
     inst = AnnotationInstances(sequence, Dropout(0.2, 3, seed=2))
     plan = TrackPlan(COAST, ModelRate.every_n(every))

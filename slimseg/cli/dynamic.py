@@ -34,7 +34,7 @@ from slimseg.data.sequence_source import Sequence, open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES, Mode
 from slimseg.errors import SlimsegError
-from slimseg.runs.mask_bag import (
+from slimseg.sequence.mask_bag import (
     MASK_TOPIC,
     MASKED_TOPIC,
     OBJECTS_TOPIC,
@@ -43,14 +43,14 @@ from slimseg.runs.mask_bag import (
     write_mask_bag,
     writes_foxglove,
 )
-from slimseg.runs.restore_run import (
+from slimseg.sequence.restore_run import (
     REPORT_HEADERS,
     RestoreReport,
     report_rows,
     restore_sequence,
 )
-from slimseg.runs.sequence_report import SequenceReport
-from slimseg.runs.sequence_run import run_sequence
+from slimseg.sequence.sequence_report import SequenceReport
+from slimseg.sequence.sequence_run import run_sequence
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.outputs import refuse_inputs
 from slimseg.utils.table import format_table
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         observers.append(lambda f, rgb, depth: boxes.append(frame_boxes(f.objects, names)))
     viz = None
     if rerun is not None:
-        from slimseg.runs.rerun_frames import RerunFrames
+        from slimseg.sequence.rerun_frames import RerunFrames
 
         truth = seq.root / "dynamic"  # a synthetic sequence's ground-truth masks, if any
         viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)

@@ -345,7 +345,7 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
         print(f"track stage: {plan.describe()}")
     viz = None
     if rerun is not None:
-        from slimseg.runs.rerun_frames import RerunFrames
+        from slimseg.sequence.rerun_frames import RerunFrames
 
         viz = RerunFrames(rerun, list(predictor.names), "slimseg predict --track")
     with kept_recording(viz):

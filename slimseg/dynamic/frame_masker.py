@@ -7,7 +7,7 @@ the demo, the benchmarks). It runs one mode, configured by one
 schedule (:class:`~slimseg.dynamic.model_feed.ModelFeed`), the ORB features, the previous
 frame the epipolar check and the camera motion need, and the track stage. It scores nothing:
 each :class:`MaskedFrame` carries what the rules saw (``inputs``), and a report scores the
-other modes on that trace (``slimseg.runs``). The public object configured from an exported
+other modes on that trace (``slimseg.sequence``). The public object configured from an exported
 model is :class:`slimseg.Masker` (``slimseg.deploy.masker``); this one takes any
 :data:`Segmenter` (a predictor, ground-truth instances, cached detections).
 """

@@ -155,7 +155,7 @@ def make_predictor(
 def _mode_condition(
     plan: Plan, predictor: object, mode: str, out: Path, say: Callable[[str], None]
 ) -> Condition:
-    from slimseg.runs.sequence_run import run_sequence
+    from slimseg.sequence.sequence_run import run_sequence
 
     folder = out / "masks" / mode.replace("+", "_")
     rep = run_sequence(
@@ -185,7 +185,7 @@ def restored_condition(
     plan: Plan, cond: Condition, out: Path, say: Callable[[str], None]
 ) -> Condition:
     """Restore every frame of the sequence from ``cond``'s masks (PatchMatch)."""
-    from slimseg.runs.restore_run import restore_sequence
+    from slimseg.sequence.restore_run import restore_sequence
 
     folder = out / "restore" / cond.name.replace("+", "_").replace(" ", "_")
 

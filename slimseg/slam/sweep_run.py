@@ -25,7 +25,7 @@ from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.errors import SlimsegError
-from slimseg.runs.detection_cache import SettingMasks, build_cache, mask_with
+from slimseg.sequence.detection_cache import SettingMasks, build_cache, mask_with
 from slimseg.slam.condition_runs import ConditionResult, evaluate_condition
 from slimseg.slam.conditions import Condition
 from slimseg.slam.metrics import still_floor

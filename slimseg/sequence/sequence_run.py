@@ -4,7 +4,7 @@ Per frame, :class:`~slimseg.dynamic.frame_masker.FrameMasker` (model → detecti
 pixels → ORB keypoints → track stage → the chosen mode) → ``masks/<rgb timestamp>.png``
 (uint8, 255 = dynamic; the offline mask-cache convention of DynaSLAM-style runtimes) and a
 CSV row. When the sequence has ground-truth ``dynamic/`` masks (the synthetic generator
-writes them), :class:`~slimseg.runs.trace_analysis.TraceAnalysis` scores every mode on
+writes them), :class:`~slimseg.sequence.trace_analysis.TraceAnalysis` scores every mode on
 the inputs the chain's rules saw: precision and recall of dynamic keypoints.
 
 The epipolar modes get the previous frame's ORB features (``PreviousFrame``); the first frame
@@ -31,8 +31,8 @@ from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker, MaskedFrame, segmenter_for
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, MODES, Mode
-from slimseg.runs.sequence_report import ModeScore, SequenceReport, track_rows, write_csv
-from slimseg.runs.trace_analysis import TraceAnalysis
+from slimseg.sequence.sequence_report import ModeScore, SequenceReport, track_rows, write_csv
+from slimseg.sequence.trace_analysis import TraceAnalysis
 from slimseg.utils.atomic import write_png
 
 Observer = Callable[[MaskedFrame, np.ndarray, np.ndarray], None]

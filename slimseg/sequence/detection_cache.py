@@ -33,8 +33,8 @@ from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, Mode
-from slimseg.runs.sequence_report import ModeScore, at_keypoints
 from slimseg.objects import Objects
+from slimseg.sequence.sequence_report import ModeScore, at_keypoints
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
 """What a sequence run reports and draws: keypoint scores per mode, the report, the overlay
-panels, the CSV rows (used by :mod:`slimseg.runs.sequence_run` and the sweeps' cache)."""
+panels, the CSV rows (used by :mod:`slimseg.sequence.sequence_run` and the sweeps' cache)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.runs.recall_loss import RecallLoss
 from slimseg.dynamic.threshold import inside
 from slimseg.objects import Objects
+from slimseg.sequence.recall_loss import RecallLoss
 
 
 @dataclass

@@ -29,9 +29,9 @@ from slimseg.dynamic.frame_masker import MaskedFrame
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, Mode
 from slimseg.dynamic.pipeline import FrameResult, FrameRules, process_modes
-from slimseg.runs.recall_loss import RecallLoss
-from slimseg.runs.sequence_report import SequenceReport, at_keypoints, coasted_only, overlay
 from slimseg.objects import Objects
+from slimseg.sequence.recall_loss import RecallLoss
+from slimseg.sequence.sequence_report import SequenceReport, at_keypoints, coasted_only, overlay
 from slimseg.utils.atomic import write_png
 
 PANELS = 6  # overlay panels, spread over the sequence
