@@ -80,7 +80,7 @@ def write_folder(folder: Path, frames: int, size: tuple[int, int]) -> None:
 
 def make(work: Path, frames: int, size: tuple[int, int], kinds: list[str]) -> dict[str, Path]:
     """The ``kinds`` (of :data:`KINDS`) for ``frames`` frames under ``work/<frames>/``."""
-    from slimseg.data.tum_to_bag import tum_to_bag
+    from slimseg.data.bags.from_tum import tum_to_bag
 
     root = work / str(frames)
     folder = root / "tum"
@@ -104,8 +104,8 @@ def write_foxglove(folder: Path, out: Path, compress: bool) -> None:
     """The TUM folder as Foxglove protobuf messages, streamed in time order: ``RawImage`` rgb8
     colour and 16UC1 depth (mm), a ``CameraCalibration`` per colour frame; chunks
     zstd-compressed (the Foxglove SDK's default) or not."""
-    from slimseg.data.bag_reader import Header, stamp_ns
-    from slimseg.data.foxglove_writer import FoxgloveWriter
+    from slimseg.data.bags.foxglove_writer import FoxgloveWriter
+    from slimseg.data.bags.reader import Header, stamp_ns
     from slimseg.data.tum import TumSequence
 
     seq = TumSequence(folder)
@@ -132,13 +132,13 @@ def read_one(path: Path) -> dict:
 
     base = _rss_mb()
     t0 = time.perf_counter()
-    seq = open_sequence(path)
-    t1 = time.perf_counter()
-    most = _rss_mb()
-    for i in range(len(seq)):
-        seq.load(i)
-        most = max(most, _rss_mb())
-    t2 = time.perf_counter()
+    with open_sequence(path) as seq:
+        t1 = time.perf_counter()
+        most = _rss_mb()
+        for i in range(len(seq)):
+            seq.load(i)
+            most = max(most, _rss_mb())
+        t2 = time.perf_counter()
     return {
         "frames": len(seq),
         "open_s": t1 - t0,

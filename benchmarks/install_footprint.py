@@ -2,7 +2,8 @@
 install and the core ``pip install slimseg``), each a Python interpreter (and optionally a
 source tree put first on its path).
 
-Per install: site-packages size and package count; ``import slimseg; slimseg.Masker`` and
+Per install: site-packages size and package count, which of torch, torchvision, Lightning,
+tensorboard and albumentations it holds; ``import slimseg; slimseg.Masker`` and
 ``slimseg --help`` wall time and peak resident memory (``/usr/bin/time -v``, a fresh process
 each, best of ``--repeat``); a ``Masker`` loop over a sequence's frames (peak memory, ms per
 frame by part: model, post-processing, features, track, logic); ``slimseg dynamic`` on the
@@ -35,9 +36,8 @@ def predict(self, *a, **k):  # the post-processing's share of the model's time
     return out
 Predictor.predict = predict
 model, folder, frames, track = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "1"
-seq = TumSequence(folder)
 parts = {"model": [], "postprocess": [], "features": [], "track": [], "logic": [], "latency": []}
-with slimseg.Masker.from_onnx(model, threads=1, track=track) as m:
+with TumSequence(folder) as seq, slimseg.Masker.from_onnx(model, threads=1, track=track) as m:
     for i in range(min(frames, len(seq))):
         rgb, depth, stamp = seq.load(i)
         f = m.step(rgb, depth, stamp)
@@ -92,6 +92,11 @@ def main() -> None:
             env["PYTHONPATH"] = tree
         row: dict[str, object] = {}
         row["site_mb"], row["packages"] = site_packages(python, env)
+        find = "import importlib.util as u; print(','.join(m for m in " \
+            "('torch', 'torchvision', 'lightning', 'tensorboard', 'albumentations') " \
+            "if u.find_spec(m)))"  # fmt: skip
+        row["train_stack"] = subprocess.run([python, "-c", find], capture_output=True, text=True,
+                                            env=env, check=True).stdout.strip() or "-"  # fmt: skip
         probe = "import sys, slimseg; getattr(slimseg, 'Masker', None); print(','.join(" \
             "m for m in ('torch', 'torchvision', 'lightning', 'pycocotools', 'scipy') " \
             "if m in sys.modules))"  # fmt: skip

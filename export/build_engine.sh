@@ -5,9 +5,14 @@
 # min 1x3x320x320, opt 1x3xHxW (the export's imgsz from the sidecar JSON), max BxHxW.
 # The sidecar NAME.json (the ONNX metadata) travels with the engine: engines carry no metadata.
 #
-# Precision follows the sidecar's "precision" (an INT8 file made for onnxruntime, int8.target
-# "onnxruntime", is refused: TensorRT takes only symmetric int8 Q/DQ):
-#   fp32/fp16 exports  -> --fp16 (FP16 kernels allowed).
+# Precision follows the sidecar's "precision" and the TensorRT version (an INT8 file made for
+# onnxruntime, int8.target "onnxruntime", is refused: TensorRT takes only symmetric int8 Q/DQ):
+#   fp32/fp16 exports, TensorRT 8.6 / 10 (weakly typed) -> --fp16 (FP16 kernels allowed).
+#   fp32/fp16 exports, TensorRT 11 (strongly typed only; it refuses --fp16) or 10 with
+#     STRONGLY_TYPED=1 -> --stronglyTyped: every tensor keeps the file's type, so an FP32 file
+#     builds an FP32 engine; give it the --half file (NAME-fp16.onnx, FP16 tensors; an
+#     end-to-end one keeps its boxes, scores and NMS in FP32) for FP16 speed.
+# End-to-end exports (sidecar "end2end": NMS inside, NonMaxSuppression/TopK) need TensorRT >= 8.6.
 #   int8 (Q/DQ) exports, explicit quantization: the scales come from the file's Q/DQ nodes, never
 #   from a TensorRT calibrator.
 #     TensorRT 8.6 / 10 (weakly typed): --int8 --fp16 lets the quantized convs run in INT8 and the
@@ -22,7 +27,7 @@ max_batch=${3:-4}
 sidecar=${onnx%.onnx}.json
 command -v trtexec >/dev/null || { echo "trtexec not found: install TensorRT and add its bin/ to PATH" >&2; exit 2; }
 [ -f "$sidecar" ] || { echo "$sidecar missing: export with 'slimseg export' (it writes the sidecar)" >&2; exit 2; }
-read -r h w dynamic precision target < <(python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print(m['imgsz'][0], m['imgsz'][1], int(m['dynamic_shapes']), m.get('precision', 'fp32'), (m.get('int8') or {}).get('target', 'tensorrt'))" "$sidecar")
+read -r h w dynamic precision target end2end < <(python3 -c "import json,sys; m=json.load(open(sys.argv[1])); print(m['imgsz'][0], m['imgsz'][1], int(m['dynamic_shapes']), m.get('precision', 'fp32'), (m.get('int8') or {}).get('target', 'tensorrt'), int('end2end' in m))" "$sidecar")
 if [ "$precision" = int8 ] && [ "$target" != tensorrt ]; then
   echo "$onnx: an INT8 file for $target (uint8 activations), not for TensorRT: re-export with 'slimseg export --int8 --int8-target tensorrt'" >&2
   exit 2
@@ -30,13 +35,20 @@ fi
 # trtexec prints e.g. "TensorRT v8601" (8.6.1) or "TensorRT v100300" (10.3.0).
 ver=$(trtexec --help 2>&1 | grep -o 'TensorRT v[0-9]*' | head -n1 | grep -o '[0-9]*$' || true)
 if [ -z "$ver" ]; then major=10; elif [ ${#ver} -ge 6 ]; then major=$((ver / 10000)); else major=$((ver / 1000)); fi
+if [ "$end2end" = 1 ] && [ "$major" -lt 9 ] && [ -n "$ver" ] && [ "$ver" -lt 8600 ]; then
+  echo "$onnx: an end-to-end export (NonMaxSuppression, TopK inside) needs TensorRT >= 8.6" >&2
+  exit 2
+fi
+strongly_typed=0
+if [ "$major" -ge 11 ] || [ "${STRONGLY_TYPED:-0}" = 1 ]; then strongly_typed=1; fi
 args=(--onnx="$onnx" --saveEngine="$engine" --skipInference)
-if [ "$precision" = int8 ]; then
-  if [ "$major" -ge 11 ] || [ "${STRONGLY_TYPED:-0}" = 1 ]; then
-    args+=(--stronglyTyped)
-  else
-    args+=(--int8 --fp16)
+if [ "$strongly_typed" = 1 ]; then
+  args+=(--stronglyTyped)
+  if [ "$precision" = fp32 ]; then
+    echo "note: TensorRT $major builds this FP32 file in FP32 (strongly typed); export --half for FP16" >&2
   fi
+elif [ "$precision" = int8 ]; then
+  args+=(--int8 --fp16)
 else
   args+=(--fp16)
 fi

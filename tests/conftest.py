@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -13,6 +14,8 @@ from torch import nn
 
 from slimseg.models.registry import build_model
 from slimseg.objects import Objects
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def disc_scene(rng: np.random.Generator, h: int, w: int, discs: int) -> np.ndarray:
@@ -94,6 +97,21 @@ def _seed() -> None:
 @pytest.fixture
 def build():
     return build_model
+
+
+@pytest.fixture(scope="session")
+def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``slimseg_masks`` built from export/cpp (one unity build, -O2), once per session (the
+    C++ consumer tests of test_cpp_consumer.py and test_end2end.py share it)."""
+    build = tmp_path_factory.mktemp("cpp_build")
+    configure = [
+        "cmake", "-S", str(ROOT / "export" / "cpp"), "-B", str(build),
+        "-DCMAKE_BUILD_TYPE=Release", "-DCMAKE_CXX_FLAGS_RELEASE=-O2", "-DCMAKE_UNITY_BUILD=ON",
+        "-DSLIMSEG_TESTS=OFF",  # the library's ctest suite: tests/test_cpp_package.py
+    ]  # fmt: skip
+    subprocess.run(configure, check=True, capture_output=True)
+    subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True, capture_output=True)
+    return build / "slimseg_masks"
 
 
 def frame_objects(boxes, classes, masks, hw, scores=None) -> Objects:

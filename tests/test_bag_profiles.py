@@ -18,9 +18,9 @@ import pytest
 from conftest import class_map_weights
 
 from slimseg.cli.main import main
-from slimseg.data.bag_poses import read_poses
-from slimseg.data.bag_reader import stamp_ns
-from slimseg.data.bag_sequence import BagSequence
+from slimseg.data.bags.poses import read_poses
+from slimseg.data.bags.reader import stamp_ns
+from slimseg.data.bags.sequence import BagSequence
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
@@ -72,18 +72,17 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Env:
 
 @pytest.mark.parametrize("name", list(RECORDINGS))
 def test_every_profile_reads_as_the_folders_frames(env: Env, name: str) -> None:
-    tum, bag = TumSequence(env.seq), open_sequence(env.recordings[name])
-    assert isinstance(bag, BagSequence) and len(bag) == len(tum) == 10
-    assert bag.profile == RECORDINGS[name][2]
-    assert bag.camera == tum.camera and "camera_info" in bag.camera_source
-    assert bag.frames.unmatched_rgb == bag.frames.unmatched_depth == 0
-    for i in [*range(len(tum)), 2, 0]:  # in order (depth logged a frame late), then back
-        rgb, depth, t = bag.load(i)
-        ref_rgb, ref_depth, ref_t = tum.load(i)
-        assert t == ref_t and np.array_equal(rgb, ref_rgb) and np.array_equal(depth, ref_depth)
-    assert bag.headers[3].ns == stamp_ns(tum.frames[3][0][0])
-    assert bag.headers[3].frame_id == pr.FRAME
-    bag.close()
+    with TumSequence(env.seq) as tum, open_sequence(env.recordings[name]) as bag:
+        assert isinstance(bag, BagSequence) and len(bag) == len(tum) == 10
+        assert bag.profile == RECORDINGS[name][2]
+        assert bag.camera == tum.camera and "camera_info" in bag.camera_source
+        assert bag.frames.unmatched_rgb == bag.frames.unmatched_depth == 0
+        for i in [*range(len(tum)), 2, 0]:  # in order (depth logged a frame late), then back
+            rgb, depth, t = bag.load(i)
+            ref_rgb, ref_depth, ref_t = tum.load(i)
+            assert t == ref_t and np.array_equal(rgb, ref_rgb) and np.array_equal(depth, ref_depth)
+        assert bag.headers[3].ns == stamp_ns(tum.frames[3][0][0])
+        assert bag.headers[3].frame_id == pr.FRAME
 
 
 @pytest.mark.parametrize("name", list(RECORDINGS))

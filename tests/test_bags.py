@@ -18,13 +18,14 @@ from conftest import class_map_weights
 from test_bad_inputs_content import png_bomb
 
 from slimseg.cli.main import main
-from slimseg.data.bag_reader import Header, stamp_ns
-from slimseg.data.bag_sequence import BagSequence
-from slimseg.data.bag_writer import BagWriter
+from slimseg.data.bags.from_tum import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
+from slimseg.data.bags.reader import Header, stamp_ns
+from slimseg.data.bags.sequence import BagSequence
+from slimseg.data.bags.writer import BagWriter
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
-from slimseg.data.tum_to_bag import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
+from slimseg.errors import SlimsegError
 from slimseg.sequence.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
 from slimseg.utils.atomic import write_png
 
@@ -72,20 +73,23 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Env:
 
 @pytest.mark.parametrize("name", list(BAGS))
 def test_every_bag_kind_reads_as_the_folders_frames(env: Env, name: str) -> None:
-    tum, bag = TumSequence(env.seq), open_sequence(env.bags[name])
-    assert isinstance(bag, BagSequence) and len(bag) == len(tum)
-    assert bag.camera == tum.camera and "camera_info" in bag.camera_source
-    assert [f[0][1] for f in bag.frames] == [f"rgb/{mask_name(t)}" for (t, _), _ in tum.frames]
-    for i in [*range(len(tum)), 1, 0]:  # in order, then back (the cursor restarts)
-        rgb, depth, t = bag.load(i)
-        ref_rgb, ref_depth, ref_t = tum.load(i)
-        assert t == ref_t and depth.dtype == np.float32
-        assert np.array_equal(depth, ref_depth)
-        if BAGS[name][1] == "jpeg":
-            assert np.abs(rgb.astype(int) - ref_rgb).mean() < 8
-        else:
-            assert np.array_equal(rgb, ref_rgb)
-    assert bag.headers[0] == Header(stamp_ns(tum.frames[0][0][0]), FRAME_ID)
+    with TumSequence(env.seq) as tum, open_sequence(env.bags[name]) as bag:
+        assert isinstance(bag, BagSequence) and len(bag) == len(tum)
+        assert bag.camera == tum.camera and "camera_info" in bag.camera_source
+        assert [f[0][1] for f in bag.frames] == [f"rgb/{mask_name(t)}" for (t, _), _ in tum.frames]
+        for i in [*range(len(tum)), 1, 0]:  # in order, then back (the cursor restarts)
+            rgb, depth, t = bag.load(i)
+            ref_rgb, ref_depth, ref_t = tum.load(i)
+            assert t == ref_t and depth.dtype == np.float32
+            assert np.array_equal(depth, ref_depth)
+            if BAGS[name][1] == "jpeg":
+                assert np.abs(rgb.astype(int) - ref_rgb).mean() < 8
+            else:
+                assert np.array_equal(rgb, ref_rgb)
+        assert bag.headers[0] == Header(stamp_ns(tum.frames[0][0][0]), FRAME_ID)
+    assert bag.closed  # leaving the block closed the recording
+    with pytest.raises(SlimsegError, match="was closed; open it again"):
+        bag.load(0)
 
 
 @pytest.mark.parametrize("name", ["raw.bag", "sqlite_png", "bare.mcap"])

@@ -38,7 +38,6 @@ from slimseg.dynamic.semantic import objects_of
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
-ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["person", "chair", "car"]
 MOBILITY = [1.0, 0.1, 0.3]
 # Masking settings the tests write into the metadata (read back by both sides): the default
@@ -57,20 +56,6 @@ KEYPOINTS = 200  # caller-given keypoints per frame (uniform, a quarter on half-
 
 
 pytestmark = pytest.mark.skipif(not have_cpp_toolchain(), reason="needs cmake and a C++ compiler")
-
-
-@pytest.fixture(scope="session")
-def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``slimseg_masks`` built from export/cpp (one unity build, -O2)."""
-    build = tmp_path_factory.mktemp("cpp_build")
-    configure = [
-        "cmake", "-S", str(ROOT / "export" / "cpp"), "-B", str(build),
-        "-DCMAKE_BUILD_TYPE=Release", "-DCMAKE_CXX_FLAGS_RELEASE=-O2", "-DCMAKE_UNITY_BUILD=ON",
-        "-DSLIMSEG_TESTS=OFF",  # the library's ctest suite: tests/test_cpp_package.py
-    ]  # fmt: skip
-    subprocess.run(configure, check=True, capture_output=True)
-    subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True, capture_output=True)
-    return build / "slimseg_masks"
 
 
 def _scene(rng: np.random.Generator, h: int, w: int) -> np.ndarray:

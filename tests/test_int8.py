@@ -322,11 +322,14 @@ def test_entropy_calibration_is_not_minmax(
         ("v100300", "int8", ["--int8", "--fp16"]),
         ("v110000", "int8", ["--stronglyTyped"]),
         ("v100300", "fp32", ["--fp16"]),
+        ("v100300", "fp16", ["--fp16"]),
+        ("v110000", "fp16", ["--stronglyTyped"]),  # TensorRT 11 refuses --fp16
+        ("v110000", "fp32", ["--stronglyTyped"]),
     ],
 )
 def test_build_engine_flags(tmp_path: Path, version: str, precision: str, flags: list) -> None:
-    """build_engine.sh picks explicit-quantization flags by the sidecar's precision and the
-    TensorRT version (a stand-in trtexec records its arguments)."""
+    """build_engine.sh picks its precision flags by the sidecar's precision and the TensorRT
+    version (a stand-in trtexec records its arguments)."""
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     fake = bin_dir / "trtexec"

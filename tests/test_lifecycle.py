@@ -103,7 +103,7 @@ def test_tum2bag_keeps_a_bag_created_while_it_writes(
     seq: Path, tmp_path: Path, monkeypatch, capfd
 ) -> None:
     pytest.importorskip("rosbags")
-    import slimseg.data.bag_writer as bw
+    import slimseg.data.bags.writer as bw
 
     out = tmp_path / "x.bag"
     real = bw.publish_new
@@ -130,16 +130,15 @@ def test_bag_topics_are_escaped_on_the_way_to_the_terminal(
     seq: Path, tmp_path: Path, monkeypatch
 ) -> None:
     pytest.importorskip("rosbags")
-    import slimseg.data.tum_to_bag as t2b
-    from slimseg.data.bag_sequence import BagSequence
+    import slimseg.data.bags.from_tum as t2b
+    from slimseg.data.bags.sequence import BagSequence
 
     monkeypatch.setattr(t2b, "RGB_TOPIC", "/cam\x1b[2J\x1b[31mFAKE/rgb")
     monkeypatch.setattr(t2b, "INFO_TOPIC", "/cam\u202e/info")
     bag = tmp_path / "esc.mcap"
     t2b.tum_to_bag(seq, bag)
-    s = BagSequence(bag)
-    lines = s.describe() + "\n" + s.describe_camera()
-    s.close()
+    with BagSequence(bag) as s:
+        lines = s.describe() + "\n" + s.describe_camera()
     assert "\x1b" not in lines and "\u202e" not in lines
     assert "/cam\\x1b[2J\\x1b[31mFAKE/rgb" in lines and "/cam\\u202e/info" in lines
 

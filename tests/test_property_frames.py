@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from slimseg.data.bag_images import (
+from slimseg.data.bags.image_messages import (
     colour_from_compressed,
     colour_from_image,
     depth_from_compressed,
@@ -50,8 +50,8 @@ def seq(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def bag(seq: Path):
     pytest.importorskip("rosbags")
-    from slimseg.data.bag_reader import BagFile
-    from slimseg.data.tum_to_bag import tum_to_bag
+    from slimseg.data.bags.from_tum import tum_to_bag
+    from slimseg.data.bags.reader import BagFile
 
     path = seq.parent / "s.mcap"
     tum_to_bag(seq, path)

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from slimseg.data.bag_poses import degenerate, ground_truth
+from slimseg.data.bags.poses import degenerate, ground_truth
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.data.tum import TumSequence, read_camera, read_trajectory
 from slimseg.data.value_checks import check_intrinsics, check_pose
@@ -109,8 +109,8 @@ def test_a_frame_without_depth_is_named_once(seq: Path, tmp_path: Path, caplog) 
 
 def test_a_bag_frame_of_another_size_is_named(seq: Path, tmp_path: Path, monkeypatch) -> None:
     pytest.importorskip("rosbags")
-    from slimseg.data.bag_sequence import BagSequence
-    from slimseg.data.tum_to_bag import tum_to_bag
+    from slimseg.data.bags.from_tum import tum_to_bag
+    from slimseg.data.bags.sequence import BagSequence
 
     real = TumSequence.load
 
@@ -123,9 +123,8 @@ def test_a_bag_frame_of_another_size_is_named(seq: Path, tmp_path: Path, monkeyp
     monkeypatch.setattr(TumSequence, "load", grown)
     bag = tmp_path / "s.mcap"
     tum_to_bag(seq, bag, camera_info=False)
-    s = BagSequence(bag)
-    s.load(0)
-    s.load(1)
-    with pytest.raises(SlimsegError, match=r"s\.mcap at .* s: 64x50 px, but .* is 64x48"):
-        s.load(2)
-    s.close()
+    with BagSequence(bag) as s:
+        s.load(0)
+        s.load(1)
+        with pytest.raises(SlimsegError, match=r"s\.mcap at .* s: 64x50 px, but .* is 64x48"):
+            s.load(2)

@@ -40,11 +40,12 @@ from typing import TYPE_CHECKING, Any
 from slimseg.ablate.lease import TASK_STARTED_ENV, state_dir
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
+from slimseg.utils.extras import install_command
 
 if TYPE_CHECKING:
     from slimseg.ablate.config import AblationConfig
 
-INSTALL_HINT = "pip install 'slimseg[ray]'"
+INSTALL_HINT = install_command("ray")
 
 logger = logging.getLogger(__name__)
 

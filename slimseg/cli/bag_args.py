@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from slimseg.data.bag_sequence import BagOptions
+from slimseg.data.bags.sequence import BagOptions
 
 SEQUENCE_HELP = (
     "TUM-layout folder (rgb.txt, depth.txt), or a ROS recording: a ROS 1 .bag, a rosbag2 "

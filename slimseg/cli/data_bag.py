@@ -7,8 +7,8 @@ import argparse
 from pathlib import Path
 
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
-from slimseg.data.bag_writer import STORAGES
-from slimseg.data.tum_to_bag import COLOURS, DEPTHS
+from slimseg.data.bags.from_tum import COLOURS, DEPTHS
+from slimseg.data.bags.writer import STORAGES
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -46,7 +46,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
 
 
 def run_bag2tum(args: argparse.Namespace) -> int:
-    from slimseg.data.bag_to_tum import bag_to_tum
+    from slimseg.data.bags.to_tum import bag_to_tum
 
     rep = bag_to_tum(
         args.bag,
@@ -63,7 +63,7 @@ def run_bag2tum(args: argparse.Namespace) -> int:
 
 
 def run_tum2bag(args: argparse.Namespace) -> int:
-    from slimseg.data.tum_to_bag import tum_to_bag
+    from slimseg.data.bags.from_tum import tum_to_bag
 
     n = tum_to_bag(args.sequence, args.out, args.bag_storage, args.colour, args.depth)
     print(f"{n} frames written to {args.out}")

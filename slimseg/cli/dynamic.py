@@ -27,11 +27,15 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
-from slimseg.data.bag_sequence import BagSequence
-from slimseg.data.bag_writer import STORAGES
+from slimseg.data.bags.sequence import BagSequence
+from slimseg.data.bags.writer import STORAGES
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.sequence_source import open_sequence
 from slimseg.data.tum import mask_name
+from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TrackPlan
+from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES, Mode
 from slimseg.errors import SlimsegError
 from slimseg.sequence.mask_bag import (
@@ -155,7 +159,21 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     bag_out = _bag_output(args, out)
     rerun = rerun_path(args, out, {"--sequence": args.sequence, "--model": args.model})
-    seq = open_sequence(sequence, bag_options_from_args(args))  # fails before the model loads
+    with open_sequence(sequence, bag_options_from_args(args)) as seq:  # before the model loads
+        return _run(args, seq, masking, track, dropout, bag_out, rerun)
+
+
+def _run(
+    args: argparse.Namespace,
+    seq: FrameSource,
+    masking: MaskingSettings,
+    track: TrackPlan,
+    dropout: Dropout | None,
+    bag_out: bool,
+    rerun: Path | None,
+) -> int:
+    """:func:`run` on the opened sequence (closed by the caller)."""
+    sequence, out = Path(args.sequence), Path(args.out)
     if isinstance(seq, BagSequence):
         if args.gt_instances:
             raise SlimsegError("--gt-instances reads a synthetic TUM folder's annotations.json; "
@@ -308,7 +326,7 @@ def _bag_output(args: argparse.Namespace, out: Path) -> bool:
 @contextmanager
 def _staged_output(
     out: Path,
-    seq: Sequence,
+    seq: FrameSource,
     bag_out: bool,
     args: argparse.Namespace,
     boxes: list[FrameBoxes] | None = None,
@@ -336,7 +354,7 @@ def _staged_output(
                 p.rmdir()
 
 
-def _restore(args: argparse.Namespace, seq: Sequence, out: Path, which: str) -> RestoreReport:
+def _restore(args: argparse.Namespace, seq: FrameSource, out: Path, which: str) -> RestoreReport:
     """Restore the frames into ``out/restored`` (``out``: the staging folder, holding this
     run's ``masks/``); with a true background, the score table in ``out/restoration.csv``."""
     folder = out / "masks" if which == "pred" else seq.root / "dynamic"

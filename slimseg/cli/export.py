@@ -8,6 +8,7 @@ from pathlib import Path
 
 from slimseg.cli.arg_types import count, image_side, number
 from slimseg.cli.commands import COMMAND_HELP
+from slimseg.deploy.end2end_graph import DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, End2EndSettings
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
@@ -16,6 +17,7 @@ from slimseg.deploy.onnx_io import sidecar_path
 from slimseg.errors import SlimsegError
 from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_model
+from slimseg.ops.nms_numpy import MAX_DET
 from slimseg.utils.outputs import refuse_inputs
 
 MAX_EXPORT_SIDE = 4096  # a 4096 x 4096 trace already holds GBs of activations
@@ -32,7 +34,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "onnxruntime: uint8 activations, the whole body, for onnxruntime on a CPU) -> box "
         "and mask mAP50-95 of FP32 and INT8 on the val split; refused when either drops more "
         "than --int8-max-drop points. The file (and NAME.json sidecar) appears at --out only if "
-        "the checks hold; otherwise the command fails and leaves nothing.",
+        "the checks hold; otherwise the command fails and leaves nothing. --end2end: NMS and "
+        "mask assembly inside the graph (standard ONNX operators; docs/end2end.md), gated on "
+        "slimseg predict's instances on synthetic frames.",
     )
     p.add_argument("--weights", required=True, help="weights .pt/.ckpt, or a model name")
     p.add_argument(
@@ -47,6 +51,29 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dynamic", action="store_true", help="dynamic batch, height and width")
     p.add_argument("--opset", type=count(1), default=18)
     p.add_argument("--no-simplify", action="store_true", help="skip onnxslim")
+    p.add_argument(
+        "--end2end",
+        action="store_true",
+        help="decode, class-aware NMS, top --max-det and masks inside the graph (yolov8)",
+    )
+    p.add_argument(
+        "--conf",
+        type=number(0, 1, open_high=True),
+        default=None,
+        help=f"--end2end: keep scores above it (default {DEFAULT_END2END_CONF})",
+    )
+    p.add_argument(
+        "--iou",
+        type=number(0, 1, open_low=True),
+        default=None,
+        help=f"--end2end: NMS IoU threshold (default {DEFAULT_END2END_IOU})",
+    )
+    p.add_argument(
+        "--max-det",
+        type=count(1),
+        default=None,
+        help=f"--end2end: rows per image (default {MAX_DET})",
+    )
     p.add_argument("--int8", action="store_true", help="INT8 Q/DQ, calibrated and gated")
     p.add_argument(
         "--int8-target",
@@ -79,6 +106,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.int8 and (args.half or args.dynamic):
         raise SlimsegError("--int8 goes without --half and --dynamic (a static FP32-IO graph)")
+    if args.int8 and args.end2end:
+        raise SlimsegError(
+            "--end2end goes without --int8: the INT8 flow quantizes the raw graph only; export "
+            "--int8 for the network and run NMS in the runtime, or --end2end [--half]"
+        )
+    if not args.end2end and (args.conf is not None or args.iou is not None or args.max_det):
+        raise SlimsegError("--conf, --iou and --max-det only apply with --end2end")
     if args.int8 and not args.calib:
         raise SlimsegError("--int8 needs --calib DATA.yaml or --calib FOLDER of frames")
     if not args.int8 and (args.calib or args.calib_images or args.int8_val or args.int8_target):
@@ -97,7 +131,9 @@ def run(args: argparse.Namespace) -> int:
     imgsz = (args.imgsz[0], args.imgsz[-1])
     target = args.int8_target or DEFAULT_INT8_TARGET
     int8_suffix = "-int8" if target == DEFAULT_INT8_TARGET else "-int8-ort"
-    suffix = "-fp16" if args.half else int8_suffix if args.int8 else ""
+    suffix = ("-e2e" if args.end2end else "") + (
+        "-fp16" if args.half else int8_suffix if args.int8 else ""
+    )
     out = Path(args.out) if args.out else Path("export") / f"{model.spec.name}{suffix}.onnx"
     inputs = {"--weights": args.weights, "--calib": args.calib, "--int8-val": args.int8_val}
     for written in (out, sidecar_path(out)):  # the graph and its sidecar
@@ -114,12 +150,21 @@ def run(args: argparse.Namespace) -> int:
         dynamic=args.dynamic,
         opset=args.opset,
         simplify=not args.no_simplify,
+        end2end=_end2end_settings(args),
     )
     print(f"wrote {report.path} ({report.precision}, opset {report.opset}, {report.nodes} nodes)")
     print(f"  metadata sidecar {report.sidecar}")
     print(f"  ops: {', '.join(report.ops)}")
     print("  parity vs fused torch: " + ", ".join(f"{k} {v:.3g}" for k, v in report.parity.items()))
     return 0
+
+
+def _end2end_settings(args: argparse.Namespace) -> End2EndSettings | None:
+    if not args.end2end:
+        return None
+    conf = DEFAULT_END2END_CONF if args.conf is None else args.conf
+    iou = DEFAULT_END2END_IOU if args.iou is None else args.iou
+    return End2EndSettings(conf=conf, iou=iou, max_det=args.max_det or MAX_DET)
 
 
 def _run_int8(args, model, out: Path, imgsz, names, mobility) -> int:

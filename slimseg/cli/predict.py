@@ -42,8 +42,8 @@ from slimseg.cli.arg_types import FRACTION, count, multiple_of, threads
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.rerun_args import add_rerun_arg, kept_recording, rerun_path
 from slimseg.cli.track_args import add_track_args, track_plan_from_args
-from slimseg.data.bag_colour import BagColour
-from slimseg.data.bag_reader import is_bag
+from slimseg.data.bags.colour_stream import BagColour
+from slimseg.data.bags.reader import is_bag
 from slimseg.data.images import read_rgb
 from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample

@@ -11,7 +11,7 @@ import numpy as np
 
 from slimseg.cli.arg_types import count
 from slimseg.cli.commands import COMMAND_HELP
-from slimseg.data.bag_reader import is_bag
+from slimseg.data.bags.reader import is_bag
 from slimseg.errors import SlimsegError
 from slimseg.utils.outputs import claim_file, refuse_inputs
 
@@ -73,7 +73,7 @@ def expand_images(patterns: list[str], max_images: int, out: Path | None = None)
 def bag_frames(bag: str, rgb_topic: str | None, max_images: int) -> list[np.ndarray]:
     """A bag's colour frames as grey ``uint8 [H, W]``, evenly thinned to ``max_images`` (only
     those decoded)."""
-    from slimseg.data.bag_colour import BagColour
+    from slimseg.data.bags.colour_stream import BagColour
 
     if max_images < 1:
         raise SlimsegError(f"--max-images {max_images} must be at least 1")

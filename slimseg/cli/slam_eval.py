@@ -173,7 +173,7 @@ def _inputs(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from slimseg.data.bag_poses import ground_truth
+    from slimseg.data.bags.poses import ground_truth
     from slimseg.data.sequence_source import open_sequence
     from slimseg.slam import session
 
@@ -198,36 +198,36 @@ def run(args: argparse.Namespace) -> int:
         args.modes, args.model is not None or args.gt_instances, args.masks is not None
     )
     rerun = rerun_path(args, Path(args.out), _inputs(args))
-    seq = open_sequence(args.sequence, bag_options_from_args(args))
-    gt = partial(ground_truth, seq.root, args.groundtruth, args.pose_topic, args.pose_frame)
-    session.refuse_masks_inside(args.out, args.masks)
-    plan = session.Plan(
-        sequence=seq,
-        groundtruth=gt,
-        names=names,
-        model=args.model,
-        gt_instances=args.gt_instances,
-        masks=args.masks,
-        restore=_restore_list(args.restore, names),
-        engine=args.engine,
-        runs=args.runs,
-        vocab=args.vocab,
-        masking=masking,
-        keypoints=args.keypoints,
-        track=track,
-        dropout=dropout,
-        features=args.features,
-        realtime=not args.no_realtime,
-        speed=args.speed,
-        threads=args.threads,
-        progress=not args.quiet,
-        rerun=rerun,
-    )
-    out = args.out
-    # every file appears when the session is done, replacing an earlier session's folder
-    # whole (never mixed into the new table); a folder holding a user's files is refused
-    with staged_dir(out, command="slam-eval", inputs=_inputs(args)) as stage:
-        rows, info = session.run_plan(plan, stage, say)
+    with open_sequence(args.sequence, bag_options_from_args(args)) as seq:
+        gt = partial(ground_truth, seq.root, args.groundtruth, args.pose_topic, args.pose_frame)
+        session.refuse_masks_inside(args.out, args.masks)
+        plan = session.Plan(
+            sequence=seq,
+            groundtruth=gt,
+            names=names,
+            model=args.model,
+            gt_instances=args.gt_instances,
+            masks=args.masks,
+            restore=_restore_list(args.restore, names),
+            engine=args.engine,
+            runs=args.runs,
+            vocab=args.vocab,
+            masking=masking,
+            keypoints=args.keypoints,
+            track=track,
+            dropout=dropout,
+            features=args.features,
+            realtime=not args.no_realtime,
+            speed=args.speed,
+            threads=args.threads,
+            progress=not args.quiet,
+            rerun=rerun,
+        )
+        out = args.out
+        # every file appears when the session is done, replacing an earlier session's folder
+        # whole (never mixed into the new table); a folder holding a user's files is refused
+        with staged_dir(out, command="slam-eval", inputs=_inputs(args)) as stage:
+            rows, info = session.run_plan(plan, stage, say)
     from slimseg.slam.report import as_json_rows, table_lines
 
     say(f"{info.engine} on {seq.root.name}: {info.frames} frames, vocabulary {info.vocabulary}, "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Callable
+from contextlib import ExitStack
 
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
@@ -40,7 +41,7 @@ def run_sweep_command(
 ) -> int:
     """Validate the sweep options, run it, print and write the tables (every setting under
     the ``track`` stage, on ground-truth instances with ``dropout`` if given)."""
-    from slimseg.data.bag_reader import is_bag
+    from slimseg.data.bags.reader import is_bag
     from slimseg.data.tum import TumSequence
     from slimseg.slam.sweep import parse_sweep
     from slimseg.slam.sweep_report import table, write_sweep
@@ -59,30 +60,31 @@ def run_sweep_command(
     if bags:
         raise SlimsegError(f"--sweep reads TUM folders, not bags ({', '.join(bags)}): convert "
                            "them first with slimseg data bag2tum")  # fmt: skip
-    plan = SweepPlan(
-        sequences=[TumSequence(s) for s in args.sequence],
-        mode=mode,
-        spec=spec,
-        how=args.sweep_mode,
-        base=masking,
-        model=args.model,
-        gt_instances=args.gt_instances,
-        engine=args.engine,
-        runs=args.runs,
-        vocab=args.vocab,
-        keypoints=args.keypoints,
-        features=args.features,
-        realtime=not args.no_realtime,
-        speed=args.speed,
-        threads=args.threads,
-        progress=not args.quiet,
-        track=track,
-        dropout=dropout,
-    )
-    inputs = {"--sequence": args.sequence, "--model": args.model, "--vocab": args.vocab}
-    refuse_inputs(args.out, "--out", inputs, folder=True)
-    claim_sweep_out(plan, args.out)  # a user's files in --out are never replaced
-    sweeps = run_sweep(plan, args.out, say)
+    with ExitStack() as opened:  # every sequence closed when the sweep is done
+        plan = SweepPlan(
+            sequences=[opened.enter_context(TumSequence(s)) for s in args.sequence],
+            mode=mode,
+            spec=spec,
+            how=args.sweep_mode,
+            base=masking,
+            model=args.model,
+            gt_instances=args.gt_instances,
+            engine=args.engine,
+            runs=args.runs,
+            vocab=args.vocab,
+            keypoints=args.keypoints,
+            features=args.features,
+            realtime=not args.no_realtime,
+            speed=args.speed,
+            threads=args.threads,
+            progress=not args.quiet,
+            track=track,
+            dropout=dropout,
+        )
+        inputs = {"--sequence": args.sequence, "--model": args.model, "--vocab": args.vocab}
+        refuse_inputs(args.out, "--out", inputs, folder=True)
+        claim_sweep_out(plan, args.out)  # a user's files in --out are never replaced
+        sweeps = run_sweep(plan, args.out, say)
     model = "ground-truth instances" if args.gt_instances else f"model {args.model}"
     rows = write_sweep(args.out, plan, sweeps, model)
     for sw in sweeps:

@@ -15,7 +15,8 @@ at most once, pairs further apart than ``max_dt`` (0.02 s) dropped.
 ``camera.yaml`` is read strictly: a key must be one slimseg reads (:data:`CAMERA_KEYS`) or
 one it knows to ignore (:data:`CAMERA_EXTRA_KEYS`, ORB-SLAM's dotted settings), every value a
 finite number > 0; keys it lacks come from the folder-name calibration below. Depth must be
-uint16, and the first frame's median depth must be plausible (:data:`DEPTH_RANGE_M`) at the
+uint16, and the first frame's median depth must be plausible
+(:data:`~slimseg.data.frame_source.DEPTH_RANGE_M`) at the
 depth scale in use.
 
 Intrinsics: Published pinhole calibrations of the public RGB-D benchmarks, picked by folder name.
@@ -41,6 +42,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from slimseg.data.frame_source import (
+    DEPTH_RANGE_M,
+    Frame,
+    PairedFrames,
+    implausible_median_depth,
+)
 from slimseg.data.images import decode_file
 from slimseg.data.value_checks import FrameChecks, check_intrinsics, check_pose
 from slimseg.errors import SlimsegError
@@ -246,7 +253,6 @@ CAMERA_KEYS: dict[str, tuple[str, ...]] = {
 # extras, ORB-SLAM's depth threshold); any other plain key is a typo. Dotted keys are ORB-SLAM
 # settings (ORBextractor.*, Viewer.*, ...) and pass unless they misspell a read one.
 CAMERA_EXTRA_KEYS = ("width", "height", "distortion", "fps", "depth_offset_s", "ThDepth")
-DEPTH_RANGE_M = (0.05, 100.0)  # plausible median depth of a frame: outside, depth_scale is off
 
 
 def _check_camera_keys(path: Path, cfg: dict) -> None:
@@ -305,15 +311,8 @@ def read_camera(path: Path) -> dict[str, float]:
     return vals
 
 
-def frame_rate(frames: list) -> float:
-    """Frames per second from the median interval of the colour stamps of ``frames``
-    (``[((t_rgb, rgb), (t_depth, depth)), ...]``, a sequence's associations); 30 for one."""
-    stamps = np.array([t for (t, _), _ in frames])
-    return float(1.0 / np.median(np.diff(stamps))) if len(stamps) > 1 else 30.0
-
-
-class TumSequence:
-    """A TUM-layout RGB-D sequence folder.
+class TumSequence(PairedFrames):
+    """A TUM-layout RGB-D sequence folder, a :class:`~slimseg.data.frame_source.FrameSource`.
 
     ``frames``: associated ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs (paths relative
     to ``root``); ``camera``: :class:`Camera` from ``camera.yaml`` if present, else the
@@ -359,29 +358,18 @@ class TumSequence:
         self._depth_checked = False
         self._frames_seen = FrameChecks(str(self.root))
 
-    def describe_camera(self) -> str:
-        """One line for a command: the intrinsics in use and where they came from."""
-        c, source = self.camera, self.camera_source
+    def camera_origin(self) -> str:
+        """Where the intrinsics came from, the camera file named by its path."""
+        source = self.camera_source
         if source == f"{DEFAULT} (default)":
             source = f"{DEFAULT} (the default: no camera.yaml, no known camera in the folder name)"
-        source = source.replace("camera.yaml", str(self.root / "camera.yaml"), 1)
-        return printable(f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}")
+        return source.replace("camera.yaml", str(self.root / "camera.yaml"), 1)
 
-    @property
-    def fps(self) -> float:
-        """Frame rate from the median colour-frame interval (30 for a single frame)."""
-        return frame_rate(self.frames)
-
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def load(self, i: int) -> tuple[np.ndarray, np.ndarray, float]:
+    def load(self, i: int) -> Frame:
         """Frame ``i``: ``rgb uint8 [H, W, 3]`` (RGB order), ``depth_m float32 [H, W]`` metres
         (0 where invalid) and the RGB timestamp (s). Raises ``SlimsegError`` naming the file
         when it is missing or unreadable, and both files when their sizes differ."""
-        if not -len(self.frames) <= i < len(self.frames):
-            raise IndexError(f"frame {i} out of range (sequence has {len(self.frames)})")
-        (t_rgb, rgb_rel), (_, depth_rel) = self.frames[i]
+        (t_rgb, rgb_rel), (_, depth_rel) = self.frames[self.frame_index(i)]
         rgb_path, depth_path = self.root / rgb_rel, self.root / depth_rel
         bgr = _imread(rgb_path, cv2.IMREAD_COLOR)
         raw = _imread(depth_path, cv2.IMREAD_UNCHANGED)
@@ -407,18 +395,17 @@ class TumSequence:
 
     def _check_depth_scale(self, depth: np.ndarray, path: Path) -> None:
         """Refuse a ``depth_scale`` that puts the first loaded frame's median valid depth
-        outside :data:`DEPTH_RANGE_M` (e.g. millimetre depth read at TUM's 5000 per metre)."""
-        valid = depth[depth > 0]
-        if len(valid):
-            median = float(np.median(valid))
+        outside :data:`~slimseg.data.frame_source.DEPTH_RANGE_M` (e.g. millimetre depth read at
+        TUM's 5000 per metre)."""
+        median = implausible_median_depth(depth)
+        if median is not None:
             lo, hi = DEPTH_RANGE_M
-            if not lo <= median <= hi:
-                raise SlimsegError(
-                    f"depth image {path}: median depth {median:.3g} m at depth_scale "
-                    f"{self.camera.depth_scale:g} (from {self._scale_source}) is outside "
-                    f"{lo}-{hi} m; set depth_scale in camera.yaml to the stored units per metre "
-                    "(TUM 5000, mm 1000)"
-                )
+            raise SlimsegError(
+                f"depth image {path}: median depth {median:.3g} m at depth_scale "
+                f"{self.camera.depth_scale:g} (from {self._scale_source}) is outside "
+                f"{lo}-{hi} m; set depth_scale in camera.yaml to the stored units per metre "
+                "(TUM 5000, mm 1000)"
+            )
         self._depth_checked = True
 
 

@@ -234,10 +234,38 @@ def read_onnx_metadata(path: str | Path, props: dict[str, str]) -> dict[str, Any
     return meta
 
 
-def expected_outputs(meta: dict[str, Any]) -> dict[str, tuple[int, int]]:
+def with_end2end(meta: dict[str, Any], entry: dict[str, Any]) -> dict[str, Any]:
+    """The metadata of an end-to-end export (``slimseg export --end2end``) made from the raw
+    export's ``meta``: the ``end2end`` entry (``conf``, ``iou``, ``max_det`` baked into the
+    graph), ``nms`` bounded by it and ``outputs`` describing the end-to-end tensors."""
+    k = int(entry["max_det"])
+    nms = dict(meta["nms"])
+    nms.update(conf=max(float(nms["conf"]), float(entry["conf"])), iou=entry["iou"], max_det=k)
+    outputs: dict[str, Any] = {
+        "num_dets": {"shape": ["B"], "rows": "int32: valid rows of each image"},
+        "boxes": {"shape": ["B", k, 4], "rows": "float32 x1, y1, x2, y2 in input px; 0 padding"},
+        "scores": {"shape": ["B", k], "rows": "float32 best class score, decreasing; 0 padding"},
+        "classes": {"shape": ["B", k], "rows": "int32 class index; -1 padding"},
+    }
+    if meta.get("num_masks"):
+        stride = meta["proto_stride"]
+        outputs["masks"] = {
+            "shape": ["B", k, f"H/{stride}", f"W/{stride}"],
+            "rows": "sigmoid(coefficients . prototypes), 0 outside the box grown by one "
+            "prototype cell; upsample to the input, crop to the box, > 0.5, undo the letterbox",
+        }
+    return {**meta, "end2end": dict(entry), "nms": nms, "outputs": outputs}
+
+
+def expected_outputs(meta: dict[str, Any]) -> dict[str, tuple[int, int | None]]:
     """``{output name: (rank, channels)}`` a graph with this metadata must have: channels
-    (dim 1) from the class count of ``names`` and ``num_masks`` (see :func:`build_metadata`)."""
+    (dim 1) from the class count of ``names`` and ``num_masks`` (see :func:`build_metadata`);
+    end-to-end exports: their five tensors, dim 1 ``max_det``."""
     nc = len(meta["names"])
+    if isinstance(meta.get("end2end"), dict):
+        k = int(meta["end2end"]["max_det"])
+        e2e = {"num_dets": (1, None), "boxes": (3, k), "scores": (2, k), "classes": (2, k)}
+        return {**e2e, **({"masks": (4, k)} if meta.get("num_masks") else {})}
     if meta.get("task") == "semantic":
         return {"logits": (4, nc + 1)}
     if meta.get("family") == "darknet-yolov3":
@@ -265,7 +293,7 @@ def check_graph_outputs(path: str | Path, meta: dict[str, Any], graph: dict[str,
                 f"{path}: the metadata describes output {name!r}, the graph has "
                 f"{', '.join(sorted(graph)) or 'no outputs'}; re-export it with slimseg export"
             )
-        dim = shape[1] if len(shape) > 1 else None
+        dim = shape[1] if len(shape) > 1 and channels is not None else None
         if len(shape) != rank or (isinstance(dim, int) and dim != channels):
             raise SlimsegError(
                 f"{path}: output {name!r} has shape {list(shape)}, the metadata "

@@ -4,20 +4,24 @@ Pipeline: eval model → fuse (Conv+BN, RepConv) → ``torch.onnx.export`` (opse
 exporter: a plain static graph) → onnx checker + shape inference → onnxslim → FP16 conversion
 (``--half``: FP16 weights, compute, input and outputs) → metadata → parity against the fused
 torch model on two inputs with onnxruntime (:mod:`slimseg.deploy.parity`) → rename into place,
-plus a ``NAME.json`` sidecar (:mod:`slimseg.deploy.onnx_io`).
+plus a ``NAME.json`` sidecar (:mod:`slimseg.deploy.onnx_io`). ``end2end``: that verified raw
+graph plus the post-processing sub-graph (:mod:`slimseg.deploy.end2end_graph`), gated on the
+instances of ``slimseg predict``'s raw path (:mod:`slimseg.deploy.end2end_parity`).
 """
 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import onnx
 import torch
 from torch import nn
 
-from slimseg.deploy.metadata import build_metadata
+from slimseg.deploy.end2end_graph import End2EndSettings, append_end2end
+from slimseg.deploy.end2end_parity import verify_end2end
+from slimseg.deploy.metadata import build_metadata, with_end2end
 from slimseg.deploy.onnx_io import publish, stage, staging_dir
 from slimseg.deploy.parity import verify_parity
 from slimseg.errors import SlimsegError
@@ -135,6 +139,17 @@ def _toposort(graph: onnx.GraphProto) -> None:
     graph.node.extend(copies)
 
 
+def check_end2end_model(model: ZooModel) -> None:
+    """``SlimsegError`` unless ``model`` can take the end-to-end sub-graph: a YOLOv8 detector
+    or segmenter (Darknet YOLOv3 rows and MSNET class maps have no such graph yet)."""
+    spec = model.spec
+    if spec.family != "yolov8" or spec.task not in ("detect", "segment"):
+        raise SlimsegError(
+            f"--end2end: {spec.name} ({spec.family}, {spec.task}) has no end-to-end graph; "
+            "it is made for yolov8 detectors and segmenters (export without --end2end)"
+        )
+
+
 def export_onnx(
     model: ZooModel,
     out: str | Path,
@@ -145,15 +160,20 @@ def export_onnx(
     dynamic: bool = False,
     opset: int = 18,
     simplify: bool = True,
+    end2end: End2EndSettings | None = None,
 ) -> ExportReport:
     """Export ``model`` (fused here) to ``out`` for input ``images [B, 3, H, W]`` with
     ``(H, W) = imgsz``; the file appears only after parity passes
-    (:func:`~slimseg.deploy.parity.verify_parity`, else :class:`ExportParityError`)."""
+    (:func:`~slimseg.deploy.parity.verify_parity`, else :class:`ExportParityError`).
+    ``end2end``: write the end-to-end graph instead (NMS and masks inside), which must also
+    give the raw graph's instances (:func:`~slimseg.deploy.end2end_parity.verify_end2end`)."""
     if opset < MIN_OPSET:
         raise SlimsegError(f"--opset {opset}: need >= {MIN_OPSET} (TensorRT 8.6+/10 parse it)")
     h, w = imgsz
     if h % 32 or w % 32:
         raise SlimsegError(f"--imgsz {h}x{w}: both sides must be multiples of 32")
+    if end2end is not None:
+        check_end2end_model(model)
     out = Path(out)
     fused = model.fuse().float().eval().requires_grad_(False)
     precision = "fp16" if half else "fp32"
@@ -166,8 +186,19 @@ def export_onnx(
             proto = onnxslim.slim(proto)
         if half:
             proto = to_fp16(proto)
-        candidate = stage(proto, meta, tmp_dir, out.name)
+        raw_name = f"raw-{out.name}" if end2end is not None else out.name
+        candidate = stage(proto, meta, tmp_dir, raw_name)
         parity = verify_parity(fused, candidate, imgsz, half)
+        if end2end is not None:
+            raw_path = candidate
+            nm = int(meta.get("num_masks", 0))
+            batch = "batch" if dynamic else 1
+            end2end = replace(end2end, proto_stride=int(meta.get("proto_stride", 4)))
+            anchors = None if dynamic else sum((h // s) * (w // s) for s in meta["strides"])
+            proto = append_end2end(proto, model.num_classes, nm, end2end, batch, anchors)
+            meta = with_end2end(meta, end2end.as_dict())
+            candidate = stage(proto, meta, tmp_dir, out.name)
+            parity.update(verify_end2end(raw_path, candidate, imgsz, dynamic))
         sidecar = publish(candidate, meta, out)
     ops = sorted({n.op_type for n in proto.graph.node})
     return ExportReport(out, sidecar, precision, opset, len(proto.graph.node), ops, parity)

@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from slimseg.deploy.end2end_postprocess import is_end2end
 from slimseg.deploy.metadata import read_session_metadata
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.runners import OnnxRunner
@@ -37,6 +38,12 @@ class OnnxModel(nn.Module):
         if "spec" not in self.metadata:
             raise SlimsegError(
                 f"{self.path}: its metadata has no 'spec': re-export it with slimseg export"
+            )
+        if is_end2end(self.metadata):
+            raise SlimsegError(
+                f"{self.path}: an end-to-end export (NMS inside, conf "
+                f"{self.metadata['end2end']['conf']}); slimseg val scores the raw network at "
+                "its own thresholds: give the export made without --end2end"
             )
         self.spec: ModelSpec = spec_from_mapping(
             ModelSpec, self.metadata["spec"], f"{self.path} metadata spec"

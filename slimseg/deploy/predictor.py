@@ -9,6 +9,8 @@ detections (up to float rounding) whichever file is loaded:
    ``pred [B, 4 + nc (+ nm), A]`` and, for segmenters, ``proto [B, nm, H/s, W/s]``;
 3. postprocess (:mod:`slimseg.deploy.predict_postprocess`, numpy): NMS, boxes and masks on
    the source frame; semantic models (``logits [B, K+1, H, W]``) get a class map instead.
+   End-to-end exports (metadata ``end2end``: NMS and mask product inside the graph) skip the
+   NMS (:mod:`slimseg.deploy.end2end_postprocess`).
 
 The ONNX backend imports no torch (the core install, ``pip install slimseg``); ``.pt``/``.ckpt``
 weights need the ``train`` extra.
@@ -28,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from slimseg.deploy.end2end_postprocess import end2end_limits, end2end_predictions, is_end2end
 from slimseg.deploy.metadata import build_metadata, int8_target, read_session_metadata
 from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.predict_postprocess import instance_predictions, semantic_predictions
@@ -42,6 +45,8 @@ from slimseg.utils.threads import check_threads, torch_threads
 __all__ = ["BACKENDS", "Prediction", "Predictor", "combined_mask"]
 
 BACKENDS = ("auto", "onnxruntime", "torch")
+# What a forward pass gives: (pred, proto) of a raw graph, or an end-to-end graph's outputs by name
+Outputs = tuple[np.ndarray, np.ndarray | None] | dict[str, np.ndarray]
 TORCH_SUFFIXES = (".pt", ".ckpt")
 
 
@@ -71,6 +76,8 @@ class Predictor:
         self.task: str = metadata["task"]
         self.num_classes = len(self.names)
         self.input_dtype = runner.dtype
+        self.end2end = is_end2end(metadata)
+        """an end-to-end export: NMS and the mask product ran inside the graph"""
 
     @property
     def precision(self) -> str:
@@ -87,6 +94,7 @@ class Predictor:
 
     def __repr__(self) -> str:
         target = f" for {self.int8_target}" if self.int8_target else ""
+        target += ", end-to-end" if self.end2end else ""
         return (
             f"Predictor({self.metadata.get('model', '?')}, backend={self.backend}, "
             f"imgsz={list(self.imgsz)}, {self.precision}{target}, {self.num_classes} classes)"
@@ -164,15 +172,30 @@ class Predictor:
         """``uint8 [h, w, 3]`` RGB → ``[1, 3, H, W]`` network input and its letterbox meta."""
         return preprocess_frame(image_rgb, self.imgsz, self.input_dtype)
 
+    def _forward(self, x: np.ndarray, raw: dict[str, np.ndarray] | None = None) -> Outputs:
+        """The network on ``x``: ``(pred, proto)``, or the named outputs of an end-to-end
+        graph; ``raw`` receives the outputs as onnxruntime returned them."""
+        if self.end2end and isinstance(self.runner, OnnxRunner):
+            named = self.runner.raw(x)
+            if raw is not None:
+                raw.update(named)
+            return named
+        return self.runner(x, raw) if raw is not None else self.runner(x)
+
     def _postprocess(
         self,
-        pred: np.ndarray,
-        proto: np.ndarray | None,
+        outputs: Outputs,
         metas: Sequence[dict],
         conf: float,
         iou: float,
         max_det: int,
     ) -> list[Prediction]:
+        if isinstance(outputs, dict):
+            end2end_limits(self.metadata, conf, iou, str(self.path))
+            return end2end_predictions(
+                outputs, metas, self.names, self.mobility, conf, max_det
+            )  # fmt: skip
+        pred, proto = outputs
         if self.task == "semantic":
             return semantic_predictions(pred, metas, self.names)
         return instance_predictions(
@@ -203,11 +226,9 @@ class Predictor:
         t1 = time.perf_counter()
         if raw is not None:
             raw["images"] = x
-            pred, proto = self.runner(x, raw)
-        else:
-            pred, proto = self.runner(x)
+        outputs = self._forward(x, raw)
         t2 = time.perf_counter()
-        (result,) = self._postprocess(pred, proto, [meta], conf, iou, max_det)
+        (result,) = self._postprocess(outputs, [meta], conf, iou, max_det)
         t3 = time.perf_counter()
         result.timings = {
             "preprocess": 1000 * (t1 - t0),
@@ -239,11 +260,14 @@ class Predictor:
                 pad = self.runner.batch_size - len(chunk)
                 x = np.concatenate([x, np.zeros((pad, *x.shape[1:]), x.dtype)])
             t1 = time.perf_counter()
-            pred, proto = self.runner(x)
+            outputs = self._forward(x)
             t2 = time.perf_counter()
             n = len(chunk)
-            pred, proto = pred[:n], None if proto is None else proto[:n]
-            results = self._postprocess(pred, proto, [i[1] for i in inputs], conf, iou, max_det)
+            if isinstance(outputs, dict):
+                outputs = {k: v[:n] for k, v in outputs.items()}
+            else:
+                outputs = outputs[0][:n], None if outputs[1] is None else outputs[1][:n]
+            results = self._postprocess(outputs, [i[1] for i in inputs], conf, iou, max_det)
             t3 = time.perf_counter()
             for r in results:
                 r.timings = {

@@ -41,6 +41,18 @@ DYNAMIC_SHAPE_OPS = frozenset(
     {"ConstantOfShape", "Expand", "Gather", "Range", "Shape", "Unsqueeze", "Cast", "Tile"}
 )  # Tile: MSNET's class queries and position embeddings repeated to the batch size
 
-# Operators whose output shape depends on tensor values: never allowed (TensorRT needs
-# shapes known at build time, and runtimes pre-allocate outputs).
+# Operators whose output shape depends on tensor values: never allowed in raw exports (runtimes
+# pre-allocate outputs); end-to-end exports contain NonMaxSuppression and TopK (below).
 DATA_DEPENDENT_OPS = frozenset({"NonZero", "NonMaxSuppression", "TopK", "Unique", "Loop", "If"})
+
+# The post-processing sub-graph of end-to-end exports (slimseg.deploy.end2end_graph), all in
+# TensorRT's ONNX parser from 8.6 (NonMaxSuppression: data-dependent output, TensorRT >= 8.6).
+END2END_OPS = frozenset(
+    {
+        "And", "ArgMax", "Cast", "Concat", "Div", "Equal", "Gather", "GatherElements",
+        "GatherND", "Greater", "GreaterOrEqual", "Identity", "LessOrEqual", "MatMul", "Min",
+        "Mul", "NonMaxSuppression", "Pad", "Range", "ReduceMax", "ReduceSum", "Reshape",
+        "ScatterND", "Shape", "Sigmoid", "Slice", "Squeeze", "Sub", "TopK", "Transpose",
+        "Unsqueeze", "Where", "Add",
+    }
+)  # fmt: skip

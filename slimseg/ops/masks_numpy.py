@@ -84,19 +84,35 @@ def frame_masks(
     [N, 4]`` xyxy in network-input pixels, ``p`` the frame's letterbox (module docstring).
     ``threshold=None``: the values a mask thresholds (``float32 [N, h, w]``, 0 where no tap
     reaches the box), to see how close a pixel is to flipping."""
-    n, (h, w) = len(coeffs), frame_hw
     if coeffs.ndim != 2 or proto.ndim != 3 or coeffs.shape[1] != proto.shape[0]:
         raise ValueError(
             f"expected coeffs [N, nm] and proto [nm, Hp, Wp], got {coeffs.shape} and {proto.shape}"
         )
-    out = np.zeros((n, h, w), bool if threshold is not None else F32)
-    if n == 0:
-        return out
     nm, hp, wp = proto.shape
     # einsum's own loop, not BLAS: OpenBLAS would start a thread per core for this product
     # (10x slower than one thread beside a busy SLAM loop on 2 cores) and ignore `threads`
     flat = proto.reshape(nm, hp * wp).astype(F32)
     probs = sigmoid(np.einsum("nk,kp->np", coeffs.astype(F32), flat, optimize=False))
+    return masks_from_probs(probs.reshape(-1, hp, wp), boxes, p, frame_hw, threshold)
+
+
+def masks_from_probs(
+    probs: np.ndarray,
+    boxes: np.ndarray,
+    p: LetterboxParams,
+    frame_hw: tuple[int, int],
+    threshold: float | None = 0.5,
+) -> np.ndarray:
+    """Steps 2 and 3 of the module docstring: ``probs float32 [N, Hp, Wp]`` (sigmoid of the
+    mask terms at prototype resolution, e.g. an end-to-end export's ``masks``) and ``boxes
+    float32 [N, 4]`` xyxy in network-input pixels → ``bool [N, h, w]`` on the frame (``float32``
+    values with ``threshold=None``), as :func:`frame_masks`."""
+    n, (h, w) = len(probs), frame_hw
+    out = np.zeros((n, h, w), bool if threshold is not None else F32)
+    if n == 0:
+        return out
+    hp, wp = probs.shape[1:]
+    probs = np.asarray(probs, F32)
     b = boxes.astype(F32)
     x0, nx = pixel_span(b[:, 0], b[:, 2], p.out_w)
     y0, ny = pixel_span(b[:, 1], b[:, 3], p.out_h)

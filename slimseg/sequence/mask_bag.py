@@ -5,13 +5,13 @@ A ROS source (or a TUM folder): each mask becomes a ``sensor_msgs/Image`` ``mono
 dynamic) on :data:`MASK_TOPIC` with its source colour frame's header: the bag's own stamp and
 ``frame_id``, or, for a TUM folder, the ``rgb.txt`` stamp and :data:`FOLDER_FRAME_ID`; the log
 time is the stamp. With ``masked``, the colour frame with its dynamic pixels set to black goes on
-:data:`MASKED_TOPIC` (``rgb8``). Written by :class:`~slimseg.data.bag_writer.BagWriter`.
+:data:`MASKED_TOPIC` (``rgb8``). Written by :class:`~slimseg.data.bags.writer.BagWriter`.
 
 A Foxglove source (protobuf or JSON schemas) written to ``.mcap``: the same topics as
 ``foxglove.RawImage`` (``mono8``, ``rgb8``), and the judged objects of each frame as
 ``foxglove.ImageAnnotations`` on :data:`OBJECTS_TOPIC` (a box per object, labelled with its
 track id, class and moving probability; red where the probability is at least one half), all at
-the source stamps (:class:`~slimseg.data.foxglove_writer.FoxgloveWriter`). Both are written
+the source stamps (:class:`~slimseg.data.bags.foxglove_writer.FoxgloveWriter`). Both are written
 atomically.
 """
 
@@ -23,12 +23,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.data.bag_reader import Header, stamp_ns
-from slimseg.data.bag_sequence import BagSequence
-from slimseg.data.bag_writer import BagWriter
-from slimseg.data.foxglove_writer import FoxgloveWriter
+from slimseg.data.bags.foxglove_writer import FoxgloveWriter
+from slimseg.data.bags.reader import Header, stamp_ns
+from slimseg.data.bags.sequence import BagSequence
+from slimseg.data.bags.writer import BagWriter
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.sequence_source import Sequence
 from slimseg.data.tum import mask_name
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
@@ -71,14 +71,14 @@ def frame_boxes(objects: Objects, names: list[str]) -> FrameBoxes:
     return FrameBoxes(boxes, object_labels(objects, names), colours)
 
 
-def frame_header(seq: Sequence, i: int) -> Header:
+def frame_header(seq: FrameSource, i: int) -> Header:
     """The header of frame ``i``'s colour image: the bag's, or one made from the stamp."""
     if isinstance(seq, BagSequence):
         return seq.headers[i]
     return Header(stamp_ns(seq.frames[i][0][0]), FOLDER_FRAME_ID)
 
 
-def writes_foxglove(seq: Sequence, out: Path, storage: str | None) -> bool:
+def writes_foxglove(seq: FrameSource, out: Path, storage: str | None) -> bool:
     """Whether the masks of ``seq`` go back as Foxglove messages: a Foxglove source, a bare
     ``.mcap`` output."""
     foxglove = isinstance(seq, BagSequence) and seq.profile.startswith("foxglove")
@@ -86,7 +86,7 @@ def writes_foxglove(seq: Sequence, out: Path, storage: str | None) -> bool:
 
 
 def write_mask_bag(
-    seq: Sequence,
+    seq: FrameSource,
     masks: Path,
     out: Path,
     storage: str | None = None,

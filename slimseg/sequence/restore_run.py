@@ -25,8 +25,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.sequence_source import opens_sequence
 from slimseg.data.tum import depth_metres, mask_name
 from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.dynamic.restore import (
@@ -97,8 +98,9 @@ def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = KEYPOINTS) -> int:
     return sum(region[min(int(k.pt[1]), h - 1), min(int(k.pt[0]), w - 1)] for k in kps)
 
 
+@opens_sequence
 def restore_sequence(
-    sequence: Path | Sequence,
+    sequence: Path | FrameSource,
     masks: MaskSource,
     out: Path,
     dilation_px: int = 2,
@@ -111,7 +113,7 @@ def restore_sequence(
     """Restore every associated frame of ``sequence``; ``masks(i, rgb_timestamp)`` gives frame
     ``i``'s dynamic mask (``[H, W]``, nonzero = removed); ``sequence``: the folder, or it
     opened (a bag too). See the module docstring."""
-    seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
+    seq = sequence  # a path was opened by @opens_sequence
     scale = seq.camera.depth_scale
     (out / "restored" / "rgb").mkdir(parents=True, exist_ok=True)
     (out / "restored" / "depth").mkdir(parents=True, exist_ok=True)
@@ -166,7 +168,7 @@ def restore_sequence(
 
 def _score(
     report: RestoreReport,
-    seq: Sequence,
+    seq: FrameSource,
     i: int,
     bg_dir: Path,
     name: str,

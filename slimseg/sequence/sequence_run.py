@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.data.sequence_source import Sequence, open_sequence
+from slimseg.data.frame_source import FrameSource
+from slimseg.data.sequence_source import opens_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
@@ -40,7 +41,7 @@ Observer = Callable[[MaskedFrame, np.ndarray, np.ndarray], None]
 
 
 def sequence_config(
-    seq: Sequence,
+    seq: FrameSource,
     mode: Mode | str = Mode.FUSION,
     masking: MaskingSettings = DEFAULT,
     keypoints: int = KEYPOINTS,
@@ -55,7 +56,7 @@ def sequence_config(
                        camera=camera, fps=seq.fps)  # fmt: skip
 
 
-def scored_modes(predictor: object, seq: Sequence) -> tuple[str, ...]:
+def scored_modes(predictor: object, seq: FrameSource) -> tuple[str, ...]:
     """The modes a run scores besides its own: every mode where ground-truth ``dynamic/``
     masks exist; with ground-truth instances the epipolar check too, for its tally."""
     score = MODES if (seq.root / "dynamic").is_dir() else ()
@@ -64,9 +65,10 @@ def scored_modes(predictor: object, seq: Sequence) -> tuple[str, ...]:
     return score
 
 
+@opens_sequence
 def run_sequence(
     predictor: object,
-    sequence: Path | Sequence,
+    sequence: Path | FrameSource,
     out: Path,
     mode: Mode | str = Mode.FUSION,
     masking: MaskingSettings = DEFAULT,
@@ -92,7 +94,7 @@ def run_sequence(
     an RGB-only camera gives). A loop over
     :class:`~slimseg.dynamic.frame_masker.FrameMasker` (configured by
     :func:`sequence_config`)."""
-    seq = open_sequence(sequence) if isinstance(sequence, str | Path) else sequence
+    seq = sequence  # a path was opened by @opens_sequence
     gt = predictor if isinstance(predictor, AnnotationInstances) else None
     config = sequence_config(seq, mode, masking, keypoints, epipolar_depth, track)
     scored = (seq.root / "dynamic").is_dir()
@@ -107,7 +109,7 @@ def run_sequence(
 
 def _loop(
     masker: FrameMasker,
-    seq: Sequence,
+    seq: FrameSource,
     out: Path,
     report: SequenceReport,
     analysis: TraceAnalysis,

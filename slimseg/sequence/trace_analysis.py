@@ -19,8 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.sequence_source import Sequence
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
@@ -45,7 +45,7 @@ class TraceAnalysis:
 
     def __init__(
         self,
-        seq: Sequence,
+        seq: FrameSource,
         gt_instances: AnnotationInstances | None,
         report: SequenceReport,
         rules: FrameRules,

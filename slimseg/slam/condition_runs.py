@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.data.tum import TumSequence, write_trajectory
+from slimseg.data.frame_source import FrameSource
+from slimseg.data.tum import write_trajectory
 from slimseg.dynamic.modes import FPS
 from slimseg.errors import SlimsegError
 from slimseg.slam.conditions import Condition, condition_frames
@@ -139,7 +140,7 @@ def _median(values: list[float]) -> float | None:
 
 
 def evaluate_condition(
-    seq: TumSequence, cond: Condition, gt: np.ndarray, cfg: EngineRunConfig, out: Path
+    seq: FrameSource, cond: Condition, gt: np.ndarray, cfg: EngineRunConfig, out: Path
 ) -> ConditionResult:
     """Track ``cond``'s frames ``cfg.runs`` times; write ``out/<cond>/run<k>.txt`` (TUM)."""
     frames = condition_frames(seq, cond, cfg.limit, cfg.progress)

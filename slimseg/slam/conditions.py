@@ -25,8 +25,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.tum import TumSequence, depth_metres, mask_name
+from slimseg.data.tum import depth_metres, mask_name
 from slimseg.dynamic.remove_region import remove_dynamic
 from slimseg.dynamic.seg_box import dilate
 from slimseg.errors import SlimsegError
@@ -52,7 +53,7 @@ class Condition:
     dilation_px: int = 0
 
 
-def check_masks(seq: TumSequence, folder: Path) -> None:
+def check_masks(seq: FrameSource, folder: Path) -> None:
     """Raise ``SlimsegError`` unless ``folder`` holds a mask for every associated frame."""
     if not folder.is_dir():
         raise SlimsegError(f"masks folder {folder} does not exist")
@@ -64,7 +65,7 @@ def check_masks(seq: TumSequence, folder: Path) -> None:
         )
 
 
-def oracle_paths(seq: TumSequence) -> PathsFor:
+def oracle_paths(seq: FrameSource) -> PathsFor:
     """A synthetic sequence's true static background: ``background/<rgb path>`` and
     ``background/<depth path>`` of each frame."""
     return lambda i: (
@@ -73,7 +74,7 @@ def oracle_paths(seq: TumSequence) -> PathsFor:
     )
 
 
-def restored_paths(seq: TumSequence, folder: Path) -> PathsFor:
+def restored_paths(seq: FrameSource, folder: Path) -> PathsFor:
     """``slimseg dynamic --restore`` output under ``folder``: ``restored/{rgb,depth}/<ts>.png``."""
     return lambda i: (
         folder / "rgb" / mask_name(seq.frames[i][0][0]),
@@ -82,7 +83,7 @@ def restored_paths(seq: TumSequence, folder: Path) -> PathsFor:
 
 
 def condition_frames(
-    seq: TumSequence,
+    seq: FrameSource,
     cond: Condition,
     limit: int | None = None,
     progress: bool = False,
@@ -110,7 +111,7 @@ def condition_frames(
     return out
 
 
-def _replacement(seq: TumSequence, paths: tuple[Path, Path], hw: tuple[int, int]):
+def _replacement(seq: FrameSource, paths: tuple[Path, Path], hw: tuple[int, int]):
     rgb_path, depth_path = paths
     bgr = decode_file(rgb_path, cv2.IMREAD_COLOR)  # the shared decoder (slimseg.data.images)
     raw = decode_file(depth_path, cv2.IMREAD_UNCHANGED)

@@ -167,33 +167,34 @@ def evaluate(
     from slimseg.slam.metrics import still_floor
     from slimseg.slam.report import RunInfo, write_report
 
-    seq = TumSequence(seq_dir)
-    plan = session.Plan(
-        sequence=seq, names=list(CONDITIONS), model=str(onnx), runs=s.runs, vocab=vocab,
-        masking=DEFAULT, speed=s.speed, threads=s.threads, progress=s.progress,
-    )  # fmt: skip
-    label = session.check_engine(plan.engine, vocab)
-    session.clean(folder, None)
-    gt = session.ground_truth(seq)
-    t0 = time.perf_counter()
-    masked = session.mask_conditions(plan, folder, say)
-    t1 = time.perf_counter()
-    conds = [Condition("raw", "raw", note="the sequence's frames"), masked[MODE], masked["gt"]]
-    cfg = session.engine_settings(plan, seq, folder)
-    results = []
-    for cond in conds:
-        res = evaluate_condition(seq, cond, gt, cfg, folder / "trajectories")
-        ates = ", ".join(f"{r.score.ate_rmse:.3f}" if r.score else "-" for r in res.runs)
-        log.info("%s: ATE of %d runs %s m", cond.name, len(res.runs), ates)
-        results.append(res)
-    floor = still_floor(session.gt_at_frames(gt, seq))
-    info = RunInfo(
-        sequence=seq.root, frames=len(seq), engine=plan.engine, vocabulary=label,
-        intrinsics=seq.camera_source, synthetic=True, runs=s.runs,
-    )  # fmt: skip
-    rows = write_report(folder, info, results, floor)
-    seconds = {"masks": t1 - t0, "orbslam3": time.perf_counter() - t1}
-    return SlamOutcome(folder, seq_dir, label, results, rows, floor, seconds)
+    with TumSequence(seq_dir) as seq:
+        plan = session.Plan(
+            sequence=seq, names=list(CONDITIONS), model=str(onnx), runs=s.runs, vocab=vocab,
+            masking=DEFAULT, speed=s.speed, threads=s.threads, progress=s.progress,
+        )  # fmt: skip
+        label = session.check_engine(plan.engine, vocab)
+        session.clean(folder, None)
+        gt = session.ground_truth(seq)
+        t0 = time.perf_counter()
+        masked = session.mask_conditions(plan, folder, say)
+        t1 = time.perf_counter()
+        raw = Condition("raw", "raw", note="the sequence's frames")
+        conds = [raw, masked[MODE], masked["gt"]]
+        cfg = session.engine_settings(plan, seq, folder)
+        results = []
+        for cond in conds:
+            res = evaluate_condition(seq, cond, gt, cfg, folder / "trajectories")
+            ates = ", ".join(f"{r.score.ate_rmse:.3f}" if r.score else "-" for r in res.runs)
+            log.info("%s: ATE of %d runs %s m", cond.name, len(res.runs), ates)
+            results.append(res)
+        floor = still_floor(session.gt_at_frames(gt, seq))
+        info = RunInfo(
+            sequence=seq.root, frames=len(seq), engine=plan.engine, vocabulary=label,
+            intrinsics=seq.camera_source, synthetic=True, runs=s.runs,
+        )  # fmt: skip
+        rows = write_report(folder, info, results, floor)
+        seconds = {"masks": t1 - t0, "orbslam3": time.perf_counter() - t1}
+        return SlamOutcome(folder, seq_dir, label, results, rows, floor, seconds)
 
 
 def _num(v: object) -> float | None:

@@ -29,11 +29,12 @@ import numpy as np
 from slimseg.data.tum import Camera, read_trajectory
 from slimseg.errors import SlimsegError
 from slimseg.slam.trajectory import matrix_to_tum
+from slimseg.utils.extras import install_command
 
 log = logging.getLogger(__name__)
 
 ENGINES = ("orbslam3", "dense")
-EXTRA_HINT = "pip install 'slimseg[slam]'"
+EXTRA_HINT = install_command("slam")
 DENSE_MAX_DEPTH_M = 10.0  # OpenCV's default 4 m drops far walls silently
 OK_STATES = ("OK", "OK_KLT")
 

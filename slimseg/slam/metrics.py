@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from slimseg.data.bag_poses import degenerate
+from slimseg.data.bags.poses import degenerate
 from slimseg.data.tum import MAX_DT
 from slimseg.errors import SlimsegError
 from slimseg.slam.engines import EXTRA_HINT

@@ -21,8 +21,9 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
-from slimseg.data.tum import MAX_DT, TumSequence, mask_name, read_trajectory
+from slimseg.data.tum import MAX_DT, mask_name, read_trajectory
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
@@ -48,7 +49,7 @@ OWNED = ("masks", "restore", "trajectories")  # folders a new session replaces
 class Plan:
     """What to evaluate (the CLI's options, validated)."""
 
-    sequence: TumSequence
+    sequence: FrameSource
     names: list[str]
     groundtruth: Callable[[], np.ndarray] | None = None
     """reads the true poses ``[K, 8]`` (TUM rows; ``--groundtruth`` / ``--pose-topic``), called
@@ -78,7 +79,7 @@ class Plan:
     """a Rerun recording of the trajectories to write (``--rerun``), None: none"""
 
 
-def gt_at_frames(gt: np.ndarray, seq: TumSequence, max_dt: float = MAX_DT) -> np.ndarray:
+def gt_at_frames(gt: np.ndarray, seq: FrameSource, max_dt: float = MAX_DT) -> np.ndarray:
     """Ground-truth rows ``[K, 8]`` nearest to each frame's RGB stamp (within ``max_dt``)."""
     stamps = np.array([t for (t, _), _ in seq.frames])
     j = np.clip(np.searchsorted(gt[:, 0], stamps), 1, len(gt) - 1)
@@ -242,7 +243,7 @@ class EngineOptions(Protocol):
     progress: bool
 
 
-def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> EngineRunConfig:
+def engine_settings(plan: EngineOptions, seq: FrameSource, folder: Path) -> EngineRunConfig:
     """The tracking settings of ``plan`` for ``seq``; for ORB-SLAM3 its settings file is
     written into ``folder``."""
     settings = None
@@ -257,7 +258,7 @@ def engine_settings(plan: EngineOptions, seq: TumSequence, folder: Path) -> Engi
     )  # fmt: skip
 
 
-def ground_truth(seq: TumSequence) -> list:
+def ground_truth(seq: FrameSource) -> list:
     """The sequence's ``groundtruth.txt`` poses (at least 3, else a one-line error)."""
     gt = read_trajectory(seq.root / "groundtruth.txt")
     if len(gt) < 3:

@@ -35,9 +35,14 @@ def is_train_module(name: str | None) -> bool:
     return bool(name) and name.split(".")[0] in TRAIN_MODULES
 
 
+def install_command(extra: str) -> str:
+    """``pip install 'slimseg[<extra>]'``: the one spelling of every install hint."""
+    return f"pip install 'slimseg[{extra}]'"
+
+
 def train_hint(what: str) -> str:
     """``<what> needs the training stack: pip install 'slimseg[train]'``."""
-    return f"{what} needs the training stack: pip install 'slimseg[{TRAIN_EXTRA}]'"
+    return f"{what} needs the training stack: {install_command(TRAIN_EXTRA)}"
 
 
 @contextmanager

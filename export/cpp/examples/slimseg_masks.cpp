@@ -12,6 +12,8 @@
 // difference in grey levels). --results
 // also writes OUT/<stem>.ssres (the same container: boxes, scores, classes, masks, class_map,
 // dynamic, keypoint_dynamic, used_seg, m_th) for comparisons. Exit 2 with one line on bad input.
+// Dumps of an end-to-end export (metadata end2end) carry num_dets, boxes, scores, classes and
+// masks instead of output0/output1: the NMS ran in the graph (--iou does not apply).
 #include <slimseg/consumer.hpp>
 
 #include <algorithm>
@@ -161,6 +163,14 @@ void write_results(const std::string& path, const FramePrediction& p, const Dyna
     out.save(path);
 }
 
+// An int32 tensor of a dump (end-to-end exports' num_dets and classes).
+std::vector<std::int32_t> int32s(const RawTensor& t, const std::string& where) {
+    if (t.type != RawType::Int32) throw Error(where + ": " + t.name + " must be int32");
+    std::vector<std::int32_t> v(static_cast<size_t>(t.numel()));
+    std::memcpy(v.data(), t.bytes.data(), v.size() * sizeof(std::int32_t));
+    return v;
+}
+
 int run(const Args& a) {
     Metadata meta = Metadata::from_file(a.meta);
     Postprocessor post(meta);
@@ -217,15 +227,32 @@ int run(const Args& a) {
             std::memcpy(kps.data(), k->bytes.data(), k->bytes.size());
         }
         RawOutputs raw;
-        TensorView out1;
-        raw.output0 = dump.need(meta.semantic() ? "logits" : "output0").view();
-        if (meta.segmenter()) {
-            out1 = dump.need("output1").view();
-            raw.output1 = &out1;
+        TensorView out1, masks;
+        End2EndOutputs e2e;  // an end-to-end export's dump: NMS already ran in the graph
+        std::vector<std::int32_t> num_dets, classes;
+        if (meta.end2end) {
+            num_dets = int32s(dump.need("num_dets"), path.string());
+            classes = int32s(dump.need("classes"), path.string());
+            if (num_dets.size() != 1) throw Error(path.string() + ": num_dets must be int32 [1]");
+            e2e.num_dets = num_dets[0];
+            e2e.classes = classes.data();
+            e2e.boxes = dump.need("boxes").view();
+            e2e.scores = dump.need("scores").view();
+            if (meta.segmenter()) {
+                masks = dump.need("masks").view();
+                e2e.masks = &masks;
+            }
+        } else {
+            raw.output0 = dump.need(meta.semantic() ? "logits" : "output0").view();
+            if (meta.segmenter()) {
+                out1 = dump.need("output1").view();
+                raw.output1 = &out1;
+            }
         }
         using clock = std::chrono::steady_clock;
         auto t0 = clock::now();
-        FramePrediction p = post.run(raw, h, w, conf, iou, max_det);
+        FramePrediction p = meta.end2end ? post.run(e2e, h, w, conf, max_det)
+                                         : post.run(raw, h, w, conf, iou, max_det);
         auto t1 = clock::now();
         std::vector<float> depth;  // optional depth_m float32 [H, W] (metres)
         if (const RawTensor* d = dump.find("depth_m")) {

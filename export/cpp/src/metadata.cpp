@@ -143,6 +143,18 @@ Metadata Metadata::from_object(const Json& root) {
             m.nms.max_det = integer(*c, "nms.max_det", 1, 1 << 20);
         if (const Json* c = v->find("class_aware")) m.nms.class_aware = flag(*c, "nms.class_aware");
     }
+    if (const Json* v = root.find("end2end")) {  // NMS inside the graph (export --end2end)
+        if (v->kind != Json::Kind::Object) bad("end2end", "expected an object");
+        if (m.family != "yolov8" || m.semantic()) bad("end2end", "only yolov8 models have it");
+        m.end2end = true;
+        m.end2end_nms.conf =
+            in_range(num(need(*v, "conf", "end2end.conf"), "end2end.conf"), 0, 1, false, true,
+                     "end2end.conf");
+        m.end2end_nms.iou = in_range(num(need(*v, "iou", "end2end.iou"), "end2end.iou"), 0, 1,
+                                     false, false, "end2end.iou");
+        m.end2end_nms.max_det =
+            integer(need(*v, "max_det", "end2end.max_det"), "end2end.max_det", 1, 1 << 20);
+    }
     if (const Json* v = root.find("recommended_mask_dilation_px"))
         m.recommended_mask_dilation_px = num(*v, "recommended_mask_dilation_px");
     // slimseg.deploy.metadata.masking_from_metadata

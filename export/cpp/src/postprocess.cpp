@@ -7,6 +7,8 @@
 // probability is within float rounding of 0.5.
 #include "slimseg/postprocess.hpp"
 
+#include "mask_assembly.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <numeric>
@@ -14,30 +16,11 @@
 namespace slimseg {
 namespace {
 
+using detail::shape_str;
+using detail::unbatched;
+
 constexpr int kMaxCandidates = 30000;  // slimseg.ops.nms.non_max_suppression max_candidates
 constexpr int kTorchvisionVanillaNumel = 4000;  // torchvision batched_nms: per-class loop above
-
-std::string shape_str(const std::vector<std::int64_t>& s) {
-    std::string out = "[";
-    for (size_t i = 0; i < s.size(); ++i) out += (i ? ", " : "") + std::to_string(s[i]);
-    return out + "]";
-}
-
-// Drop a leading batch axis of 1.
-std::vector<std::int64_t> unbatched(const TensorView& t, size_t ndim, const std::string& name,
-                                    const std::string& expected) {
-    std::vector<std::int64_t> s = t.shape;
-    if (s.size() == ndim + 1) {
-        if (s[0] != 1)
-            throw Error(name + ": shape " + shape_str(t.shape) + " has batch " +
-                        std::to_string(s[0]) + "; pass one frame's slice (batch 1)");
-        s.erase(s.begin());
-    }
-    if (s.size() != ndim)
-        throw Error(name + ": shape " + shape_str(t.shape) + ", expected " + expected);
-    if (t.data == nullptr) throw Error(name + ": no data");
-    return s;
-}
 
 struct Candidate {
     int anchor;
@@ -125,72 +108,6 @@ std::vector<int> batched_nms(const std::vector<Candidate>& c, double iou, bool c
         if (kept[i]) keep.push_back(i);
     std::stable_sort(keep.begin(), keep.end(), [&](int a, int b) { return scores[a] > scores[b]; });
     return keep;
-}
-
-// slimseg.ops.masks._pixel_span: first pixel and count whose centres lie in [lo, hi).
-std::pair<int, int> pixel_span(float lo, float hi, int size) {
-    float first = std::min(std::max(std::ceil(lo - 0.5f), 0.0f), static_cast<float>(size));
-    float end = std::min(std::max(std::ceil(hi - 0.5f), 0.0f), static_cast<float>(size));
-    return {static_cast<int>(first), std::max(static_cast<int>(end - first), 0)};
-}
-
-// Bilinear taps (half-pixel centres) resizing size_in -> size_out, the way slimseg's window
-// resize computes them (slimseg.ops.masks._bilinear_taps): scale = float(size_in / size_out).
-struct Taps {
-    std::vector<int> i0, i1;
-    std::vector<float> w1;
-};
-
-Taps window_taps(int size_out, int size_in) {
-    Taps t;
-    const float s = static_cast<float>(static_cast<double>(size_in) / size_out);
-    for (int o = 0; o < size_out; ++o) {
-        float src = std::max((static_cast<float>(o) + 0.5f) * s - 0.5f, 0.0f);
-        int a = std::min(static_cast<int>(std::floor(src)), size_in - 1);
-        t.i0.push_back(a);
-        t.i1.push_back(std::min(a + 1, size_in - 1));
-        t.w1.push_back(std::min(std::max(src - static_cast<float>(a), 0.0f), 1.0f));
-    }
-    return t;
-}
-
-// Bilinear taps as torch's F.interpolate (align_corners=False) computes them: scale =
-// float(in) / float(out); an axis of equal sizes is copied.
-Taps interpolate_taps(int size_out, int size_in) {
-    Taps t;
-    const float s = static_cast<float>(size_in) / static_cast<float>(size_out);
-    for (int o = 0; o < size_out; ++o) {
-        if (size_in == size_out) {
-            t.i0.push_back(o);
-            t.i1.push_back(o);
-            t.w1.push_back(0.0f);
-            continue;
-        }
-        float src = std::max(std::fma(s, static_cast<float>(o) + 0.5f, -0.5f), 0.0f);
-        int a = std::min(static_cast<int>(std::floor(src)), size_in - 1);
-        t.i0.push_back(a);
-        t.i1.push_back(a + (a < size_in - 1 ? 1 : 0));
-        t.w1.push_back(std::min(std::max(src - static_cast<float>(a), 0.0f), 1.0f));
-    }
-    return t;
-}
-
-// torch's CPU bilinear kernel (F.interpolate; its AVX2/AVX-512 builds contract a*b + c*d into
-// fma(a, b, c*d)): x first, then y. Bit-identical on the prototype upsampling (ratio 2 or 4).
-inline float interp_torch(float v00, float v01, float v10, float v11, float wx, float wy) {
-    float r0 = std::fma(v00, 1.0f - wx, v01 * wx);
-    float r1 = std::fma(v10, 1.0f - wx, v11 * wx);
-    return std::fma(r0, 1.0f - wy, r1 * wy);
-}
-
-// slimseg.ops.masks._resize_window: separate torch element-wise ops, each rounded.
-inline float interp(float v00, float v01, float v10, float v11, float wx, float wy) {
-    float r0 = v00 * (1.0f - wx);
-    r0 = r0 + v01 * wx;
-    float r1 = v10 * (1.0f - wx);
-    r1 = r1 + v11 * wx;
-    float out = r0 * (1.0f - wy);
-    return out + r1 * wy;
 }
 
 }  // namespace
@@ -292,109 +209,34 @@ FramePrediction Postprocessor::instances(const RawOutputs& raw, const Letterbox&
     }
     if (nm == 0) return out;
 
-    // 4-5: masks (slimseg.ops.masks: assemble_masks, then masks_to_frame)
+    // 4-5: masks (slimseg.ops.masks_numpy.frame_masks)
     const std::vector<float> proto = to_float(*raw.output1);
     const size_t plane = static_cast<size_t>(hp) * wp;
-    const Taps ux = interpolate_taps(lb.out_w, wp), uy = interpolate_taps(lb.out_h, hp);
-    const bool same = lb.new_h == h && lb.new_w == w;
-    Taps fx, fy;
-    if (!same) {
-        fx = window_taps(w, lb.new_w);
-        fy = window_taps(h, lb.new_h);
-    }
-    std::vector<float> prob, up;
+    const detail::MaskGeometry g = detail::mask_geometry(lb, h, w, hp, wp);
+    std::vector<float> prob;
     std::vector<double> acc;
     for (int k : keep) {
         const Candidate& c = cand[k];
-        auto [x0, nx] = pixel_span(c.box[0], c.box[2], lb.out_w);
-        auto [y0, ny] = pixel_span(c.box[1], c.box[3], lb.out_h);
-        WindowMask m;
-        if (nx > 0 && ny > 0) {
-            // prototype window the upsampling of the span reads
-            int px0 = ux.i0[x0], px1 = ux.i1[x0 + nx - 1], py0 = uy.i0[y0],
-                py1 = uy.i1[y0 + ny - 1];
-            int pw = px1 - px0 + 1, ph = py1 - py0 + 1;
-            prob.assign(static_cast<size_t>(pw) * ph, 0.0f);
-            acc.assign(static_cast<size_t>(pw), 0.0);
-            for (int iy = 0; iy < ph; ++iy) {  // coefficients . prototypes, in double
-                std::fill(acc.begin(), acc.end(), 0.0);
-                const size_t off = static_cast<size_t>(py0 + iy) * wp + px0;
-                for (int j = 0; j < nm; ++j) {
-                    const double cj = at(4 + nc + j, c.anchor);
-                    const float* row = proto.data() + j * plane + off;
-                    for (int ix = 0; ix < pw; ++ix) acc[ix] += cj * row[ix];
-                }
-                float* out = prob.data() + static_cast<size_t>(iy) * pw;
-                for (int ix = 0; ix < pw; ++ix)
-                    out[ix] = 1.0f / (1.0f + std::exp(-static_cast<float>(acc[ix])));
-            }
-            auto P = [&](int iy, int ix) { return prob[static_cast<size_t>(iy - py0) * pw + ix - px0]; };
-            // upsampled probabilities on the span (input pixels), 0 elsewhere
-            up.assign(static_cast<size_t>(nx) * ny, 0.0f);
-            for (int y = 0; y < ny; ++y) {
-                int yy = y0 + y;
-                for (int x = 0; x < nx; ++x) {
-                    int xx = x0 + x;
-                    up[static_cast<size_t>(y) * nx + x] =
-                        interp_torch(P(uy.i0[yy], ux.i0[xx]), P(uy.i0[yy], ux.i1[xx]),
-                               P(uy.i1[yy], ux.i0[xx]), P(uy.i1[yy], ux.i1[xx]), ux.w1[xx],
-                               uy.w1[yy]);
-                }
-            }
-            if (same) {  // no resize: threshold at input resolution, drop the padding
-                int fx0 = std::max(x0, lb.left), fx1 = std::min(x0 + nx, lb.left + lb.new_w);
-                int fy0 = std::max(y0, lb.top), fy1 = std::min(y0 + ny, lb.top + lb.new_h);
-                if (fx1 > fx0 && fy1 > fy0) {
-                    m.x0 = fx0 - lb.left;
-                    m.y0 = fy0 - lb.top;
-                    m.w = fx1 - fx0;
-                    m.h = fy1 - fy0;
-                    m.pixels.resize(static_cast<size_t>(m.w) * m.h);
-                    for (int y = 0; y < m.h; ++y)
-                        for (int x = 0; x < m.w; ++x)
-                            m.pixels[static_cast<size_t>(y) * m.w + x] =
-                                up[static_cast<size_t>(fy0 + y - y0) * nx + (fx0 + x - x0)] > 0.5f;
-                }
-            } else {
-                // frame pixels whose taps can reach the span (slimseg.ops.masks._frame_spans)
-                auto frame_span = [](int first, int count, int offset, int nw, int dst) {
-                    float c0 = static_cast<float>(std::min(std::max(first - offset, 0), nw));
-                    float c1 = static_cast<float>(std::min(std::max(first + count - offset, 0), nw));
-                    float r = static_cast<float>(static_cast<double>(dst) / nw);
-                    float f0 = std::ceil((c0 - 0.5f) * r - 0.5f) - 1.0f;
-                    float f1 = std::ceil((c1 + 0.5f) * r - 0.5f) + 1.0f;
-                    f0 = std::min(std::max(f0, 0.0f), static_cast<float>(dst));
-                    f1 = std::min(std::max(f1, 0.0f), static_cast<float>(dst));
-                    if (!(c1 > c0)) f1 = f0;
-                    return std::pair<int, int>(static_cast<int>(f0), static_cast<int>(f1 - f0));
-                };
-                auto [wx0, wnx] = frame_span(x0, nx, lb.left, lb.new_w, w);
-                auto [wy0, wny] = frame_span(y0, ny, lb.top, lb.new_h, h);
-                m.x0 = wx0;
-                m.y0 = wy0;
-                m.w = wnx;
-                m.h = wny;
-                m.pixels.assign(static_cast<size_t>(wnx) * wny, 0);
-                // content pixel (cy, cx) is input pixel (cy + top, cx + left)
-                auto U = [&](int cy, int cx) {
-                    int yy = cy + lb.top - y0, xx = cx + lb.left - x0;
-                    return (yy >= 0 && yy < ny && xx >= 0 && xx < nx)
-                               ? up[static_cast<size_t>(yy) * nx + xx]
-                               : 0.0f;
-                };
-                for (int y = 0; y < wny; ++y) {
-                    int Y = wy0 + y;
-                    for (int x = 0; x < wnx; ++x) {
-                        int X = wx0 + x;
-                        float v = interp(U(fy.i0[Y], fx.i0[X]), U(fy.i0[Y], fx.i1[X]),
-                                         U(fy.i1[Y], fx.i0[X]), U(fy.i1[Y], fx.i1[X]), fx.w1[X],
-                                         fy.w1[Y]);
-                        m.pixels[static_cast<size_t>(y) * wnx + x] = v > 0.5f;
-                    }
-                }
-            }
+        const detail::ProtoWindow win = detail::proto_window(g, c.box);
+        if (win.empty()) {
+            out.masks.emplace_back();
+            continue;
         }
-        out.masks.push_back(std::move(m));
+        prob.assign(static_cast<size_t>(win.pw) * win.ph, 0.0f);
+        acc.assign(static_cast<size_t>(win.pw), 0.0);
+        for (int iy = 0; iy < win.ph; ++iy) {  // coefficients . prototypes, in double
+            std::fill(acc.begin(), acc.end(), 0.0);
+            const size_t off = static_cast<size_t>(win.py0 + iy) * wp + win.px0;
+            for (int j = 0; j < nm; ++j) {
+                const double cj = at(4 + nc + j, c.anchor);
+                const float* row = proto.data() + j * plane + off;
+                for (int ix = 0; ix < win.pw; ++ix) acc[ix] += cj * row[ix];
+            }
+            float* dst = prob.data() + static_cast<size_t>(iy) * win.pw;
+            for (int ix = 0; ix < win.pw; ++ix)
+                dst[ix] = 1.0f / (1.0f + std::exp(-static_cast<float>(acc[ix])));
+        }
+        out.masks.push_back(detail::frame_mask(g, win, prob.data(), win.pw));
     }
     return out;
 }
@@ -410,7 +252,8 @@ FramePrediction Postprocessor::semantic(const TensorView& logits, const Letterbo
         throw Error("logits: shape " + shape_str(logits.shape) + ", expected " + expect);
     const std::vector<float> v = to_float(logits);
     const size_t plane = static_cast<size_t>(lb.out_h) * lb.out_w;
-    const Taps tx = interpolate_taps(w, lb.new_w), ty = interpolate_taps(h, lb.new_h);
+    const detail::Taps tx = detail::interpolate_taps(w, lb.new_w),
+                       ty = detail::interpolate_taps(h, lb.new_h);
     FramePrediction out;
     out.h = h;
     out.w = w;
@@ -424,7 +267,7 @@ FramePrediction Postprocessor::semantic(const TensorView& logits, const Letterbo
             int arg = 0;
             for (int c = 0; c < k1; ++c) {
                 const float* p = v.data() + c * plane;
-                float val = interp_torch(p[r0 + tx.i0[x]], p[r0 + tx.i1[x]], p[r1 + tx.i0[x]],
+                float val = detail::interp_torch(p[r0 + tx.i0[x]], p[r0 + tx.i1[x]], p[r1 + tx.i0[x]],
                                    p[r1 + tx.i1[x]], tx.w1[x], ty.w1[y]);
                 if (c == 0 || val > best) best = val, arg = c;
             }

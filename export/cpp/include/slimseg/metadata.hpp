@@ -42,6 +42,8 @@ struct Metadata {
     int num_masks = 0, proto_stride = 0;  // segmenters
     bool dynamic_shapes = false;
     NmsSettings nms;
+    bool end2end = false;     // an end-to-end export: NMS and the mask product inside the graph
+    NmsSettings end2end_nms;  // its baked-in conf, iou and max_det (K, rows per image)
     MaskingSettings slam_masking;                                 // the default preset
     std::map<std::string, MaskingSettings> masking_presets;       // slam_masking.presets
     double recommended_mask_dilation_px = 0.0;

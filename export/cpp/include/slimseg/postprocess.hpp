@@ -35,6 +35,16 @@ struct RawOutputs {
     const TensorView* output1 = nullptr;  // prototypes [1, nm, H/s, W/s] (segmenters)
 };
 
+// One frame's outputs of an end-to-end export (export/CONTRACT.md "End-to-end exports"): the
+// decoding, NMS and top-K already ran inside the graph.
+struct End2EndOutputs {
+    std::int32_t num_dets = 0;              // num_dets[b]: the first rows are valid
+    TensorView boxes;                       // [1, K, 4] float32 x1, y1, x2, y2 (input pixels)
+    TensorView scores;                      // [1, K] float32, decreasing
+    const std::int32_t* classes = nullptr;  // K int32 class ids
+    const TensorView* masks = nullptr;      // [1, K, Hp, Wp] probabilities (segmenters)
+};
+
 class Postprocessor {
 public:
     explicit Postprocessor(Metadata meta);
@@ -45,6 +55,10 @@ public:
     FramePrediction run(const RawOutputs& raw, int h, int w, double conf) const;
     FramePrediction run(const RawOutputs& raw, int h, int w, double conf, double iou,
                         int max_det) const;
+    // An end-to-end export's frame: its valid rows with score > conf (at most max_det), boxes
+    // back to the frame and masks by steps 4-5 from the graph's probabilities; needs
+    // metadata().end2end. Error naming the tensor on a wrong shape or class id.
+    FramePrediction run(const End2EndOutputs& e2e, int h, int w, double conf, int max_det) const;
 
 private:
     Metadata meta_;

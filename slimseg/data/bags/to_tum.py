@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from slimseg.data.bag_poses import read_poses
-from slimseg.data.bag_sequence import BagOptions, BagSequence
+from slimseg.data.bags.poses import read_poses
+from slimseg.data.bags.sequence import BagOptions, BagSequence
 from slimseg.data.tum import TUM_DEPTH_SCALE, write_trajectory
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import staged_dir, write_png, write_text, write_yaml
@@ -47,34 +47,36 @@ def bag_to_tum(
     written as ``groundtruth.txt``."""
     if pose_frame is not None and pose_topic is None:
         raise SlimsegError("--pose-frame chooses a tf child frame: give --pose-topic too")
-    seq = BagSequence(bag, options or BagOptions())
-    poses = read_poses(seq.root, pose_topic, pose_frame) if pose_topic else None
-    rgb_lines, depth_lines = [], []
-    with staged_dir(Path(out), "--out", "data bag2tum", {"--bag": bag}) as stage:
-        for i in tqdm(range(len(seq)), desc="bag2tum", disable=not progress):
-            rgb, depth, t = seq.load(i)
-            (_, rgb_name), (t_depth, depth_name) = seq.frames[i]
-            write_png(stage / rgb_name, rgb)
-            raw = np.clip(np.round(depth * TUM_DEPTH_SCALE), 0, 65535).astype(np.uint16)
-            write_png(stage / depth_name, raw)
-            rgb_lines.append(f"{t:.6f} {rgb_name}\n")
-            depth_lines.append(f"{t_depth:.6f} {depth_name}\n")
-            if i == 0:
-                c = seq.camera
-                write_yaml(stage / "camera.yaml", {
-                    "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-                    "depth_scale": TUM_DEPTH_SCALE, "width": rgb.shape[1], "height": rgb.shape[0],
-                })  # fmt: skip
-        name = Path(bag).name
-        write_text(
-            stage / "rgb.txt", _HEADER.format(what="color images", name=name) + "".join(rgb_lines)
-        )
-        write_text(
-            stage / "depth.txt", _HEADER.format(what="depth maps", name=name) + "".join(depth_lines)
-        )
-        if poses is not None:
-            write_trajectory(stage / "groundtruth.txt", poses)
-    seq.close()
+    with BagSequence(bag, options or BagOptions()) as seq:
+        poses = read_poses(seq.root, pose_topic, pose_frame) if pose_topic else None
+        rgb_lines, depth_lines = [], []
+        with staged_dir(Path(out), "--out", "data bag2tum", {"--bag": bag}) as stage:
+            for i in tqdm(range(len(seq)), desc="bag2tum", disable=not progress):
+                rgb, depth, t = seq.load(i)
+                (_, rgb_name), (t_depth, depth_name) = seq.frames[i]
+                write_png(stage / rgb_name, rgb)
+                raw = np.clip(np.round(depth * TUM_DEPTH_SCALE), 0, 65535).astype(np.uint16)
+                write_png(stage / depth_name, raw)
+                rgb_lines.append(f"{t:.6f} {rgb_name}\n")
+                depth_lines.append(f"{t_depth:.6f} {depth_name}\n")
+                if i == 0:
+                    c = seq.camera
+                    h, w = rgb.shape[:2]
+                    write_yaml(stage / "camera.yaml", {
+                        "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                        "depth_scale": TUM_DEPTH_SCALE, "width": w, "height": h,
+                    })  # fmt: skip
+            name = Path(bag).name
+            write_text(
+                stage / "rgb.txt",
+                _HEADER.format(what="color images", name=name) + "".join(rgb_lines),
+            )
+            write_text(
+                stage / "depth.txt",
+                _HEADER.format(what="depth maps", name=name) + "".join(depth_lines),
+            )
+            if poses is not None:
+                write_trajectory(stage / "groundtruth.txt", poses)
     f = seq.frames
     return Bag2TumReport(
         len(f), f.unmatched_rgb, f.unmatched_depth, 0 if poses is None else len(poses)

@@ -18,14 +18,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from slimseg.data.mcap_crc import check_data_crc
+from slimseg.data.bags.mcap_crc import check_data_crc
 from slimseg.errors import SlimsegError
+from slimseg.utils.extras import install_command
 from slimseg.utils.input_files import check_regular
 
 log = logging.getLogger(__name__)
 
 BAG_SUFFIXES = (".bag", ".mcap")
-INSTALL_HINT = "pip install 'slimseg[ros]'"
+INSTALL_HINT = install_command("ros")
 DAMAGED = "a truncated or damaged recording: record it again, or repair it with its reindex tool"
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -139,10 +140,10 @@ class BagFile:
             self.topics.setdefault(c.topic, c.msgtype)
 
     def _open_mcap(self) -> object:
-        """A :class:`~slimseg.data.bag_mcap.McapFile` for an MCAP file rosbags does not read
+        """A :class:`~slimseg.data.bags.mcap_file.McapFile` for an MCAP file rosbags does not read
         (any profile but ``ros2``: ``ros1``, Foxglove schemas); None for a ``ros2`` one, or
         one whose summary does not parse (rosbags' reader then names the damage)."""
-        from slimseg.data import bag_mcap
+        from slimseg.data.bags import mcap_file
 
         try:
             import mcap  # noqa: F401
@@ -151,11 +152,11 @@ class BagFile:
                 f"{self.path} is an MCAP file; reading it needs the mcap and protobuf "
                 f"packages: {INSTALL_HINT}"
             ) from None
-        held = bag_mcap.mcap_channels(self.path)
-        if held is None or bag_mcap.rosbags_reads(*held):
+        held = mcap_file.mcap_channels(self.path)
+        if held is None or mcap_file.rosbags_reads(*held):
             return None
-        bag_mcap.refuse_unreadable(self.path, *held)
-        return bag_mcap.McapFile(self.path, held[1])
+        mcap_file.refuse_unreadable(self.path, *held)
+        return mcap_file.McapFile(self.path, held[1])
 
     def _open(self) -> object:
         if self.path.is_dir():
@@ -185,7 +186,13 @@ class BagFile:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` released the file."""
+        return self._reader is None
+
     def close(self) -> None:
+        """Release the file (once; a second call does nothing)."""
         if self._reader is not None:
             try:
                 self._reader.close()

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from slimseg.data.bag_reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, TF, Header
+from slimseg.data.bags.reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, TF, Header
 
 FOXGLOVE_ROLES = {
     "foxglove.RawImage": IMAGE,

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bag_reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, Header, require_rosbags
-from slimseg.data.mcap_crc import seal
+from slimseg.data.bags.mcap_crc import seal
+from slimseg.data.bags.reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, Header, require_rosbags
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import publish_new, stage_name
 

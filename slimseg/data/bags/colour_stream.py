@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bag_images import colour_from_compressed, colour_from_image
-from slimseg.data.bag_reader import COMPRESSED, BagFile
-from slimseg.data.bag_topics import choose_colour
+from slimseg.data.bags.image_messages import colour_from_compressed, colour_from_image
+from slimseg.data.bags.reader import COMPRESSED, BagFile
+from slimseg.data.bags.topics import choose_colour
 from slimseg.errors import SlimsegError
 
 DEFAULT_FPS = 30.0  # one frame: no interval to measure
@@ -24,6 +24,14 @@ class BagColour:
     def __init__(self, path: str | Path, rgb_topic: str | None = None) -> None:
         self.path = Path(path)
         self._bag = BagFile(self.path)
+        try:
+            self._index(rgb_topic)
+        except BaseException:  # a refused recording is closed before the error goes up
+            self._bag.close()
+            raise
+
+    def _index(self, rgb_topic: str | None) -> None:
+        """The colour topic and its header stamps (one pass over the headers)."""
         self.topic, self.why = choose_colour(
             str(self.path), self._bag.topics, rgb_topic, self._bag.held
         )
@@ -50,19 +58,21 @@ class BagColour:
         """``(stem, source, rgb uint8 [H, W, 3])`` per message (``only``: just those message
         indices, the others not decoded), stem the stamp with 6 decimals (the name
         ``slimseg dynamic`` and ``bag2tum`` give that frame)."""
-        source = f"{self.path}:{self.topic}"
-        msgs = self._bag.messages([self.topic])
-        for i, (t, (_, _, raw)) in enumerate(zip(self.stamps, msgs, strict=True)):
-            if only is not None and i not in only:
-                continue
-            msg = self._bag.decode(raw, self._type, self.topic)
-            try:
-                rgb = (
-                    colour_from_compressed(msg)
-                    if self._type == COMPRESSED
-                    else colour_from_image(msg)
-                )
-            except ValueError as e:
-                raise SlimsegError(f"bag {self.path}: {self.topic} at {t:.6f} s: {e}") from None
-            yield f"{t:.6f}", source, rgb
-        self._bag.close()
+        try:
+            source = f"{self.path}:{self.topic}"
+            msgs = self._bag.messages([self.topic])
+            for i, (t, (_, _, raw)) in enumerate(zip(self.stamps, msgs, strict=True)):
+                if only is not None and i not in only:
+                    continue
+                msg = self._bag.decode(raw, self._type, self.topic)
+                try:
+                    rgb = (
+                        colour_from_compressed(msg)
+                        if self._type == COMPRESSED
+                        else colour_from_image(msg)
+                    )
+                except ValueError as e:
+                    raise SlimsegError(f"bag {self.path}: {self.topic} at {t:.6f} s: {e}") from None
+                yield f"{t:.6f}", source, rgb
+        finally:  # exhausted, closed, or left by an error: the file is released
+            self._bag.close()

@@ -2,14 +2,14 @@
 ``ros2`` profile rosbags reads: ``ros1msg`` schemas with ``ros1`` messages (what ``mcap convert``
 makes of a ROS 1 bag), ``ros2msg`` with ``cdr``, and the Foxglove schemas (``protobuf``, an
 embedded ``FileDescriptorSet``; ``jsonschema`` with ``json`` messages) that robots logging
-without ROS record (:mod:`slimseg.data.bag_foxglove`).
+without ROS record (:mod:`slimseg.data.bags.foxglove_messages`).
 
 :func:`mcap_channels` lists a file's channels from its summary (or, lacking one, by scanning
 its records); :class:`McapFile` yields raw messages in log-time order and decodes them. ROS
 messages decode with rosbags' type stores (a type the store lacks is built from the schema's
-own definition); Foxglove ones to the shapes :mod:`slimseg.data.bag_images` and the pose reader
-take. A file none of whose channels slimseg can decode is refused in one line naming what it
-holds and what is read (:func:`refuse_unreadable`).
+own definition); Foxglove ones to the shapes :mod:`slimseg.data.bags.image_messages` and the
+pose reader take. A file none of whose channels slimseg can decode is refused in one line
+naming what it holds and what is read (:func:`refuse_unreadable`).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from slimseg.data.bag_foxglove import FOXGLOVE_ROLES, foxglove_header, foxglove_view
-from slimseg.data.bag_reader import (
+from slimseg.data.bags.foxglove_messages import FOXGLOVE_ROLES, foxglove_header, foxglove_view
+from slimseg.data.bags.reader import (
     CAMERA_INFO,
     COMPRESSED,
     DAMAGED,
@@ -146,7 +146,7 @@ def refuse_unreadable(path: Path, profile: str, channels: list[McapChannel]) -> 
 
 
 class McapFile:
-    """The channels of an MCAP file as :class:`~slimseg.data.bag_reader.BagFile` needs them:
+    """The channels of an MCAP file as :class:`~slimseg.data.bags.reader.BagFile` needs them:
     raw messages in log-time order, headers and decoded messages by topic."""
 
     def __init__(self, path: Path, channels: list[McapChannel]) -> None:

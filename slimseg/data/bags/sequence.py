@@ -1,5 +1,6 @@
-"""A ROS recording read as an RGB-D sequence, with the frame interface of
-:class:`~slimseg.data.tum.TumSequence` (``frames``, ``camera``, ``load(i)``, ``fps``, ...).
+"""A ROS recording read as an RGB-D sequence: a :class:`~slimseg.data.frame_source.FrameSource`
+like a TUM folder (``frames``, ``camera``, ``load(i)``, ``fps``, ``close()``, ...); it holds the
+recording open until closed.
 
 Opening the bag reads only message headers (one pass, nothing decoded but the first
 ``camera_info``): the colour and depth header stamps are paired by the TUM rule
@@ -11,7 +12,7 @@ gives the files (``rgb/<stamp>.png``, ``depth/<stamp>.png``).
 
 Intrinsics come from the ``camera_info`` topic (its distortion model named; frames are used as
 recorded, not undistorted), else from ``--camera`` (a ``camera.yaml``), else TUM fr1's as for a
-folder. Depth is decoded to metres by its encoding (:mod:`slimseg.data.bag_images`); the
+folder. Depth is decoded to metres by its encoding (:mod:`slimseg.data.bags.image_messages`); the
 sequence's ``depth_scale`` is TUM's 5000 units per metre, what its depth is written at.
 """
 
@@ -24,25 +25,24 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bag_images import (
+from slimseg.data.bags.image_messages import (
     colour_from_compressed,
     colour_from_image,
     depth_from_compressed,
     depth_from_image,
 )
-from slimseg.data.bag_reader import COMPRESSED, BagFile, Header
-from slimseg.data.bag_topics import TopicChoice, choose_topics
+from slimseg.data.bags.reader import COMPRESSED, BagFile, Header
+from slimseg.data.bags.topics import TopicChoice, choose_topics
+from slimseg.data.frame_source import DEPTH_RANGE_M, Frame, PairedFrames, implausible_median_depth
 from slimseg.data.problems import ImageProblem
 from slimseg.data.tum import (
     CALIBRATIONS,
     DEFAULT,
-    DEPTH_RANGE_M,
     MAX_DT,
     TUM_DEPTH_SCALE,
     Associations,
     Camera,
     associate,
-    frame_rate,
     mask_name,
     read_camera,
 )
@@ -77,15 +77,24 @@ class BagOptions:
         return [k for k, v in opts.items() if v is not None]
 
 
-class BagSequence:
+class BagSequence(PairedFrames):
     """A bag as a sequence (see the module docstring). Raises ``SlimsegError`` (one line) for
     a missing or ambiguous topic, stamps going backwards, a ``camera_info`` without focal
-    lengths, a first frame that does not decode, or no colour-depth pair."""
+    lengths, a first frame that does not decode, or no colour-depth pair (the recording
+    closed again first)."""
 
     def __init__(self, path: str | Path, options: BagOptions = BagOptions()) -> None:
         self.root = Path(path)
         self.options = options
         self._bag = BagFile(self.root)
+        try:
+            self._open(options)
+        except BaseException:  # a refused recording is closed before the error goes up
+            self._bag.close()
+            raise
+
+    def _open(self, options: BagOptions) -> None:
+        """Topics, the header index, the intrinsics, and frame 0 read once to check it."""
         self.topics: TopicChoice = choose_topics(
             str(self.root), self._bag.topics, options.rgb_topic, options.depth_topic,
             options.camera_info_topic, self._bag.held,
@@ -211,32 +220,25 @@ class BagSequence:
             "messages without a partner"
         )
 
-    def describe_camera(self) -> str:
-        """One line for a command: the intrinsics in use and where they came from."""
-        c = self.camera
-        source = printable(self.camera_source)  # names the camera_info topic: escaped
-        return f"intrinsics: fx {c.fx}, fy {c.fy}, cx {c.cx}, cy {c.cy} from {source}"
-
     @property
-    def fps(self) -> float:
-        """Frame rate from the median colour-frame interval (30 for a single frame)."""
-        return frame_rate(self.frames)
-
-    def __len__(self) -> int:
-        return len(self.frames)
+    def closed(self) -> bool:
+        """Whether :meth:`close` released the recording."""
+        return self._bag.closed
 
     def close(self) -> None:
         """Release the bag file (the sequence cannot load frames afterwards)."""
         self._cursor = None
+        self._ahead.clear()
+        self._cached = None
         self._bag.close()
 
-    def load(self, i: int) -> tuple[np.ndarray, np.ndarray, float]:
+    def load(self, i: int) -> Frame:
         """Frame ``i``: ``rgb uint8 [H, W, 3]``, ``depth_m float32 [H, W]`` metres (0 where
         invalid) and the colour header stamp (s). ``SlimsegError`` naming the bag, topic and
         stamp when a message does not decode or the two sizes differ."""
-        if not -len(self.frames) <= i < len(self.frames):
-            raise IndexError(f"frame {i} out of range (sequence has {len(self.frames)})")
-        i %= len(self.frames)
+        i = self.frame_index(i)
+        if self.closed:
+            raise SlimsegError(f"bag {self.root} was closed; open it again to read frames")
         if self._cached is not None and self._cached[0] == i:
             rgb, depth, t = self._cached[1]
             return rgb.copy(), depth.copy(), t
@@ -271,16 +273,14 @@ class BagSequence:
             ) from None
 
     def _check_depth(self, depth: np.ndarray) -> None:
-        valid = depth[depth > 0]
-        if len(valid):
-            median = float(np.median(valid))
+        median = implausible_median_depth(depth)
+        if median is not None:
             lo, hi = DEPTH_RANGE_M
-            if not lo <= median <= hi:
-                raise SlimsegError(
-                    f"bag {self.root}: depth on {self.topics.depth} has a median of "
-                    f"{median:.3g} m, outside {lo}-{hi} m: its encoding does not match its "
-                    "units (16UC1 must be millimetres, 32FC1 metres)"
-                )
+            raise SlimsegError(
+                f"bag {self.root}: depth on {self.topics.depth} has a median of "
+                f"{median:.3g} m, outside {lo}-{hi} m: its encoding does not match its "
+                "units (16UC1 must be millimetres, 32FC1 metres)"
+            )
 
     def _check_info_size(self, w: int, h: int) -> None:
         """Refuse a ``camera_info`` calibrated at another size than the colour frames (the

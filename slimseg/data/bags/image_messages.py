@@ -1,6 +1,6 @@
 """ROS image messages → arrays: colour as ``uint8 [H, W, 3]`` RGB, depth as ``float32 [H, W]``
-metres with 0 where there is no depth (the frame interface of :class:`~slimseg.data.tum.
-TumSequence`).
+metres with 0 where there is no depth (what a :class:`~slimseg.data.frame_source.FrameSource`
+loads).
 
 ``sensor_msgs/Image``: colour in :data:`COLOUR_ENCODINGS`, depth in :data:`DEPTH_ENCODINGS`
 (``16UC1`` / ``mono16``: millimetres; ``32FC1``: metres, NaN or inf = no depth); rows may be

@@ -4,7 +4,7 @@ Foxglove SDK gets its masks back as. ``foxglove.RawImage`` for images, and
 ``foxglove.ImageAnnotations`` for boxes: each box a closed line loop of its four corners and a
 text at its top-left corner.
 
-As :class:`~slimseg.data.bag_writer.BagWriter`: built in a temporary folder beside ``path`` and
+As :class:`~slimseg.data.bags.writer.BagWriter`: built in a temporary folder beside ``path`` and
 renamed into place when the writer closes cleanly; nothing is left on an exception; an
 existing ``path`` is refused.
 """
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bag_reader import INSTALL_HINT, Header
+from slimseg.data.bags.reader import INSTALL_HINT, Header
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name
 

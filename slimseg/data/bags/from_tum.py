@@ -17,8 +17,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.data.bag_reader import Header, stamp_ns
-from slimseg.data.bag_writer import BagWriter
+from slimseg.data.bags.reader import Header, stamp_ns
+from slimseg.data.bags.writer import BagWriter
 from slimseg.data.tum import TumSequence, read_trajectory
 from slimseg.errors import SlimsegError
 
@@ -49,28 +49,30 @@ def tum_to_bag(
         raise SlimsegError(f"--colour {colour}: expected one of {', '.join(COLOURS)}")
     if depth not in DEPTHS:
         raise SlimsegError(f"--depth {depth}: expected one of {', '.join(DEPTHS)}")
-    seq = TumSequence(sequence)
-    cam = seq.camera
-    gt_path = seq.root / "groundtruth.txt"
-    poses = read_trajectory(gt_path) if gt_path.is_file() else np.zeros((0, 8))
-    k = 0
-    with BagWriter(out, storage) as bag:
-        for i in range(len(seq)):
-            rgb, depth_m, t = seq.load(i)
-            t_depth = seq.frames[i][1][0]
-            while k < len(poses) and poses[k, 0] <= t:  # time order: the poses up to now
-                row = poses[k]
+    with TumSequence(sequence) as seq:
+        cam = seq.camera
+        gt_path = seq.root / "groundtruth.txt"
+        poses = read_trajectory(gt_path) if gt_path.is_file() else np.zeros((0, 8))
+        k = 0
+        with BagWriter(out, storage) as bag:
+            for i in range(len(seq)):
+                rgb, depth_m, t = seq.load(i)
+                t_depth = seq.frames[i][1][0]
+                while k < len(poses) and poses[k, 0] <= t:  # time order: the poses up to now
+                    row = poses[k]
+                    bag.write_pose(
+                        POSE_TOPIC, Header(stamp_ns(row[0]), WORLD_FRAME), row[1:4], row[4:]
+                    )
+                    k += 1
+                head = Header(stamp_ns(t), FRAME_ID)
+                if camera_info:
+                    size = (rgb.shape[1], rgb.shape[0])
+                    bag.write_camera_info(INFO_TOPIC, head, size, (cam.fx, cam.fy, cam.cx, cam.cy))
+                _write_colour(bag, head, rgb, colour)
+                _write_depth(bag, Header(stamp_ns(t_depth), FRAME_ID), depth_m, depth)
+            for row in poses[k:]:
                 bag.write_pose(POSE_TOPIC, Header(stamp_ns(row[0]), WORLD_FRAME), row[1:4], row[4:])
-                k += 1
-            head = Header(stamp_ns(t), FRAME_ID)
-            if camera_info:
-                size = (rgb.shape[1], rgb.shape[0])
-                bag.write_camera_info(INFO_TOPIC, head, size, (cam.fx, cam.fy, cam.cx, cam.cy))
-            _write_colour(bag, head, rgb, colour)
-            _write_depth(bag, Header(stamp_ns(t_depth), FRAME_ID), depth_m, depth)
-        for row in poses[k:]:
-            bag.write_pose(POSE_TOPIC, Header(stamp_ns(row[0]), WORLD_FRAME), row[1:4], row[4:])
-    return len(seq)
+        return len(seq)
 
 
 def _write_colour(bag: BagWriter, head: Header, rgb: np.ndarray, colour: str) -> None:
