@@ -6,7 +6,7 @@
 Dumps every frame's raw onnxruntime outputs once (``slimseg predict --dump-raw``'s format), then
 times, on those same dumps and in the same run, (a) the Python path ``slimseg dynamic`` uses:
 ``instance_predictions`` / ``semantic_predictions`` (NMS, boxes and masks on the frame) +
-``instances_of`` + ``process_frame`` (dilation, Eq. 1/3/4), torch on one thread; and (b) the
+``objects_of`` + ``process_frame`` (dilation, Eq. 1/3/4), torch on one thread; and (b) the
 C++ library through its example ``slimseg_masks`` (built here with CMake, -O2, one thread),
 whose own clock covers ``Postprocessor::run`` + ``dynamic_mask`` per frame (file reading
 excluded on both sides). Prints ms per frame of each, alternating ``--repeats`` times, and the
@@ -33,7 +33,7 @@ from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.raw_dump import frame_dump, read_raw, write_raw
 from slimseg.dynamic.epipolar import orb_features
 from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
-from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.semantic import objects_of
 from slimseg.ops.letterbox import letterbox_params
 from slimseg.ops.nms import MAX_DET, NMS_IOU
 from slimseg.utils.atomic import write_json
@@ -77,7 +77,7 @@ def python_ms(
     """Mean ms per frame of the Python post-processing + masking on the dumps (appends each
     frame's object count to ``counts``)."""
     masking = masking_from_metadata(predictor.metadata)
-    rules = FrameRules.from_masking(np.asarray(predictor.mobility, np.float32), mode, masking)
+    rules = FrameRules(np.asarray(predictor.mobility, np.float32), mode, masking)
     total = 0.0
     with torch_threads(1):
         for d in dumps:
@@ -95,9 +95,9 @@ def python_ms(
                     out0, proto, [meta], predictor.names, predictor.mobility,
                     predictor.family, conf, NMS_IOU, MAX_DET,
                 )  # fmt: skip
-            boxes, classes, masks = instances_of(pred)
-            counts.append(len(boxes))
-            inputs = FrameInputs(d["keypoints"], boxes, classes, masks, (h, w))
+            objects = objects_of(pred, (h, w))
+            counts.append(len(objects))
+            inputs = FrameInputs(d["keypoints"], objects)
             process_frame(inputs=inputs, settings=rules)
             total += time.perf_counter() - t0
     return 1000 * total / len(dumps)

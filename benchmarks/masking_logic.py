@@ -26,6 +26,7 @@ from slimseg.dynamic.pipeline import (
     orb_keypoints,
     process_frame,
 )
+from slimseg.objects import Objects
 
 H, W = 480, 640
 
@@ -55,6 +56,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     kps, boxes, classes, masks, depth = scene(rng)
     mobility = np.array([1.0, 0.75, 0.25, 0.0], np.float32)
+    ones = np.ones(len(boxes), np.float32)
     print(f"masking logic per frame, {W}x{H}, {len(kps)} keypoints, {len(boxes)} detections")
     base = None
     for mode in MODES:
@@ -62,7 +64,9 @@ def main() -> None:
         for _ in range(50):
             t = time.perf_counter()
             process_frame(
-                inputs=FrameInputs(kps, boxes, classes, masks, (H, W), depth_m=depth),
+                inputs=FrameInputs(
+                    kps, Objects(boxes, ones, classes, masks, (H, W)), depth_m=depth
+                ),
                 settings=FrameRules(mobility, mode),
                 rng=np.random.default_rng(1),
             )
@@ -78,13 +82,13 @@ def main() -> None:
     scores = np.array([0.9, 0.8, 0.3, 0.2, 0.15], np.float32)
     ref = None
     for name, preset in PRESETS.items():
-        rules = FrameRules.from_masking(mobility, "fusion", preset)
+        rules = FrameRules(mobility, "fusion", preset)
         times = []
         for _ in range(30):
             t = time.perf_counter()
             corners = support_points(textured) if preset.rule == "degrade" else None
-            inputs = FrameInputs(kps, boxes, classes, masks, (H, W), depth_m=depth,
-                                 scores=scores, support=corners)  # fmt: skip
+            objects = Objects(boxes, scores, classes, masks, (H, W))
+            inputs = FrameInputs(kps, objects, depth_m=depth, support=corners)
             process_frame(inputs=inputs, settings=rules)
             times.append(time.perf_counter() - t)
         ms = 1000 * statistics.median(times)

@@ -37,10 +37,11 @@ from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.predictor import Predictor
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.model_feed import FedDetections
-from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
 from slimseg.dynamic.track_settings import COAST, detection_floor
+from slimseg.sequence.sequence_report import ModeScore, at_keypoints
 from slimseg.utils.table import format_table
 
 
@@ -63,7 +64,7 @@ class FixedLagFeed:
         elif self.job is not None and i - self.job[0] >= self.lag:
             got = FedDetections(self.job[1], self.job[0], i - self.job[0])
             self.job = None
-        if got.pred is not None:
+        if got.objects is not None:
             self.lags.append(got.lag)
             self.model_runs += 1
         if self.job is None and i > 0:
@@ -88,9 +89,10 @@ def masker_for(predictor: Predictor, rate: str, fps: float) -> FrameMasker:
     if base.startswith("lag:"):
         masking = masking_from_metadata(predictor.metadata)
         floor = detection_floor(masking.conf, track)
-        feed = FixedLagFeed(lambda rgb, stamp: predictor.predict(rgb, conf=floor), int(base[4:]))
-        return FrameMasker(segmenter_for(predictor), class_mobility=predictor.mobility,
-                           masking=masking, track=track, fps=fps, feed=feed)  # fmt: skip
+        segment = segmenter_for(predictor)
+        feed = FixedLagFeed(lambda rgb, stamp: segment(rgb, stamp, floor), int(base[4:]))
+        config = ChainConfig(masking=masking, track=TrackPlan(track), fps=fps)
+        return FrameMasker(segment, predictor.mobility, config, feed=feed)
     return Masker.from_predictor(predictor, track=track, rate=ModelRate.parse(base), fps=fps)
 
 
@@ -99,17 +101,17 @@ def run(masker: FrameMasker, frames: list, truths: list, stamps: list[float]) ->
     has its own thread (the loop waits for each), at once otherwise."""
     score, carried = ModeScore(), ModeScore()
     lat, model, masking, late = [], [], [], []
-    live = masker.rate.thread
+    live = masker.config.track.rate.thread
     with masker:
         start = None
         for (rgb, depth), truth, stamp in zip(frames, truths, stamps, strict=True):
             if live:
-                start = start or (masker.clock(), stamp)
+                start = start or (time.perf_counter(), stamp)
                 due = start[0] + stamp - start[1]
-                now = masker.clock()
+                now = time.perf_counter()
                 if due > now:
                     time.sleep(due - now)
-                late.append(1000 * max(masker.clock() - due, 0.0))
+                late.append(1000 * max(time.perf_counter() - due, 0.0))
             out = masker.step(rgb, depth, stamp)
             at = at_keypoints(truth, out.keypoints)
             score.add(out.dynamic, at)

@@ -33,11 +33,11 @@ from pathlib import Path
 
 from slimseg.data.tum import TumSequence
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT
 from slimseg.dynamic.model_rate import ModelRate
-from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
 from slimseg.dynamic.track_settings import COAST, NO_COAST
+from slimseg.sequence.sequence_run import run_sequence
 from slimseg.slam import session
 from slimseg.slam.condition_runs import evaluate_condition
 from slimseg.slam.conditions import Condition

@@ -19,9 +19,9 @@ import tempfile
 from pathlib import Path
 
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
-from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.track_settings import COAST
+from slimseg.sequence.sequence_run import run_sequence
 from slimseg.utils.table import format_table
 
 

@@ -8,12 +8,13 @@ Each type's docstring opens with its coordinate frame. Which type at which stage
 - :class:`FrameDetections`: **source-frame pixels** (numpy; masks dense or as COCO RLEs):
   what validation scores.
 - :class:`Prediction`: **source-frame pixels**, detections with class names, mobility priors
-  and timings (or a semantic class map): what the predictor returns and the SLAM-side logic
-  (``slimseg.dynamic``) consumes.
+  and timings (or a semantic class map): what the predictor returns; the per-frame masking
+  chain (``slimseg.dynamic``) takes it in as :class:`slimseg.objects.Objects`.
 
-This module imports nothing of slimseg and nothing but numpy, so any layer may use it and
-the core install (no torch) imports it: :class:`Detections` holds torch tensors that its
-producer (``slimseg.ops.nms``) made, and the RLE conversions import pycocotools when called.
+At import this module loads nothing of slimseg and nothing but numpy and the standard
+library, so any layer may use it and the core install (no torch) imports it:
+:class:`Detections` names torch only in its annotations (its tensors are made by its
+producer, ``slimseg.ops.nms``), and the RLE conversions import pycocotools when called.
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ import torch
 from torch import nn
 
 from slimseg.models.registry import build_model
+from slimseg.objects import Objects
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -111,3 +112,9 @@ def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
     subprocess.run(configure, check=True, capture_output=True)
     subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True, capture_output=True)
     return build / "slimseg_masks"
+
+
+def frame_objects(boxes, classes, masks, hw, scores=None) -> Objects:
+    """A frame's :class:`~slimseg.objects.Objects` from its columns (scores: all 1 if None)."""
+    scores = np.ones(len(classes), np.float32) if scores is None else scores
+    return Objects(boxes, scores, classes, masks, hw)

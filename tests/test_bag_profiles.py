@@ -24,7 +24,7 @@ from slimseg.data.bags.sequence import BagSequence
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
-from slimseg.dynamic.mask_bag import MASK_TOPIC, MASKED_TOPIC, OBJECTS_TOPIC
+from slimseg.sequence.mask_bag import MASK_TOPIC, MASKED_TOPIC, OBJECTS_TOPIC
 from slimseg.utils.atomic import write_png
 
 pytest.importorskip("rosbags")

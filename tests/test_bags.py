@@ -25,8 +25,8 @@ from slimseg.data.bags.writer import BagWriter
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence, mask_name, read_trajectory
-from slimseg.dynamic.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
 from slimseg.errors import SlimsegError
+from slimseg.sequence.mask_bag import FOLDER_FRAME_ID, MASK_TOPIC
 from slimseg.utils.atomic import write_png
 
 pytest.importorskip("rosbags")

@@ -34,7 +34,7 @@ from slimseg.deploy.raw_dump import frame_dump, read_raw, write_raw
 from slimseg.detections import Prediction
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.pipeline import FrameInputs, FrameResult, FrameRules, process_frame
-from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.semantic import objects_of
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 
@@ -222,11 +222,9 @@ def _python_dynamic(
     preset: str = "",
 ) -> FrameResult:
     """What ``slimseg dynamic`` does with one frame's prediction (sequence_run, no track)."""
-    boxes, classes, masks = instances_of(pred)
-    scores = pred.scores if pred.class_map is None else None
     mobility = np.asarray(case.predictor.mobility, np.float32)
-    rules = FrameRules.from_masking(mobility, mode, case.presets[preset])
-    inputs = FrameInputs(kps, boxes, classes, masks, pred.image_hw, depth_m=depth, scores=scores)
+    rules = FrameRules(mobility, mode, case.presets[preset])
+    inputs = FrameInputs(kps, objects_of(pred, pred.image_hw), depth_m=depth)
     return process_frame(inputs=inputs, settings=rules)
 
 

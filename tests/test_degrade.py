@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import frame_objects
 
 from slimseg.dynamic.degrade import degrade, support_points
 from slimseg.dynamic.masking_settings import PAPERS, PRESETS, SLIMSEG, SettingsError
@@ -39,8 +40,10 @@ def _scene() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 def _run(rule: str, min_static: int, support: np.ndarray | None = None, scores=None):
     masks, boxes, s, classes = _scene()
     scores = s if scores is None else scores
-    inputs = FrameInputs(_grid(4), boxes, classes, masks, HW, scores=scores, support=support)
-    rules = FrameRules(MOBILITY, "seg", min_static=min_static, rule=rule)
+    inputs = FrameInputs(
+        _grid(4), frame_objects(boxes, classes, masks, HW, scores), support=support
+    )
+    rules = FrameRules(MOBILITY, "seg", PAPERS.with_values(min_static=min_static, rule=rule))
     return process_frame(inputs=inputs, settings=rules)
 
 

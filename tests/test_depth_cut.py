@@ -5,8 +5,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from conftest import frame_objects
 
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
+from slimseg.dynamic.masking_settings import PAPERS
 from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
 
 HW = (60, 80)
@@ -48,19 +50,25 @@ def test_the_pipeline_cuts_seg_masks_and_eq4_boxes_and_only_when_asked() -> None
     ys, xs = np.mgrid[2:58:4, 2:78:4]
     kps = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
     on_wall = (kps[:, 0] >= 31) & (kps[:, 0] < 40) & (kps[:, 1] >= 30) & (kps[:, 1] < 50)
-    inputs = FrameInputs(kps, boxes, np.zeros(1, np.int64), masks, HW, depth_m=depth)
+    inputs = FrameInputs(kps, frame_objects(boxes, np.zeros(1, np.int64), masks, HW), depth_m=depth)
     mob = np.array([1.0], np.float32)
-    plain = process_frame(inputs=inputs, settings=FrameRules(mob, "seg", min_static=10))
+    plain = process_frame(
+        inputs=inputs, settings=FrameRules(mob, "seg", PAPERS.with_values(min_static=10))
+    )
     assert plain.dynamic[on_wall].all()
-    rules = FrameRules(mob, "seg", min_static=10, cut_behind_m=0.5)
+    rules = FrameRules(mob, "seg", PAPERS.with_values(min_static=10, cut_behind_m=0.5))
     cut = process_frame(inputs=inputs, settings=rules)
     assert not cut.dynamic[on_wall].any() and cut.dynamic.sum() < plain.dynamic.sum()
     # Eq. 4: a mask too thin for its box becomes the box, which is cut by depth too
     thin = np.zeros_like(masks)
     thin[0, 20:24, 12:20] = True
     fused = process_frame(
-        inputs=FrameInputs(kps, boxes, np.zeros(1, np.int64), thin, HW, depth_m=depth),
-        settings=FrameRules(mob, "fusion", min_static=10, cut_behind_m=0.5, frame_ratio=0.0),
+        inputs=FrameInputs(
+            kps, frame_objects(boxes, np.zeros(1, np.int64), thin, HW), depth_m=depth
+        ),
+        settings=FrameRules(
+            mob, "fusion", PAPERS.with_values(min_static=10, cut_behind_m=0.5, frame_ratio=0.0)
+        ),
     )
     assert fused.used_seg == [False]
     assert fused.mask[30, 20] == 255 and fused.mask[40, 35] == 0  # person in, wall out
@@ -111,13 +119,17 @@ def test_without_depth_eq4_replaces_only_thin_masks() -> None:
     masks[1, 0:40, 40:44] = True  # 10 %
     kps = np.array([[20, 20], [60, 20], [5, 5], [42, 5]], np.float32)
     mob = np.array([1.0], np.float32)
-    inputs = FrameInputs(kps, boxes, np.zeros(2, np.int64), masks, hw)
-    rules = FrameRules(mob, "fusion", min_static=0, frame_ratio=0.0, t_o=1.0, cut_behind_m=0.5)
+    inputs = FrameInputs(kps, frame_objects(boxes, np.zeros(2, np.int64), masks, hw))
+    rules = FrameRules(
+        mob, "fusion", PAPERS.with_values(min_static=0, frame_ratio=0.0, t_o=1.0, cut_behind_m=0.5)
+    )
     out = process_frame(inputs=inputs, settings=rules)
     assert out.used_seg == [True, False]
     assert out.dynamic.tolist() == [False, True, True, True]
     # the cut switched off: t_o 1 is asked for as it is, both masks become boxes
-    whole = process_frame(inputs=inputs, settings=replace(rules, cut_behind_m=0.0))
+    whole = process_frame(
+        inputs=inputs, settings=replace(rules, masking=rules.masking.with_values(cut_behind_m=0.0))
+    )
     assert whole.used_seg == [False, False] and whole.dynamic.all()
     # depth for the frame but none under the first mask: that object alone falls back
     depth = np.full(hw, 3.0, np.float32)

@@ -105,8 +105,8 @@ def test_restore_gt_masks_need_a_dynamic_folder(tmp_path: Path, capsys) -> None:
 
 
 def test_restore_rejects_masks_of_the_wrong_size(small_sequence: Path, tmp_path: Path) -> None:
-    from slimseg.dynamic.restore_run import restore_sequence
     from slimseg.errors import SlimsegError
+    from slimseg.sequence.restore_run import restore_sequence
 
     with pytest.raises(SlimsegError, match=r"is \(80, 64\) \(w, h\) but the frame is \(160, 128\)"):
         restore_sequence(

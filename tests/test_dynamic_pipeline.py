@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import frame_objects
 
+from slimseg.dynamic.masking_settings import PAPERS
 from slimseg.dynamic.pipeline import (
     MODES,
     FrameInputs,
@@ -36,8 +38,8 @@ def _frame() -> tuple[np.ndarray, ...]:
 def test_modes_on_a_person_and_a_chair(mode: str) -> None:
     kps, boxes, classes, masks, depth = _frame()
     r = process_frame(
-        inputs=FrameInputs(kps, boxes, classes, masks, HW, depth_m=depth),
-        settings=FrameRules(MOBILITY, mode, min_static=10),
+        inputs=FrameInputs(kps, frame_objects(boxes, classes, masks, HW), depth_m=depth),
+        settings=FrameRules(MOBILITY, mode, PAPERS.with_values(min_static=10)),
         rng=np.random.default_rng(0),
     )
     on_person = (kps[:, 0] >= 8) & (kps[:, 0] < 30) & (kps[:, 1] >= 10) & (kps[:, 1] < 50)
@@ -57,8 +59,8 @@ def test_fusion_replaces_a_mask_too_thin_for_its_box() -> None:
     masks[0] = False
     masks[0, 10:12, 10:20] = True  # 20 px of a 1200-px box: s_o < 0.25
     r = process_frame(
-        inputs=FrameInputs(kps, boxes, classes, masks, HW),
-        settings=FrameRules(MOBILITY, "fusion", min_static=10),
+        inputs=FrameInputs(kps, frame_objects(boxes, classes, masks, HW)),
+        settings=FrameRules(MOBILITY, "fusion", PAPERS.with_values(min_static=10)),
     )
     assert r.dynamic_frame and r.used_seg == [False, True]
 
@@ -72,15 +74,17 @@ def test_orb_finds_corners() -> None:
 
 def test_process_modes_equals_one_mode_at_a_time() -> None:
     kps, boxes, classes, masks, depth = _frame()
-    inputs = FrameInputs(kps, boxes, classes, masks, HW, depth_m=depth)
-    settings = FrameRules(MOBILITY, min_static=10)
+    inputs = FrameInputs(kps, frame_objects(boxes, classes, masks, HW), depth_m=depth)
+    settings = FrameRules(MOBILITY, masking=PAPERS.with_values(min_static=10))
     together = process_modes(
         inputs=inputs, settings=settings, modes=MODES, rng=np.random.default_rng(0)
     )
     rng = np.random.default_rng(0)
     for mode in MODES:
         alone = process_frame(
-            inputs=inputs, settings=FrameRules(MOBILITY, mode, min_static=10), rng=rng
+            inputs=inputs,
+            settings=FrameRules(MOBILITY, mode, PAPERS.with_values(min_static=10)),
+            rng=rng,
         )
         assert np.array_equal(together[mode].dynamic, alone.dynamic), mode
         assert np.array_equal(together[mode].mask, alone.mask) and together[mode].seconds > 0

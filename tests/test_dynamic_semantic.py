@@ -5,9 +5,10 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
-from slimseg.dynamic.semantic import class_map_to_instances, instances_of
+from slimseg.dynamic.semantic import class_map_to_instances, objects_of
 
 
 def test_components_per_class_with_boxes() -> None:
@@ -28,8 +29,11 @@ def test_components_per_class_with_boxes() -> None:
 def test_empty_map_and_instance_passthrough() -> None:
     boxes, classes, masks = class_map_to_instances(np.zeros((8, 8), np.uint8))
     assert boxes.shape == (0, 4) and classes.shape == (0,) and masks.shape == (0, 8, 8)
-    inst = SimpleNamespace(boxes=np.ones((1, 4)), classes=np.zeros(1), masks=None, class_map=None)
-    assert instances_of(inst)[2] is None and instances_of(inst)[0] is inst.boxes
+    inst = SimpleNamespace(boxes=np.ones((1, 4)), scores=np.full(1, 0.3), classes=np.zeros(1),
+                           masks=None, class_map=None)  # fmt: skip
+    objects = objects_of(inst, (8, 8))
+    assert objects.masks is None and objects.boxes.tolist() == [[1, 1, 1, 1]]
+    assert objects.scores.tolist() == pytest.approx([0.3]) and objects.classes.dtype == np.int64
 
 
 def test_semantic_person_points_become_dynamic() -> None:
@@ -38,12 +42,12 @@ def test_semantic_person_points_become_dynamic() -> None:
     cmap = np.zeros((100, 100), np.uint8)
     cmap[10:60, 10:40] = 1
     cmap[50:90, 60:95] = 2
-    pred = SimpleNamespace(class_map=cmap)
-    boxes, classes, masks = instances_of(pred)
+    objects = objects_of(SimpleNamespace(class_map=cmap), (100, 100))
+    assert objects.scores.tolist() == [1.0, 1.0]  # a semantic map's components score 1
     rng = np.random.default_rng(0)
     kps = rng.uniform(0, 100, (400, 2)).astype(np.float32)
     result = process_frame(
-        inputs=FrameInputs(kps, boxes, classes, masks, (100, 100)),
+        inputs=FrameInputs(kps, objects),
         settings=FrameRules(np.array([1.0, 0.25]), "seg"),
     )
     x, y = (np.clip(np.round(kps[:, i]).astype(int), 0, 99) for i in (0, 1))  # as the logic

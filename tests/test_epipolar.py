@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import frame_objects
 
 from slimseg.dynamic.epipolar import (
     OrbFeatures,
@@ -18,6 +19,7 @@ from slimseg.dynamic.epipolar import (
     epipolar_distance,
     orb_features,
 )
+from slimseg.dynamic.masking_settings import PAPERS
 from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
 
 H, W = 240, 320
@@ -105,16 +107,17 @@ def test_epipolar_modes_keep_only_the_mover_dynamic() -> None:
     mobility = np.array([1.0], np.float32)  # both are people
     boxes = np.array([[50, 50, 116, 140], [193, 57, 253, 147]], np.float32)
     seg = np.stack([masks["static"], masks["mover"]])
-    args = (f1.keypoints, boxes, np.array([0, 0]), seg, (H, W))
+    args = (f1.keypoints, frame_objects(boxes, np.array([0, 0]), seg, (H, W)))
     on_static, on_mover = _on(seg[0], f1.keypoints), _on(seg[1], f1.keypoints)
     plain = process_frame(
-        inputs=FrameInputs(*args), settings=FrameRules(mobility, "seg", min_static=10)
+        inputs=FrameInputs(*args),
+        settings=FrameRules(mobility, "seg", PAPERS.with_values(min_static=10)),
     )
     assert plain.dynamic[on_static].all() and plain.dynamic[on_mover].all()
     for mode in ("semantic+epipolar", "fusion+epipolar"):
         r = process_frame(
             inputs=FrameInputs(*args, descriptors=f1.descriptors, previous=PreviousFrame(f0)),
-            settings=FrameRules(mobility, mode, min_static=10),
+            settings=FrameRules(mobility, mode, PAPERS.with_values(min_static=10)),
         )
         assert r.checked == [0, 1]
         assert not r.dynamic[on_static].any()
@@ -122,7 +125,7 @@ def test_epipolar_modes_keep_only_the_mover_dynamic() -> None:
         assert r.mask[masks["mover"]].all() and not r.mask[masks["static"]].any()
         first = process_frame(
             inputs=FrameInputs(*args, descriptors=f1.descriptors),
-            settings=FrameRules(mobility, mode, min_static=10),
+            settings=FrameRules(mobility, mode, PAPERS.with_values(min_static=10)),
         )
         assert np.array_equal(first.dynamic, plain.dynamic)  # no previous frame: like seg
 
@@ -136,14 +139,13 @@ def test_too_few_points_stay_undecided_and_dynamic() -> None:
     out = process_frame(
         inputs=FrameInputs(
             f1.keypoints,
-            np.array([[60, 60, 63, 63]], np.float32),
-            np.array([0]),
-            tiny[None],
-            (H, W),
+            frame_objects(np.array([[60, 60, 63, 63]], np.float32), [0], tiny[None], (H, W)),
             descriptors=f1.descriptors,
             previous=PreviousFrame(f0),
         ),
-        settings=FrameRules(np.array([1.0], np.float32), "semantic+epipolar", min_static=10),
+        settings=FrameRules(
+            np.array([1.0], np.float32), "semantic+epipolar", PAPERS.with_values(min_static=10)
+        ),
     )
     on_tiny = _on(tiny, f1.keypoints)
     assert on_tiny.any() and out.dynamic[on_tiny].all()
@@ -170,10 +172,7 @@ def test_bad_input_is_reported() -> None:
         process_frame(
             inputs=FrameInputs(
                 f1.keypoints,
-                np.array([[0, 0, 10, 10]], np.float32),
-                np.array([0]),
-                masks["mover"][None],
-                (H, W),
+                frame_objects(np.array([[0, 0, 10, 10]]), [0], masks["mover"][None], (H, W)),
                 previous=PreviousFrame(f0),
             ),
             settings=FrameRules(np.array([1.0], np.float32), "fusion+epipolar"),

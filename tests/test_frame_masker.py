@@ -12,21 +12,22 @@ import pytest
 
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.data.tum import TumSequence, mask_name
-from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker, segmenter_for
+from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.object_motion import (
     _subset_medians,
     inside_boxes,
     object_shifts,
 )
-from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.dynamic.track_settings import COAST
-from slimseg.dynamic.track_types import FrameDets
 from slimseg.errors import SlimsegError
+from slimseg.objects import Objects
+from slimseg.sequence.sequence_run import run_sequence
 
 
 @pytest.fixture(scope="module")
@@ -36,9 +37,11 @@ def sequence(tmp_path_factory) -> Path:
     return root
 
 
-def _masker(seq: Path, **kw) -> FrameMasker:
+def _masker(seq: Path, track=None, rate: ModelRate = EVERY_FRAME, **kw) -> FrameMasker:
+    """The chain on ``seq``'s ground-truth instances; ``kw``: :class:`ChainConfig` fields."""
     inst = AnnotationInstances(seq)
-    return FrameMasker(segmenter_for(inst), class_mobility=inst.mobility, **kw)
+    config = ChainConfig(track=TrackPlan(track, rate), **kw)
+    return FrameMasker(segmenter_for(inst), inst.mobility, config)
 
 
 @pytest.mark.parametrize(
@@ -140,8 +143,8 @@ def test_a_late_result_lands_where_the_object_is_now() -> None:
     frames = [_scene(bg, block, 60 + 6 * k, 90) for k in range(4)]
     mask = np.zeros((1, 240, 320), bool)
     mask[0, 90:154, 60:124] = True
-    det = FrameDets(np.array([[60, 90, 124, 154]], np.float32), np.array([0.9], np.float32),
-                    np.zeros(1, np.int64), mask, (240, 320))  # fmt: skip
+    det = Objects(np.array([[60, 90, 124, 154]], np.float32), np.array([0.9], np.float32),
+                  np.zeros(1, np.int64), mask, (240, 320))  # fmt: skip
     centres = {}
     for late in (6, 0):
         settings = COAST.with_values(own_matches=late)
@@ -150,27 +153,25 @@ def test_a_late_result_lands_where_the_object_is_now() -> None:
         for k, img in enumerate(frames):
             feats = orb_features(img, 1000)
             dets, lag = (det, 0) if k == 0 else ((det, 3) if k == 3 else (None, 0))
-            _, frame = stage.inputs(feats, dets, 0.1, None, previous, lag)
+            frame = stage.inputs(feats, dets, 0.1, None, previous, lag).objects
             previous = PreviousFrame(feats)
         centres[late] = np.nonzero(frame.masks[frame.det_index >= 0][0])[1].mean()
     assert centres[6] == pytest.approx(92 + 18, abs=1.5)
     assert centres[0] == pytest.approx(92, abs=1.5)
 
 
-def test_a_prediction_is_what_the_segmenter_returns(sequence: Path) -> None:
+def test_the_objects_are_what_the_segmenter_returns(sequence: Path) -> None:
     """A custom segmenter (any callable) feeds the chain; its threshold is the chain's."""
     seen = []
 
-    def segment(rgb: np.ndarray, stamp: float, conf: float) -> Prediction:
+    def segment(rgb: np.ndarray, stamp: float, conf: float) -> Objects:
         seen.append(conf)
-        return Prediction(np.zeros((0, 4), np.float32), np.zeros(0, np.float32),
-                          np.zeros(0, np.int64), [], [], np.zeros((0, *rgb.shape[:2]), bool),
-                          rgb.shape[:2])  # fmt: skip
+        return Objects.empty(rgb.shape[:2])
 
     rgb = TumSequence(sequence).load(0)[0]
-    with FrameMasker(segment, class_mobility=[1.0], track=COAST) as m:
+    with FrameMasker(segment, [1.0], ChainConfig(track=TrackPlan(COAST))) as m:
         out = m.step(rgb)
-    assert seen == [min(m.masking.conf, COAST.low)] and not out.mask.any()
+    assert seen == [min(m.config.masking.conf, COAST.low)] and not out.mask.any()
     assert len(out.objects) == 0 and out.model_ran and out.stamp == 0.0
 
 

@@ -15,8 +15,10 @@ from slimseg.cli.main import main
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.data.tum import TumSequence
 from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
-from slimseg.dynamic.model_rate import ModelRate
+from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
+from slimseg.dynamic.semantic import objects_of
 from slimseg.dynamic.track_settings import COAST
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import publish_new
@@ -31,9 +33,11 @@ def seq(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder
 
 
-def _masker(seq: Path, segmenter=None, **kw) -> FrameMasker:
+def _masker(seq: Path, segmenter=None, track=None, rate=EVERY_FRAME, **kw) -> FrameMasker:
+    """The chain on ``seq``'s instances (or ``segmenter``); ``kw``: :class:`ChainConfig`'s."""
     inst = AnnotationInstances(seq)
-    return FrameMasker(segmenter or segmenter_for(inst), class_mobility=inst.mobility, **kw)
+    config = ChainConfig(track=TrackPlan(track, rate), **kw)
+    return FrameMasker(segmenter or segmenter_for(inst), inst.mobility, config)
 
 
 def test_a_closed_masker_refuses_to_step(seq: Path) -> None:
@@ -61,7 +65,7 @@ def test_overlapping_steps_are_refused_and_indices_never_repeat(seq: Path) -> No
     def slow(rgb: np.ndarray, stamp: float, conf: float):
         inside.set()
         assert release.wait(10)
-        return inst.for_stamp(stamp)
+        return objects_of(inst.for_stamp(stamp), rgb.shape[:2])
 
     frames = TumSequence(seq)
     rgb, depth, t = frames.load(0)

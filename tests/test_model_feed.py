@@ -11,25 +11,25 @@ import pytest
 
 from slimseg.cli.main import main
 from slimseg.data.synth.sequence import write_sequence
-from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.camera_motion import CameraMotion
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker
 from slimseg.dynamic.model_feed import MAX_EVERY, ModelFeed
 from slimseg.dynamic.model_rate import ModelRate
-from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import Tracker
-from slimseg.dynamic.track_run import TrackPlan, move_dets
+from slimseg.dynamic.track_run import move_dets
 from slimseg.dynamic.track_settings import COAST
-from slimseg.dynamic.track_types import FrameDets
 from slimseg.errors import SlimsegError
+from slimseg.objects import Objects
+from slimseg.sequence.sequence_run import run_sequence
 
 HW = (120, 160)
 
 
-def _pred(tag: float) -> Prediction:
-    return Prediction(np.zeros((0, 4), np.float32), np.array([tag], np.float32),
-                      np.zeros(0, np.int64), [], [], None, HW)  # fmt: skip
+def _pred(tag: float) -> Objects:
+    """A result whose one (box-only) object scores ``tag``."""
+    return Objects(np.zeros((1, 4), np.float32), np.array([tag], np.float32), [0], None, HW)
 
 
 class _Slow:
@@ -38,7 +38,7 @@ class _Slow:
     def __init__(self, seconds: float) -> None:
         self.seconds = seconds
 
-    def __call__(self, rgb: np.ndarray, stamp: float) -> Prediction:
+    def __call__(self, rgb: np.ndarray, stamp: float) -> Objects:
         time.sleep(self.seconds)
         return _pred(stamp)
 
@@ -53,12 +53,12 @@ def test_thread_feeds_the_newest_result_with_its_lag() -> None:
             time.sleep(0.01)  # the loop's own work per frame
     finally:
         feed.close()
-    assert got[0].pred is not None and got[0].lag == 0  # the first frame waits for its own
-    used = [g for g in got[1:] if g.pred is not None]
+    assert got[0].objects is not None and got[0].lag == 0  # the first frame waits for its own
+    used = [g for g in got[1:] if g.objects is not None]
     assert 2 <= len(used) <= 8, len(used)  # ~ one result per 3-4 frames, never every frame
     for k, g in enumerate(got):
-        if g.pred is not None:  # the result is the frame it says it is, `lag` frames back
-            assert g.pred.scores[0] == g.index and g.lag == k - g.index >= 0
+        if g.objects is not None:  # the result is the frame it says it is, `lag` frames back
+            assert g.objects.scores[0] == g.index and g.lag == k - g.index >= 0
     assert all(g.lag >= 1 for g in used) and feed.model_runs == len(used) + 1
 
 
@@ -67,7 +67,7 @@ def test_budget_picks_the_model_rate() -> None:
     rgb = np.zeros((*HW, 3), np.uint8)
     ran = []
     for i in range(20):
-        ran.append(feed.frame(i, rgb, float(i)).pred is not None)
+        ran.append(feed.frame(i, rgb, float(i)).objects is not None)
         feed.other_time(0.005)
     gaps = np.diff(np.flatnonzero(ran))
     # model >= 30 ms, the rest 5 ms: (30 / N + 5) <= 12.5 needs N >= 4 (a loaded machine
@@ -87,12 +87,12 @@ def test_budget_picks_the_model_rate() -> None:
 def test_rate_is_one_of_three_and_needs_the_track_stage() -> None:
     with pytest.raises(SlimsegError, match="give one of"):
         ModelRate(every=2, budget_ms=10)
-    with pytest.raises(SlimsegError, match="needs --track"):
+    with pytest.raises(SlimsegError, match="needs the track stage"):
         TrackPlan(None, ModelRate.own_thread())
     with pytest.raises(SlimsegError, match="budget nan"):
         ModelRate.budget(float("nan"))
     with pytest.raises(SlimsegError, match="needs the track stage"):
-        FrameMasker(lambda rgb, s, c: _pred(s), class_mobility=[1.0], rate=ModelRate.every_n(2))
+        ChainConfig(track=TrackPlan(None, ModelRate.every_n(2)))
     assert [ModelRate.parse(t).name for t in ("per-frame", "3", "budget:25", "thread")] == [
         "per-frame", "every 3", "budget 25 ms", "own thread"]  # fmt: skip
     with pytest.raises(SlimsegError, match="expected N, budget:MS or thread"):
@@ -104,10 +104,10 @@ def _disc(cx: float, cy: float, r: float = 12) -> np.ndarray:
     return (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
 
 
-def _dets(cx: float, score: float = 0.9) -> FrameDets:
+def _dets(cx: float, score: float = 0.9) -> Objects:
     m = _disc(cx, 60)
-    return FrameDets(np.array([[cx - 12, 48, cx + 13, 73]], np.float32),
-                     np.array([score], np.float32), np.zeros(1, np.int64), m[None], HW)  # fmt: skip
+    return Objects(np.array([[cx - 12, 48, cx + 13, 73]], np.float32),
+                   np.array([score], np.float32), np.zeros(1, np.int64), m[None], HW)  # fmt: skip
 
 
 def test_late_detections_are_moved_by_the_camera_then_by_the_object() -> None:
@@ -122,7 +122,7 @@ def test_late_detections_are_moved_by_the_camera_then_by_the_object() -> None:
     # frame 11 gets frame 9's result (lag 2): the disc is now 8 px further on
     f = tr.step(_dets(56), CameraMotion.identity(), 0.1, lag=2)
     xs = np.nonzero(f.masks[0])[1]
-    assert f.source == ["det"] and xs.mean() == pytest.approx(64, abs=1.5)
+    assert f.source.tolist() == ["det"] and xs.mean() == pytest.approx(64, abs=1.5)
     assert tr.step(_dets(60), CameraMotion.identity(), 0.1).masks[0].sum() > 0
 
 
@@ -140,7 +140,7 @@ def test_run_sequence_with_the_model_on_its_own_thread(sequence: Path, tmp_path:
                         track=TrackPlan(COAST, ModelRate.own_thread()), fps=60.0)  # fmt: skip
     assert live.frames == 30 and len(live.latency_ms) == 30 and live.model_lags[0] == 0
     assert len(list((tmp_path / "t" / "masks").glob("*.png"))) == 30
-    # every mode is scored whatever the rate (on a clock paused while scoring)
+    # every mode is scored whatever the rate (on the trace, after the run)
     assert live.scores["fusion"].tp > 0 and live.scores["box"].tp > 0
     assert live.scores["seg"].recall >= 0.8 * per.scores["seg"].recall
     assert "model_thread" in live.ms_per_frame and live.stage_parts_ms["motion"] > 0
@@ -159,20 +159,24 @@ def test_cli_rates_and_their_errors(sequence: Path, tmp_path: Path, capsys) -> N
         (["--fps", "5"], "add --model-thread"),
         (["--track", "--model-thread", "--fps", "-1"], "--fps -1"),
         (["--track", "--budget-ms", "10", "--segment-every", "2"], "give one way"),
-        (["--model-thread"], "needs --track"),
+        (["--model-thread"], "needs the track stage"),
     ):
         assert main([*base, *bad]) == 2
         err = capsys.readouterr().err
         assert msg in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_a_replay_of_the_delivered_results_masks_as_the_live_run(sequence: Path) -> None:
-    """The other modes of a real-time run are scored on a replay of what its model thread
-    delivered: the replay's chain masks every frame exactly as the live one did."""
+def test_a_real_time_runs_kept_trace_is_analysed_as_inline(sequence: Path, tmp_path: Path) -> None:
+    """A real-time run keeps its trace (masks as crops, no depth) and analyses it after the
+    run: every mode's score, the recall split and the epipolar tally come out as when the
+    same frames are analysed as they arrive; the chosen mode, run again on the trace, masks
+    every frame as the live chain did."""
     from slimseg.data.tum import TumSequence
     from slimseg.dynamic.frame_masker import segmenter_for
-    from slimseg.dynamic.model_feed import RecordedFeed
-    from slimseg.dynamic.packed_detections import PackedDetections
+    from slimseg.dynamic.modes import MODES
+    from slimseg.dynamic.pipeline import process_frame
+    from slimseg.sequence.sequence_report import ModeScore, SequenceReport
+    from slimseg.sequence.trace_analysis import TraceAnalysis
 
     inst, seq = AnnotationInstances(sequence), TumSequence(sequence)
     slow = segmenter_for(inst)
@@ -181,17 +185,24 @@ def test_a_replay_of_the_delivered_results_masks_as_the_live_run(sequence: Path)
         time.sleep(0.04)  # a model slower than the loop: results arrive late
         return slow(rgb, stamp, conf)
 
-    kw = {"class_mobility": inst.mobility, "mode": "fusion", "track": COAST, "fps": seq.fps}
-    live, deliveries = [], []
-    with FrameMasker(segment, rate=ModelRate.own_thread(), **kw) as m:
-        for i in range(len(seq)):
-            f = m.step(*seq.load(i))
-            live.append(f.mask)
-            hw = f.mask.shape
-            packed = None if f.prediction is None else PackedDetections.of(f.prediction, hw)
-            deliveries.append((packed, i - f.lag, f.lag))
-    assert max(lag for _, _, lag in deliveries) >= 1  # some results were late
-    feed = RecordedFeed(deliveries, lambda p: p.prediction(-1.0))
-    with FrameMasker(segment, feed=feed, **kw) as m:
-        for i in range(len(seq)):
-            assert np.array_equal(m.step(*seq.load(i)).mask, live[i]), i
+    config = ChainConfig(mode="fusion", track=TrackPlan(COAST, ModelRate.own_thread()),
+                         fps=seq.fps)  # fmt: skip
+    with FrameMasker(segment, inst.mobility, config) as m:
+        frames = [m.step(*seq.load(i)) for i in range(len(seq))]
+        rules = m.rules
+    assert max(f.lag or 0 for f in frames) >= 1  # some results were late
+    for f in frames:
+        assert np.array_equal(process_frame(inputs=f.inputs, settings=rules).mask, f.mask)
+    reports = []
+    for deferred in (False, True):
+        report = SequenceReport(scores={k: ModeScore() for k in MODES})
+        analysis = TraceAnalysis(seq, inst, report, rules, MODES, deferred)
+        for i, f in enumerate(frames):
+            analysis.observe(f, seq.load(i)[0])
+        analysis.finish(tmp_path)
+        reports.append(report)
+    inline, kept = reports
+    assert {k: vars(v) for k, v in kept.scores.items()} == {
+        k: vars(v) for k, v in inline.scores.items()}  # fmt: skip
+    assert kept.scores["box"].tp > 0 and kept.epipolar == inline.epipolar
+    assert str(kept.recall_loss.summary()) == str(inline.recall_loss.summary())  # NaNs too

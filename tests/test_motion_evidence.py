@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import frame_objects
 from test_epipolar import H, W, _on, _pair
 
 from slimseg.dynamic.epipolar import PreviousFrame
@@ -33,10 +34,12 @@ def test_a_static_dog_is_given_back_a_person_is_not(mode: str) -> None:
     mob = np.array([1.0, 0.75], np.float32)  # class 0 person, class 1 dog
 
     def run(classes: list[int], odds: float, previous: bool = True):
-        inputs = FrameInputs(f1.keypoints, boxes, np.array(classes), seg, (H, W),
+        inputs = FrameInputs(f1.keypoints, frame_objects(boxes, classes, seg, (H, W)),
                              descriptors=f1.descriptors,
                              previous=PreviousFrame(f0) if previous else None)  # fmt: skip
-        rules = FrameRules(mob, mode, min_static=10, frame_ratio=1.0, motion_odds=odds)
+        rules = FrameRules(
+            mob, mode, PAPERS.with_values(min_static=10, frame_ratio=1.0, motion_odds=odds)
+        )
         return process_frame(inputs=inputs, settings=rules)
 
     # the static object as a dog: its prior 0.75 falls to 0.23 and its keypoints go back

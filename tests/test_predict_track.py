@@ -20,8 +20,8 @@ from slimseg.cli import predict as predict_cli
 from slimseg.cli.main import main
 from slimseg.deploy.track_predict import UNTRACKED_BASE, draw_tracked
 from slimseg.detections import Prediction
-from slimseg.dynamic.track_types import TrackedFrame
 from slimseg.models.checkpoint import WeightsInfo, save_weights
+from slimseg.objects import Objects
 
 NAMES = ["person", "chair", "car"]
 MOBILITY = [1.0, 0.1, 0.8]
@@ -163,7 +163,7 @@ def test_segment_every_runs_the_model_on_half_the_frames(scripted, tmp_path, cap
     assert carried and carried <= {1, 3, 5, 7}
     # without --track, --segment-every is refused in one line
     assert main([*argv, "--segment-every", "2"]) == 2
-    assert "needs --track" in capsys.readouterr().err
+    assert "needs the track stage" in capsys.readouterr().err
 
 
 def test_single_image_is_refused(scripted, tmp_path, capsys):
@@ -174,13 +174,14 @@ def test_single_image_is_refused(scripted, tmp_path, capsys):
     assert scripted.calls == []
 
 
-def _tracked(source: str) -> TrackedFrame:
+def _tracked(source: str) -> Objects:
     mask = np.zeros(HW, bool)
     mask[30:70, 40:80] = True
-    return TrackedFrame(
+    return Objects(
         boxes=np.array([[30, 20, 90, 80]], np.float32),  # around the mask, on plain grey
         classes=np.zeros(1, np.int64),
         masks=mask[None],
+        hw=HW,
         mobility=np.ones(1, np.float32),
         track_ids=np.array([3]),
         source=[source],

@@ -121,7 +121,7 @@ def _arrays(max_dims: int = 4) -> st.SearchStrategy[np.ndarray]:
 @pytest.fixture(scope="module")
 def masker(seq: Path):
     inst = AnnotationInstances(seq)
-    with FrameMasker(segmenter_for(inst), class_mobility=inst.mobility) as m:
+    with FrameMasker(segmenter_for(inst), inst.mobility) as m:
         yield m
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from slimseg.dynamic.patchmatch import patchmatch
 from slimseg.dynamic.restore import FrameData, restore_frame, select_references
-from slimseg.dynamic.restore_run import psnr, ssim_in
+from slimseg.sequence.restore_run import psnr, ssim_in
 
 H, W = 120, 160
 

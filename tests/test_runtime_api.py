@@ -114,15 +114,17 @@ def test_the_docs_loop_runs_and_masks_as_slimseg_dynamic(
 def test_masker_settings_come_from_the_export(model: Path, sequence: Path) -> None:
     rgb, depth, stamp = TumSequence(sequence).load(0)
     with slimseg.Masker.from_onnx(model, threads=1) as m:
-        assert m.masking == PRESETS["slimseg"] and m.track is None and m.rate.every_frame
+        c = m.config
+        assert c.masking == PRESETS["slimseg"] and not c.track.on and c.track.rate.every_frame
         assert m.names == NAMES and np.allclose(m.mobility, MOBILITY)
         out = m.step(rgb, depth, stamp)
         assert out.mask.shape == (240, 320) and out.mask.dtype == np.uint8
         assert len(out.dynamic) == len(out.keypoints) > 0 and out.timing.latency > 0
     m = slimseg.Masker.from_onnx(model, threads=1, preset="papers", t_o=0.5, track="coast",
                                  rate="budget:30")  # fmt: skip
-    assert m.masking == PAPERS.with_values(t_o=0.5) and m.rate == slimseg.ModelRate.budget(30)
-    assert m.track is not None and m.floor == m.track.low
+    c = m.config
+    assert c.masking == PAPERS.with_values(t_o=0.5) and c.track.rate == slimseg.ModelRate.budget(30)
+    assert c.track.on and c.floor == c.track.settings.low
     for bad, msg in (
         ({"preset": "fast"}, "no preset 'fast' (it has: papers, slimseg)"),
         ({"t_o": 2.0}, "t_o"),

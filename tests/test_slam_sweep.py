@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,8 @@ from slimseg.deploy.metadata import (
     masking_from_metadata,
 )
 from slimseg.detections import Prediction
-from slimseg.dynamic.detection_cache import build_cache, mask_with
+from slimseg.dynamic.epipolar import OrbFeatures
+from slimseg.dynamic.mask_patch import pack_masks
 from slimseg.dynamic.masking_settings import (
     DEFAULT,
     PAPERS,
@@ -31,8 +33,9 @@ from slimseg.dynamic.masking_settings import (
     SettingsError,
     preset,
 )
-from slimseg.dynamic.packed_detections import PackedDetections
+from slimseg.objects import Objects
 from slimseg.ops.nms import PREDICT_CONF, non_max_suppression
+from slimseg.sequence.detection_cache import CachedFrame, build_cache, mask_with
 from slimseg.slam.sweep import (
     SweepError,
     check_mode,
@@ -158,19 +161,26 @@ def test_filtering_after_nms_equals_nms_at_the_higher_threshold() -> None:
                                                                         high.classes)  # fmt: skip
 
 
+def _cached(objects: Objects) -> CachedFrame:
+    """``objects`` as a sweep's cache keeps them (masks as crops)."""
+    feats = OrbFeatures(np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8))
+    return CachedFrame(0.0, feats, replace(objects, masks=None), pack_masks(objects.masks),
+                       None, 0.0, 0.0)  # fmt: skip
+
+
 def test_cached_masks_round_trip() -> None:
     rng = np.random.default_rng(1)
     masks = np.zeros((3, 30, 40), bool)
     masks[0, 5:12, 7:20] = rng.random((7, 13)) > 0.3
     masks[1, 20:30, 30:40] = True  # touches the bottom-right corner
-    dets = PackedDetections.pack(np.zeros((3, 4)), [0.9, 0.4, 0.05], [0, 1, 0], masks, (30, 40))
-    _, classes, back = dets.select(0.01)
-    assert np.array_equal(back, masks) and list(classes) == [0, 1, 0]
-    _, classes, back = dets.select(0.3)
-    assert np.array_equal(back, masks[:2]) and list(classes) == [0, 1]
-    assert dets.select(0.95)[2].shape == (0, 30, 40)
-    none = PackedDetections.pack(np.zeros((1, 4)), [0.5], [0], None, (30, 40))
-    assert none.select(0.1)[2] is None
+    frame = _cached(Objects(np.zeros((3, 4)), [0.9, 0.4, 0.05], [0, 1, 0], masks, (30, 40)))
+    back = frame.above(0.01)
+    assert np.array_equal(back.masks, masks) and back.classes.tolist() == [0, 1, 0]
+    back = frame.above(0.3)
+    assert np.array_equal(back.masks, masks[:2]) and back.classes.tolist() == [0, 1]
+    assert frame.above(0.95).masks.shape == (0, 30, 40)
+    none = _cached(Objects(np.zeros((1, 4)), [0.5], [0], None, (30, 40)))
+    assert none.above(0.1).masks is None
 
 
 class CountingPredictor:
@@ -236,7 +246,7 @@ def test_cached_masks_equal_a_direct_run(seq: Path, tmp_path: Path) -> None:
     """mask_with on the cache writes what slimseg dynamic writes for the same settings."""
     import cv2
 
-    from slimseg.dynamic.sequence_run import run_sequence
+    from slimseg.sequence.sequence_run import run_sequence
 
     settings = PAPERS.with_values(conf=0.1, dilation_px=3, t_o=0.4)
     direct = run_sequence(CountingPredictor(seq), seq, tmp_path / "d", "fusion", settings,

@@ -14,6 +14,7 @@ from slimseg.cli.main import main
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
+from slimseg.dynamic.chain_config import TrackPlan
 from slimseg.dynamic.epipolar import OrbFeatures
 from slimseg.dynamic.kalman import BoxKalman
 from slimseg.dynamic.mask_patch import (
@@ -24,12 +25,11 @@ from slimseg.dynamic.mask_patch import (
     warp_patch,
 )
 from slimseg.dynamic.model_rate import ModelRate
-from slimseg.dynamic.sequence_run import run_sequence
 from slimseg.dynamic.track import Tracker
-from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
-from slimseg.dynamic.track_types import FrameDets
 from slimseg.errors import SlimsegError
+from slimseg.objects import Objects
+from slimseg.sequence.sequence_run import run_sequence
 
 HW = (120, 160)
 
@@ -39,12 +39,12 @@ def _disc(cx: float, cy: float, r: float = 12, hw=HW) -> np.ndarray:
     return (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
 
 
-def _dets(masks: list[np.ndarray], scores: list[float]) -> FrameDets:
+def _dets(masks: list[np.ndarray], scores: list[float]) -> Objects:
     boxes = []
     for m in masks:
         ys, xs = np.nonzero(m)
         boxes.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
-    return FrameDets(
+    return Objects(
         np.array(boxes, np.float32).reshape(-1, 4),
         np.array(scores, np.float32),
         np.zeros(len(masks), np.int64),
@@ -107,7 +107,7 @@ def test_settings_refuse_bad_values() -> None:
         COAST.with_values(max_coast=-1)
     with pytest.raises(TrackSettingsError, match="low"):
         COAST.with_values(low=0.5, high=0.25)
-    with pytest.raises(SlimsegError, match="needs --track"):
+    with pytest.raises(SlimsegError, match="needs the track stage"):
         TrackPlan(None, ModelRate.every_n(3))
 
 
@@ -289,7 +289,7 @@ def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) ->
     assert rc == 0 and "max_coast 5" in text and "where recall is lost" in text
     assert (out / "tracks.csv").read_text().startswith("timestamp,track_id")
     for bad, msg in (
-        (["--segment-every", "2"], "needs --track"),
+        (["--segment-every", "2"], "needs the track stage"),
         (["--track-high", "2"], "track setting high"),
         (["--track", "nope"], "invalid choice"),
     ):
@@ -311,8 +311,8 @@ def test_cached_sweep_loop_gives_the_same_tracked_masks(
     """slam-eval --sweep (cached detections) and slimseg dynamic agree under the stage: one
     chain (FrameMasker), the same depth, previous frame and model schedule in both."""
     from slimseg.data.tum import TumSequence
-    from slimseg.dynamic.detection_cache import build_cache, mask_with
     from slimseg.dynamic.masking_settings import DEFAULT
+    from slimseg.sequence.detection_cache import build_cache, mask_with
 
     inst = AnnotationInstances(sequence, Dropout(0.2, 3, seed=2))
     plan = TrackPlan(COAST, ModelRate.every_n(every))

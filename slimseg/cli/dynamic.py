@@ -34,8 +34,11 @@ from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.annotations import Dropout
-from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
-from slimseg.dynamic.mask_bag import (
+from slimseg.dynamic.chain_config import TrackPlan
+from slimseg.dynamic.masking_settings import MaskingSettings
+from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES, Mode
+from slimseg.errors import SlimsegError
+from slimseg.sequence.mask_bag import (
     MASK_TOPIC,
     MASKED_TOPIC,
     OBJECTS_TOPIC,
@@ -44,18 +47,14 @@ from slimseg.dynamic.mask_bag import (
     write_mask_bag,
     writes_foxglove,
 )
-from slimseg.dynamic.masking_settings import MaskingSettings
-from slimseg.dynamic.pipeline import MODES
-from slimseg.dynamic.restore_run import (
+from slimseg.sequence.restore_run import (
     REPORT_HEADERS,
     RestoreReport,
     report_rows,
     restore_sequence,
 )
-from slimseg.dynamic.sequence_report import SequenceReport
-from slimseg.dynamic.sequence_run import run_sequence
-from slimseg.dynamic.track_run import TrackPlan
-from slimseg.errors import SlimsegError
+from slimseg.sequence.sequence_report import SequenceReport
+from slimseg.sequence.sequence_run import run_sequence
 from slimseg.utils.atomic import stage_name, staged_dir, write_text
 from slimseg.utils.outputs import refuse_inputs
 from slimseg.utils.table import format_table
@@ -101,9 +100,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"bag output: also the colour frames with dynamic pixels black on {MASKED_TOPIC}",
     )
     add_rerun_arg(p, "every frame: image, depth, class-coloured mask, boxes, keypoints, timing")
-    p.add_argument("--mode", default="fusion", choices=MODES)
+    p.add_argument("--mode", default=Mode.FUSION.value, choices=MODES)
     p.add_argument(
-        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features per frame"
+        "--keypoints",
+        type=count(1, MAX_KEYPOINTS),
+        default=KEYPOINTS,
+        help="ORB features per frame",
     )
     add_masking_args(p)
     add_track_args(p)
@@ -203,7 +205,7 @@ def _run(
         observers.append(lambda f, rgb, depth: boxes.append(frame_boxes(f.objects, names)))
     viz = None
     if rerun is not None:
-        from slimseg.dynamic.rerun_frames import RerunFrames
+        from slimseg.sequence.rerun_frames import RerunFrames
 
         truth = seq.root / "dynamic"  # a synthetic sequence's ground-truth masks, if any
         viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)
@@ -268,10 +270,6 @@ def _print_latency(report: SequenceReport, live: bool) -> None:
         print(f"replay kept up with {int((late < 1).sum())} of {len(late)} frames (taken up "
               f"late by up to {late.max():.0f} ms: reading and writing frames cost the replay "
               f"time a runtime does not spend)")  # fmt: skip
-    if report.replay_differs:
-        print(f"the replay that scored the modes masked {report.replay_differs} frame(s) "
-              "unlike the live run (the epipolar check's RANSAC draws); masks/ is the live "
-              "run's")  # fmt: skip
     if live and report.model_lags:
         lags = np.asarray(report.model_lags)
         print(f"model results used: {len(lags)} for {report.frames} frames, lag median "

@@ -51,11 +51,11 @@ from slimseg.data.visualize import draw_class_map, draw_sample
 from slimseg.deploy.predictor import BACKENDS, Predictor, combined_mask
 from slimseg.deploy.raw_dump import SUFFIX as RAW_SUFFIX
 from slimseg.deploy.raw_dump import frame_dump, write_raw
-from slimseg.deploy.track_predict import DEFAULT_FPS, track_predict
+from slimseg.deploy.track_predict import track_predict
 from slimseg.detections import Prediction
+from slimseg.dynamic.chain_config import TrackPlan
 from slimseg.dynamic.epipolar import orb_features
-from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
-from slimseg.dynamic.track_run import TrackPlan
+from slimseg.dynamic.modes import FPS, KEYPOINTS, MAX_KEYPOINTS
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
@@ -109,7 +109,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--keypoints",
         type=count(1, MAX_KEYPOINTS),
-        default=1000,
+        default=KEYPOINTS,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )
     add_track_args(p)
@@ -333,7 +333,7 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
         frames, total, fps = bag.frames(), len(bag.stamps), bag.fps
     else:
         frames, total, is_video = open_source(source)
-        fps = _video_fps(source) if is_video else DEFAULT_FPS
+        fps = _video_fps(source) if is_video else FPS
     predictor = Predictor.from_path(
         args.model, backend=args.backend, imgsz=args.imgsz, threads=args.threads
     )
@@ -345,7 +345,7 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
         print(f"track stage: {plan.describe()}")
     viz = None
     if rerun is not None:
-        from slimseg.dynamic.rerun_frames import RerunFrames
+        from slimseg.sequence.rerun_frames import RerunFrames
 
         viz = RerunFrames(rerun, list(predictor.names), "slimseg predict --track")
     with kept_recording(viz):
@@ -360,13 +360,13 @@ def run_tracked(args: argparse.Namespace, plan: TrackPlan) -> int:
 
 
 def _video_fps(path: Path) -> float:
-    """The video's frame rate (``DEFAULT_FPS`` when OpenCV does not know it)."""
+    """The video's frame rate (``FPS`` when OpenCV does not know it)."""
     cap = cv2.VideoCapture(str(path))
     try:
         fps = float(cap.get(cv2.CAP_PROP_FPS))
     finally:
         cap.release()
-    return fps if 0 < fps < 1000 else DEFAULT_FPS
+    return fps if 0 < fps < 1000 else FPS
 
 
 def _report_skipped(skipped: list[str]) -> int:

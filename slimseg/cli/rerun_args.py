@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 from slimseg.errors import SlimsegError
 
 if TYPE_CHECKING:
-    from slimseg.dynamic.rerun_frames import RerunFrames
+    from slimseg.sequence.rerun_frames import RerunFrames
 
 
 def add_rerun_arg(p: argparse.ArgumentParser, what: str) -> None:
@@ -31,7 +31,7 @@ def rerun_path(args: argparse.Namespace, out: Path, inputs: dict) -> Path | None
     ``rerun-sdk`` installed."""
     if args.rerun is None:
         return None
-    from slimseg.dynamic.rerun_frames import check_rrd_path
+    from slimseg.sequence.rerun_frames import check_rrd_path
     from slimseg.utils.outputs import refuse_inputs
 
     path = Path(args.rerun)

@@ -19,8 +19,7 @@ from slimseg.cli.track_args import (
     dropout_from_args,
     track_plan_from_args,
 )
-from slimseg.dynamic.frame_masker import MAX_KEYPOINTS
-from slimseg.dynamic.pipeline import MODES
+from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES
 from slimseg.errors import SlimsegError
 from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
 from slimseg.utils.atomic import staged_dir
@@ -90,7 +89,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--json", action="store_true", help="print the results table as JSON")
     p.add_argument(
-        "--keypoints", type=count(1, MAX_KEYPOINTS), default=1000, help="ORB features (mask modes)"
+        "--keypoints",
+        type=count(1, MAX_KEYPOINTS),
+        default=KEYPOINTS,
+        help="ORB features (mask modes)",
     )
     add_masking_args(p)
     add_track_args(p)
@@ -110,7 +112,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="oneway: one key at a time around the --preset/flags settings; grid: every "
         "combination",
     )
-    p.add_argument("--features", type=count(1), default=1000, help="ORB-SLAM3 ORB features")
+    p.add_argument("--features", type=count(1), default=KEYPOINTS, help="ORB-SLAM3 ORB features")
     p.add_argument(
         "--no-realtime", action="store_true", help="feed frames as fast as tracking goes"
     )

@@ -8,13 +8,13 @@ from collections.abc import Callable
 from contextlib import ExitStack
 
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import MaskingSettings
-from slimseg.dynamic.pipeline import MODES
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.modes import MODES, Mode
 from slimseg.errors import SlimsegError
 from slimseg.utils.outputs import refuse_inputs
 
-DEFAULT_SWEEP_MODE = "fusion"
+DEFAULT_SWEEP_MODE = Mode.FUSION.value
 
 
 def sweep_mode(text: str | None) -> str:

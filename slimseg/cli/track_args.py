@@ -11,8 +11,8 @@ from typing import TypeVar
 
 from slimseg.cli.arg_types import count, number
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TrackPlan
 from slimseg.dynamic.model_rate import ModelRate
-from slimseg.dynamic.track_run import TrackPlan
 from slimseg.dynamic.track_settings import (
     DEFAULT_TRACK_PRESET,
     TRACK_PRESETS,
@@ -78,7 +78,7 @@ def add_rate_args(p: argparse.ArgumentParser) -> None:
         help="run the model on its own thread, as a runtime would: frames are replayed in real "
         "time and masked as they arrive with the newest finished model result, moved by each "
         "object's own ORB matches; the report gives the per-frame latency (the other modes are "
-        "scored on a clock paused meanwhile)",
+        "scored after the run, on what its rules saw)",
     )
     g.add_argument(
         "--fps",
@@ -132,13 +132,8 @@ def track_plan_from_args(args: argparse.Namespace) -> TrackPlan:
                               ("--model-thread", thread)) if on]  # fmt: skip
     if len(chosen) > 1:
         raise SlimsegError(f"{' and '.join(chosen)}: give one way to set the model's rate")
-    settings = track_settings_from_args(args)
-    if chosen and settings is None:
-        raise SlimsegError(
-            f"{chosen[0]} needs --track (the tracks carry the masks over the frames the model "
-            "skips)"
-        )
-    return TrackPlan(settings, ModelRate(every=every, budget_ms=budget, thread=thread))
+    rate = ModelRate(every=every, budget_ms=budget, thread=thread)
+    return TrackPlan(track_settings_from_args(args), rate)  # a rate without --track: refused
 
 
 def dropout_from_args(args: argparse.Namespace) -> Dropout | None:

@@ -17,8 +17,10 @@ from typing import Any
 
 from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.predictor import Predictor
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
+from slimseg.dynamic.modes import FPS, KEYPOINTS, Mode
 from slimseg.dynamic.track_settings import DEFAULT_TRACK_PRESET, TrackSettings, track_preset
 from slimseg.errors import SlimsegError
 
@@ -46,13 +48,13 @@ class Masker(FrameMasker):
         cls,
         predictor: Predictor,
         *,
-        mode: str = "fusion",
+        mode: Mode | str = Mode.FUSION,
         preset: str | None = None,
         track: bool | str | TrackSettings = False,
         rate: ModelRate | str = EVERY_FRAME,
-        keypoints: int = 1000,
+        keypoints: int = KEYPOINTS,
         camera: tuple[float, float, float, float] | None = None,
-        fps: float = 30.0,
+        fps: float = FPS,
         depth_scale: float | None = None,
         **masking: Any,
     ) -> Masker:
@@ -61,23 +63,23 @@ class Masker(FrameMasker):
         recommended settings); ``masking``: explicit overrides (``conf=0.2``, ``t_o=0.25``,
         ...); ``track``: the track stage (True: the default preset, a preset name, or
         settings); ``rate``: a :class:`ModelRate` or its text (``"3"``, ``"budget:25"``,
-        ``"thread"``); the rest as :class:`FrameMasker`."""
+        ``"thread"``); the rest as :class:`~slimseg.dynamic.chain_config.ChainConfig`."""
         settings = masking_from_metadata(predictor.metadata, preset)
         if masking:
             settings = settings.with_values(**masking)
         stage = _track_settings(track)
         if isinstance(rate, str):
             rate = ModelRate.parse(rate)
-        return cls(
-            predictor, mode=mode, masking=settings, track=stage, rate=rate,
-            keypoints=keypoints, camera=camera, fps=fps, depth_scale=depth_scale,
+        config = ChainConfig(
+            mode=mode, masking=settings, track=TrackPlan(stage, rate), keypoints=keypoints,
+            camera=camera, fps=fps, depth_scale=depth_scale,
         )  # fmt: skip
+        return cls(predictor, config)
 
-    def __init__(self, predictor: Predictor, **options: Any) -> None:
-        """The chain running ``predictor`` (its class priors); ``options``: those of
-        :class:`FrameMasker` (build through :meth:`from_predictor` to take the export's
-        settings)."""
-        super().__init__(segmenter_for(predictor), class_mobility=predictor.mobility, **options)
+    def __init__(self, predictor: Predictor, config: ChainConfig | None = None) -> None:
+        """The chain running ``predictor`` (its class priors) as ``config`` says (None: the
+        defaults; build through :meth:`from_predictor` to take the export's settings)."""
+        super().__init__(segmenter_for(predictor), predictor.mobility, config)
         self.predictor = predictor
 
     @property

@@ -46,19 +46,19 @@ from tqdm import tqdm
 
 from slimseg.data.visualize import class_color
 from slimseg.deploy.predictor import Predictor
-from slimseg.detections import Prediction
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker, MaskedFrame
 from slimseg.dynamic.masking_settings import DEFAULT
-from slimseg.dynamic.track_run import TrackPlan
-from slimseg.dynamic.track_types import SOURCE_COAST, SOURCE_DETECTION, TrackedFrame
+from slimseg.dynamic.modes import FPS, KEYPOINTS, Mode
+from slimseg.dynamic.semantic import objects_of
 from slimseg.errors import SlimsegError
+from slimseg.objects import SOURCE_COAST, SOURCE_DETECTION, Objects
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU
 from slimseg.utils.atomic import atomic_path, staged_dir, write_png, write_text
 
 UNTRACKED_BASE = 60000  # instance-map value of a frame's first untracked detection
 GIF_WIDTH = 480  # the GIF is downscaled to at most this width ...
 GIF_FRAMES = 150  # ... and holds at most this many frames (~80 KiB each at 480 px)
-DEFAULT_FPS = 30.0  # frame rate assumed for a folder of frames
 UNTRACKED_COLOR = (200, 200, 200)
 CSV_FIELDS = (
     "frame",
@@ -119,10 +119,10 @@ def track_predict(
     conf: float,
     iou: float = NMS_IOU,
     max_det: int = MAX_DET,
-    fps: float = DEFAULT_FPS,
+    fps: float = FPS,
     total: int = 0,
     progress: bool = True,
-    keypoints: int = 1000,
+    keypoints: int = KEYPOINTS,
     observers: Sequence[Callable[[MaskedFrame, np.ndarray, None], None]] = (),
 ) -> TrackReport:
     """Track ``frames`` (in order; ``total``: their count for the progress bar, 0 unknown) with
@@ -133,14 +133,13 @@ def track_predict(
         raise ValueError("track_predict needs a TrackPlan with settings (the stage on)")
     out = Path(out)
 
-    def segment(rgb: np.ndarray, stamp: float, floor: float) -> Prediction:
-        return predictor.predict(rgb, conf=floor, iou=iou, max_det=max_det)
+    def segment(rgb: np.ndarray, stamp: float, floor: float) -> Objects:
+        pred = predictor.predict(rgb, conf=floor, iou=iou, max_det=max_det)
+        return objects_of(pred, rgb.shape[:2])
 
-    masker = FrameMasker(
-        segment, class_mobility=predictor.mobility, mode="seg",
-        masking=DEFAULT.with_values(conf=conf), track=plan.settings, rate=plan.rate,
-        keypoints=keypoints, fps=fps,
-    )  # fmt: skip
+    config = ChainConfig(mode=Mode.SEG, masking=DEFAULT.with_values(conf=conf), track=plan,
+                         keypoints=keypoints, fps=fps)  # fmt: skip
+    masker = FrameMasker(segment, predictor.mobility, config)
     names = list(predictor.names)
     report, rows, ids = TrackReport(), [], set()
     last_det: dict[int, int] = {}  # track id -> last frame it was detected in
@@ -163,7 +162,7 @@ def track_predict(
                 for observe in observers:  # a Rerun recording (no depth here)
                     observe(f, rgb, None)
                 hw = f.mask.shape
-                tracked = f.tracked
+                tracked = f.objects
                 report.model_frames += f.model_ran
                 report.model_s += f.timing.model / 1000
                 report.track_s += (f.timing.features + f.timing.track) / 1000
@@ -178,7 +177,7 @@ def track_predict(
                 write_png(folder / "tracks" / f"{stem}.png", imap)
                 rows += _rows(i, stem, tracked, map_ids, names)
                 ids.update(int(t) for t in tids if t >= 0)
-                report.predicted += int(tracked.coasted.sum())
+                report.predicted += int(tracked.predicted.sum())
                 drawn = draw_tracked(rgb, tracked, names, lost)
                 video.add(drawn)
                 if len(gif) < GIF_FRAMES:
@@ -206,7 +205,7 @@ def track_predict(
     return report
 
 
-def instance_map(tracked: TrackedFrame, hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def instance_map(tracked: Objects, hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """``(uint16 [H, W] instance map, map_ids int64 [M])`` of one frame's ``M`` objects (see
     the module docstring for the values and which object wins an overlapping pixel)."""
     tids = np.asarray(tracked.track_ids, np.int64)
@@ -227,7 +226,7 @@ def instance_map(tracked: TrackedFrame, hw: tuple[int, int]) -> tuple[np.ndarray
 
 def draw_tracked(
     image: np.ndarray,
-    tracked: TrackedFrame,
+    tracked: Objects,
     names: Sequence[str],
     lost: np.ndarray | None = None,
     alpha: float = 0.45,
@@ -245,7 +244,7 @@ def draw_tracked(
     thick = max(1, round(scale))
     lost = np.asarray(tracked.misses if lost is None else lost)
     masks = _object_masks(tracked, (h, w))
-    predicted = tracked.coasted
+    predicted = tracked.predicted
     yy, xx = np.mgrid[:h, :w]
     hatch = ((xx + yy) // max(2, round(3 * scale))) % 2 == 0
     colors = [_color(int(t)) for t in tracked.track_ids]
@@ -283,7 +282,7 @@ def draw_tracked(
 # -- helpers -------------------------------------------------------------------------------
 
 
-def _object_masks(tracked: TrackedFrame, hw: tuple[int, int]) -> np.ndarray:
+def _object_masks(tracked: Objects, hw: tuple[int, int]) -> np.ndarray:
     """``bool [M, H, W]``: the masks, or the boxes filled for a box-only model."""
     if tracked.masks is not None:
         return np.asarray(tracked.masks, bool)
@@ -293,9 +292,9 @@ def _object_masks(tracked: TrackedFrame, hw: tuple[int, int]) -> np.ndarray:
     return masks
 
 
-def _paint_order(tracked: TrackedFrame) -> list[int]:
+def _paint_order(tracked: Objects) -> list[int]:
     """Predicted masks first (most misses first), then detections by ascending score."""
-    coasted = tracked.coasted
+    coasted = tracked.predicted
     keys = [
         (0, -int(tracked.misses[k])) if coasted[k] else (1, float(tracked.scores[k]))
         for k in range(len(tracked.boxes))
@@ -311,10 +310,10 @@ def _name(names: Sequence[str], cls: int) -> str:
     return names[cls] if 0 <= cls < len(names) else str(cls)
 
 
-def _label_text(tracked: TrackedFrame, k: int, names: Sequence[str], lost: int) -> str:
+def _label_text(tracked: Objects, k: int, names: Sequence[str], lost: int) -> str:
     tid = int(tracked.track_ids[k])
     head = (f"#{tid} " if tid >= 0 else "") + _name(names, int(tracked.classes[k]))
-    if not tracked.coasted[k]:
+    if not tracked.predicted[k]:
         return f"{head} {float(tracked.scores[k]):.2f}"
     return f"{head} {'lost' if tracked.source[k] == SOURCE_COAST else 'carried'} {lost}"
 
@@ -365,8 +364,8 @@ def _gif_frame(rgb: np.ndarray) -> Image.Image:
     return Image.fromarray(rgb).quantize(colors=255, method=Image.Quantize.FASTOCTREE)
 
 
-def _rows(i: int, stem: str, tracked: TrackedFrame, map_ids: np.ndarray, names) -> list[dict]:
-    rows, coasted = [], tracked.coasted
+def _rows(i: int, stem: str, tracked: Objects, map_ids: np.ndarray, names) -> list[dict]:
+    rows, coasted = [], tracked.predicted
     for k in range(len(tracked.boxes)):
         row = {"frame": i, "stem": stem, "track_id": int(tracked.track_ids[k]),
                "map_id": int(map_ids[k]), "class": _name(names, int(tracked.classes[k])),

@@ -57,6 +57,7 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.degrade import support_points
+from slimseg.dynamic.modes import KEYPOINTS
 
 RATIO = 0.8  # Lowe ratio test on Hamming distances
 MIN_BACKGROUND = 20  # background matches wanted for F; fewer: fall back to all matches
@@ -97,7 +98,7 @@ class PreviousFrame:
 
 
 def orb_features(
-    image: np.ndarray, count: int = 1000, mask: np.ndarray | None = None, corners: bool = False
+    image: np.ndarray, count: int = KEYPOINTS, mask: np.ndarray | None = None, corners: bool = False
 ) -> OrbFeatures:
     """ORB keypoints + descriptors of an RGB ``uint8 [H, W, 3]`` or gray ``[H, W]`` frame.
 

@@ -186,3 +186,17 @@ def patch_depth(p: Patch, depth_m: np.ndarray) -> np.ndarray:
     if y1 > y0 and x1 > x0:
         out[y0 - p.y0 : y1 - p.y0, x0 - p.x0 : x1 - p.x0] = depth_m[y0:y1, x0:x1]
     return out
+
+
+def pack_masks(masks: np.ndarray | None) -> list[Patch] | None:
+    """Full ``bool [M, H, W]`` masks as their tight crops (None stays None): what a whole
+    sequence of them keeps in memory."""
+    return None if masks is None else [patch_from_mask(m) for m in masks]
+
+
+def unpack_masks(patches: list[Patch], hw: tuple[int, int]) -> np.ndarray:
+    """The full ``bool [M, H, W]`` masks of ``patches`` (:func:`pack_masks`'s inverse)."""
+    out = np.zeros((len(patches), *hw), bool)
+    for k, p in enumerate(patches):
+        out[k] = p.paste(hw)
+    return out

@@ -15,10 +15,7 @@ over frames without).
   into the current frame (:meth:`~slimseg.dynamic.track_run.TrackedSequence.inputs`). The
   first frame waits for its own result (nothing can be masked before one exists).
 
-``clock``: the loop's clock (``time.perf_counter`` by default). A loop that spends time a
-runtime would not (scoring other modes) pauses its clock for it; a result of the worker is
-then used only once the loop's clock has advanced by the run's own duration since it was
-handed over, as if the pause had not happened.
+A result of the worker is used at the first frame after it is done.
 """
 
 from __future__ import annotations
@@ -32,16 +29,16 @@ from typing import Protocol
 
 import numpy as np
 
-from slimseg.detections import Prediction
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
+from slimseg.objects import Objects
 
 MAX_EVERY = 10  # the budget never lets the model skip more frames than this
 BUDGET_WARMUP = 2  # model frames measured before the budget picks N (the model runs on each)
 
 
 class Feed(Protocol):
-    """What the per-frame chain asks for its model results: :class:`ModelFeed` (a schedule),
-    :class:`RecordedFeed` (another run's results, replayed) or a caller's own."""
+    """What the chain asks for its model results: a :class:`ModelFeed` (a schedule at a
+    rate), or a caller's own (a benchmark's fixed lag)."""
 
     lags: list[int]
     model_runs: int
@@ -54,17 +51,17 @@ class Feed(Protocol):
     def close(self) -> None: ...
 
 
-RunModel = Callable[[np.ndarray, float], Prediction]
-"""The model as the feed calls it: ``(rgb uint8 [H, W, 3], stamp) -> Prediction``."""
+RunModel = Callable[[np.ndarray, float], Objects]
+"""The model as the feed calls it: ``(rgb uint8 [H, W, 3], stamp) -> Objects``."""
 
 
 @dataclass(frozen=True)
 class FedDetections:
-    """The model's output for one frame of the loop: ``pred`` (None: none this frame),
+    """The model's output for one frame of the loop: ``objects`` (None: none this frame),
     ``index`` the frame it was computed on (``lag`` = current - index frames), ``seconds`` the
     loop's thread spent waiting for it (the whole model time when it ran inline)."""
 
-    pred: Prediction | None
+    objects: Objects | None
     index: int = -1
     lag: int = 0
     seconds: float = 0.0
@@ -77,11 +74,9 @@ class ModelFeed:
         self,
         run: RunModel,
         rate: ModelRate = EVERY_FRAME,
-        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
         self.run = run
         self.rate = rate
-        self.clock = clock
         self.model_runs = 0
         self.model_s = 0.0
         """seconds of model runs (on whichever thread)"""
@@ -90,7 +85,7 @@ class ModelFeed:
         self._next = 0  # inline: the next frame the model runs on
         self._other_s: list[float] = []
         self._pool: ThreadPoolExecutor | None = None
-        self._job: tuple[int, float, Future] | None = None  # (frame, clock at hand-over, run)
+        self._job: tuple[int, Future] | None = None  # (frame handed over, its run)
 
     # -- the loop's calls ---------------------------------------------------------------------
 
@@ -101,13 +96,13 @@ class ModelFeed:
         if i < self._next:
             return FedDetections(None)
         t0 = time.perf_counter()
-        pred = self.run(rgb, stamp)
+        objects = self.run(rgb, stamp)
         dt = time.perf_counter() - t0
         self.model_runs += 1
         self.model_s += dt
         self.lags.append(0)
         self._next = i + self.gap()
-        return FedDetections(pred, i, 0, dt)
+        return FedDetections(objects, i, 0, dt)
 
     def other_time(self, seconds: float) -> None:
         """Record the loop's time for one frame outside the model (the budget's other share)."""
@@ -135,15 +130,14 @@ class ModelFeed:
 
     # -- own thread ---------------------------------------------------------------------------
 
-    def _timed(self, rgb: np.ndarray, stamp: float) -> tuple[Prediction, float]:
+    def _timed(self, rgb: np.ndarray, stamp: float) -> tuple[Objects, float]:
         t0 = time.perf_counter()
-        pred = self.run(rgb, stamp)
-        return pred, time.perf_counter() - t0
+        objects = self.run(rgb, stamp)
+        return objects, time.perf_counter() - t0
 
     def _ready(self) -> bool:
-        """The worker's job is done, and the loop's clock has moved on by its duration."""
-        _, handed, future = self._job
-        return future.done() and self.clock() - handed >= future.result()[1]
+        """The worker's job is done."""
+        return self._job[1].done()
 
     def _threaded(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections:
         if self._pool is None:
@@ -151,53 +145,21 @@ class ModelFeed:
         waited = 0.0
         got = None
         if self._job is None and i == 0:  # the first frame waits for its own result
-            self._job = (i, self.clock(), self._pool.submit(self._timed, rgb, stamp))
+            self._job = (i, self._pool.submit(self._timed, rgb, stamp))
             t0 = time.perf_counter()
-            self._job[2].result()
+            self._job[1].result()
             waited = time.perf_counter() - t0
-            self._job = (i, -math.inf, self._job[2])
         if self._job is not None and self._ready():
-            index, _, future = self._job
-            pred, seconds = future.result()  # a model error surfaces here, in the loop
+            index, future = self._job
+            objects, seconds = future.result()  # a model error surfaces here, in the loop
             self._job = None
             self.model_runs += 1
             self.model_s += seconds
             self.lags.append(i - index)
-            got = FedDetections(pred, index, i - index, waited)
+            got = FedDetections(objects, index, i - index, waited)
         if self._job is None and i > 0:  # idle: it takes this frame (frame 0 is done)
-            self._job = (i, self.clock(), self._pool.submit(self._timed, rgb.copy(), stamp))
+            self._job = (i, self._pool.submit(self._timed, rgb.copy(), stamp))
         return got or FedDetections(None, seconds=waited)
 
     def describe(self) -> str:
         return self.rate.describe()
-
-
-class RecordedFeed:
-    """Another run's model results, replayed: frame ``i`` gets ``deliveries[i]``, a
-    ``(packed result or None, frame it was computed on, lag)``, unpacked by ``unpack``. A
-    real-time run (the model on its own thread) scores its chosen mode only, then replays what
-    it received through a second chain to score the other modes on the same inputs (scoring
-    them live would take the CPU and the GIL the model's thread needs)."""
-
-    def __init__(
-        self,
-        deliveries: list[tuple[object | None, int, int]],
-        unpack: Callable[[object], Prediction],
-    ) -> None:
-        self.deliveries = deliveries
-        self.unpack = unpack
-        self.lags = [lag for packed, _, lag in deliveries if packed is not None]
-        self.model_runs = len(self.lags)
-        self.model_s = 0.0
-
-    def frame(self, i: int, rgb: np.ndarray, stamp: float) -> FedDetections:
-        packed, index, lag = self.deliveries[i]
-        if packed is None:
-            return FedDetections(None)
-        return FedDetections(self.unpack(packed), index, lag)
-
-    def other_time(self, seconds: float) -> None:
-        """Nothing to schedule: the deliveries are fixed."""
-
-    def close(self) -> None:
-        """Nothing runs."""

@@ -5,8 +5,9 @@
   within B (:class:`~slimseg.dynamic.model_feed.ModelFeed`);
 - ``ModelRate.own_thread()``: on a worker thread, the newest finished result used.
 
-A rate other than every frame needs the track stage (the tracks carry the masks over the
-frames without a result); :class:`~slimseg.dynamic.frame_masker.FrameMasker` checks that.
+A rate other than every frame works only with the track stage (the tracks carry the masks
+over the frames without a result); :class:`~slimseg.dynamic.chain_config.TrackPlan` checks
+that.
 """
 
 from __future__ import annotations

@@ -14,10 +14,10 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
   with too few matched points, and every object of the first frame (no ``previous``), keep
   their prior: undecided means dynamic. Eq. 3 then counts with the corrected priors.
 
-With the track stage (:mod:`slimseg.dynamic.track`), ``FrameInputs.mobility`` carries each
-object's mobility (its track's moving probability, decayed per missed frame) instead of the
-class prior, ``FrameInputs.predicted`` marks the coasted masks (Eq. 4 leaves them as they
-are: a prediction turned into its box would only grow the error), and the epipolar check has
+With the track stage (:mod:`slimseg.dynamic.track`), the objects' ``mobility`` column carries
+each one's mobility (its track's moving probability, decayed per missed frame) instead of the
+class prior, ``misses`` > 0 marks the coasted masks (Eq. 4 leaves them as they are: a
+prediction turned into its box would only grow the error), and the epipolar check has
 already run (``FrameInputs.evidence``): its outcome is in the mobilities, not applied again.
 """
 
@@ -34,6 +34,7 @@ from slimseg.dynamic.degrade import degrade
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
+from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, KEYPOINTS, MODES, WEIGHED_MODES, Mode
 from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
 from slimseg.dynamic.seg_box import (
     T_O,
@@ -44,11 +45,7 @@ from slimseg.dynamic.seg_box import (
     fuse_seg_box,
 )
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
-
-MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusion+epipolar")
-EPIPOLAR_MODES = {"semantic+epipolar": "seg", "fusion+epipolar": "fusion"}
-# modes whose mobilities the epipolar check weighs on with ``motion_odds`` > 1
-WEIGHED_MODES = ("seg", "fusion")
+from slimseg.objects import Objects
 
 
 @dataclass
@@ -80,7 +77,7 @@ class FrameResult:
         return {"keypoints": n, "dynamic": d, "static": n - d}
 
 
-def orb_keypoints(rgb: np.ndarray, count: int = 1000) -> np.ndarray:
+def orb_keypoints(rgb: np.ndarray, count: int = KEYPOINTS) -> np.ndarray:
     """ORB keypoints of an RGB frame as ``float32 [N, 2]`` (x, y) px (OpenCV, ``count`` max)."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     kps = cv2.ORB_create(nfeatures=count).detect(gray, None)
@@ -89,32 +86,29 @@ def orb_keypoints(rgb: np.ndarray, count: int = 1000) -> np.ndarray:
 
 @dataclass(frozen=True)
 class FrameInputs:
-    """What one frame brings, in frame pixels: ``keypoints float32 [N, 2]`` (x, y),
-    detections ``boxes [M, 4]`` xyxy, ``classes int [M]``, ``masks bool [M, H, W]`` (None:
-    detector only), frame size ``hw``; ``depth_m float32 [H, W]`` metres (depth-RANSAC);
+    """What one frame brings, in frame pixels: ``keypoints float32 [N, 2]`` (x, y), the
+    ``objects`` (:class:`~slimseg.objects.Objects`: boxes, classes, masks or None for a
+    detector only, scores; with the track stage each one's mobility and whether its mask is a
+    track's prediction); ``depth_m float32 [H, W]`` metres (depth-RANSAC, the depth cut);
     epipolar modes: ``descriptors uint8 [N, 32]`` (ORB, see ``epipolar.orb_features``) and
     the ``previous`` frame's features (None on the first frame: no check)."""
 
     keypoints: np.ndarray
-    boxes: np.ndarray
-    classes: np.ndarray
-    masks: np.ndarray | None
-    hw: tuple[int, int]
+    objects: Objects
     depth_m: np.ndarray | None = None
     descriptors: np.ndarray | None = None
     previous: PreviousFrame | None = None
-    mobility: np.ndarray | None = None
-    """``float32 [M]`` per-object mobility from the track stage (None: the class priors)"""
-    predicted: np.ndarray | None = None
-    """``bool [M]``: the object's mask is a track's prediction, not a detection"""
     evidence: MotionEvidence | None = None
-    """the epipolar check the track stage ran (its outcome is already in ``mobility``)"""
-    scores: np.ndarray | None = None
-    """``float32 [M]`` detection scores (None: all 1, e.g. ground-truth instances)"""
+    """the epipolar check the track stage ran (its outcome is already in the mobilities)"""
     support: np.ndarray | None = None
     """``float32 [P, 2]`` corners the SLAM engine can take outside a mask (the ``degrade``
     rule's static support, :func:`slimseg.dynamic.degrade.support_points`; None: the
     keypoints)"""
+
+    @property
+    def hw(self) -> tuple[int, int]:
+        """The frame's ``(H, W)``."""
+        return self.objects.hw
 
 
 @dataclass(frozen=True)
@@ -128,48 +122,25 @@ class MotionEvidence:
 
 @dataclass(frozen=True)
 class FrameRules:
-    """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, Eq. 1's
-    ``min_static`` points, ``dilation_px`` around masks, Eq. 1's ``m_th_start`` / ``m_th_step``,
-    Eq. 3's ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``,
-    the depth cut ``cut_behind_m`` (needs ``FrameInputs.depth_m``), ``motion_odds`` (seg and
-    fusion: the epipolar check's decisions weigh on the mobilities, needs the previous frame's
-    features, :mod:`slimseg.dynamic.motion_evidence`) (defaults: the equations
-    as printed, the ``papers`` preset of :mod:`slimseg.dynamic.masking_settings`, no
-    dilation; sequence runs and the CLI pass the ``slimseg`` preset through
-    :meth:`from_masking`), and ``dynamic_mobility``: the prior above which a class counts
-    as dynamic (boxes of depth-RANSAC, epipolar candidates), ``m_th_start`` if None."""
+    """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, the ``masking``
+    settings (Eq. 1's ``min_static`` / ``m_th_start`` / ``m_th_step``, the dilation, Eq. 3's
+    ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``, the depth
+    cut, ``motion_odds``; their ``conf`` acts on the detector, not here; default: the
+    ``papers`` preset, the equations as printed), and ``dynamic_mobility``: the prior above
+    which a class counts as dynamic (boxes of depth-RANSAC, epipolar candidates),
+    ``masking.m_th_start`` if None."""
 
     class_mobility: np.ndarray
-    mode: str = "fusion"
-    min_static: int = PAPERS.min_static
-    dilation_px: int = PAPERS.dilation_px
+    mode: Mode = Mode.FUSION
+    masking: MaskingSettings = PAPERS
     dynamic_mobility: float | None = None
-    m_th_start: float = PAPERS.m_th_start
-    m_th_step: float = PAPERS.m_th_step
-    frame_ratio: float = PAPERS.frame_ratio
-    t_o: float = PAPERS.t_o
-    rule: str = PAPERS.rule
-    keep_score: float = PAPERS.keep_score
-    cut_behind_m: float = PAPERS.cut_behind_m
-    motion_odds: float = PAPERS.motion_odds
-
-    @classmethod
-    def from_masking(
-        cls, class_mobility: np.ndarray, mode: str, masking: MaskingSettings
-    ) -> FrameRules:
-        """The frame settings of ``masking`` (its ``conf`` acts on the detector, not here)."""
-        return cls(
-            class_mobility=class_mobility, mode=mode, min_static=masking.min_static,
-            dilation_px=masking.dilation_px, m_th_start=masking.m_th_start,
-            m_th_step=masking.m_th_step, frame_ratio=masking.frame_ratio, t_o=masking.t_o,
-            rule=masking.rule, keep_score=masking.keep_score,
-            cut_behind_m=masking.cut_behind_m, motion_odds=masking.motion_odds,
-        )  # fmt: skip
 
     @property
     def mover_prior(self) -> float:
         """The prior above which a class counts as dynamic (``dynamic_mobility``)."""
-        return self.m_th_start if self.dynamic_mobility is None else self.dynamic_mobility
+        if self.dynamic_mobility is None:
+            return self.masking.m_th_start
+        return self.dynamic_mobility
 
 
 def process_frame(
@@ -195,16 +166,14 @@ def process_modes(
     bad = [m for m in modes if m not in MODES]
     if bad:
         raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
-    mob = np.asarray(settings.class_mobility, np.float32)[np.asarray(inputs.classes, int)]
-    if inputs.mobility is not None:
-        mob = np.asarray(inputs.mobility, np.float32)
+    mob = inputs.objects.priors(settings.class_mobility)
     check = weighed = None
     if inputs.evidence is not None:
         check = mob, inputs.evidence.result, inputs.evidence.checked
     out = {}
     for mode in modes:
         t0 = time.perf_counter()
-        if mode in ("seg", "fusion", *EPIPOLAR_MODES) and inputs.masks is None:
+        if mode not in BOX_MODES and inputs.objects.masks is None:
             raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
         if mode in EPIPOLAR_MODES:
             if check is None:
@@ -212,9 +181,9 @@ def process_modes(
             priors, epi, checked = check
             res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng)
             res.epipolar, res.checked = epi, list(checked)
-        elif mode in WEIGHED_MODES and settings.motion_odds > 1 and inputs.evidence is None:
+        elif mode in WEIGHED_MODES and settings.masking.motion_odds > 1 and inputs.evidence is None:
             if weighed is None:
-                weighed = weighed_mobility(inputs, mob, settings.motion_odds)
+                weighed = weighed_mobility(inputs, mob, settings.masking.motion_odds)
             res = _one_mode(inputs, settings, mode, weighed, rng)
         else:
             res = _one_mode(inputs, settings, mode, mob, rng)
@@ -230,10 +199,10 @@ def _one_mode(
     mob: np.ndarray,
     rng: np.random.Generator | None,
 ) -> FrameResult:
-    keypoints, hw, masks = inputs.keypoints, inputs.hw, inputs.masks
-    boxes = np.asarray(inputs.boxes, np.float32).reshape(-1, 4)
+    keypoints, hw, objects = inputs.keypoints, inputs.hw, inputs.objects
+    boxes, masks, s = objects.boxes, objects.masks, settings.masking
     used_seg: list[bool] = []
-    if mode == "box+depth-ransac":
+    if mode == Mode.BOX_DEPTH_RANSAC:
         from slimseg.dynamic.depth_ransac import screen_box_keypoints
 
         if inputs.depth_m is None:
@@ -242,53 +211,50 @@ def _one_mode(
         dynamic = screen_box_keypoints(keypoints, inputs.depth_m, movers, rng=rng)
         region = box_masks(movers, hw).any(0) if len(movers) else np.zeros(hw, bool)
         flag = bool(dynamic.mean() > 0) if len(dynamic) else False
-        return FrameResult(dynamic, _mask(region, settings.dilation_px), None, flag)
-    regions = box_masks(boxes, hw) if mode == "box" else np.asarray(masks, bool)
-    depth = inputs.depth_m if settings.cut_behind_m > 0 and mode != "box" else None
+        return FrameResult(dynamic, _mask(region, s.dilation_px), None, flag)
+    regions = box_masks(boxes, hw) if mode == Mode.BOX else np.asarray(masks, bool)
+    depth = inputs.depth_m if s.cut_behind_m > 0 and mode != Mode.BOX else None
     reference = None
     if depth is not None:  # masks that stay on their object (seg masks, before dilation)
         reference = reference_depths(regions, boxes, depth)
-        regions = cut_behind(regions.copy(), boxes, depth, reference, settings.cut_behind_m)
+        regions = cut_behind(regions.copy(), boxes, depth, reference, s.cut_behind_m)
     # points near a mask edge belong to the object (ORB patches)
-    regions = dilate_masks(regions, settings.dilation_px)
+    regions = dilate_masks(regions, s.dilation_px)
     point_mob = keypoint_mobility(keypoints, regions, mob)
     # Eq. 3 counts points inside the detection boxes: a frame whose masks came out too thin is
     # exactly the one that needs the box fallback of Eq. 4
     box_mob = box_keypoint_mobility(keypoints, boxes, hw, mob)
-    dynamic_frame = is_dynamic_frame(box_mob, settings.frame_ratio)
-    if mode == "fusion" and dynamic_frame and len(boxes):
+    dynamic_frame = is_dynamic_frame(box_mob, s.frame_ratio)
+    if mode == Mode.FUSION and dynamic_frame and len(boxes):
         fused, used = fuse_seg_box(regions, boxes, eq4_thresholds(settings, reference, len(boxes)))
-        if inputs.predicted is not None:  # Eq. 4 acts on detection masks only
-            keep = np.asarray(inputs.predicted, bool)
+        keep = objects.misses > 0  # Eq. 4 acts on detection masks only
+        if keep.any():
             fused[keep] = regions[keep]
             used = used | keep
         if depth is not None and not used.all():  # the boxes put in place of thin masks
             box = ~used
             fused[box] = cut_behind(fused[box], boxes[box], depth, reference[box],
-                                    settings.cut_behind_m)  # fmt: skip
+                                    s.cut_behind_m)  # fmt: skip
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
-    if settings.rule == "degrade":
-        scores = np.ones(len(mob), np.float32) if inputs.scores is None else inputs.scores
+    if s.rule == "degrade":
         out = degrade(
-            regions=regions, mobility=mob, scores=scores, keypoints=keypoints,
+            regions=regions, mobility=mob, scores=objects.scores, keypoints=keypoints,
             support=keypoints if inputs.support is None else inputs.support,
-            min_static=settings.min_static, m_th_start=settings.m_th_start,
-            keep_score=settings.keep_score,
+            min_static=s.min_static, m_th_start=s.m_th_start,
+            keep_score=s.keep_score,
         )  # fmt: skip
         region = regions[out.masked].any(0) if out.masked.any() else np.zeros(hw, bool)
-        m_th = round(settings.m_th_start, 4)
+        m_th = round(s.m_th_start, 4)
         return FrameResult(out.dynamic, _mask(region, 0), m_th, dynamic_frame, used_seg,
                            dropped=out.dropped, support=out.support)  # fmt: skip
-    result = adaptive_threshold(
-        point_mob, settings.min_static, settings.m_th_start, settings.m_th_step
-    )
+    result = adaptive_threshold(point_mob, s.min_static, s.m_th_start, s.m_th_step)
     if result.m_th is None:
         region, kept = np.zeros(hw, bool), np.zeros(len(mob), bool)
     else:
         kept = mob > result.m_th
         region = regions[kept].any(0) if len(regions) else np.zeros(hw, bool)
-    candidates = mob > settings.m_th_start + 1e-9  # those above Eq. 1's first threshold
+    candidates = mob > s.m_th_start + 1e-9  # those above Eq. 1's first threshold
     dropped = np.flatnonzero(candidates & ~kept).tolist()
     return FrameResult(result.dynamic, _mask(region, 0), result.m_th, dynamic_frame, used_seg,
                        dropped=dropped)  # fmt: skip
@@ -300,10 +266,11 @@ def eq4_thresholds(settings: FrameRules, reference: np.ndarray | None, n: int) -
     its mask, ``reference`` NaN), at most the papers' :data:`~slimseg.dynamic.seg_box.T_O`: a
     box nothing trims is the room behind the object, so only a seg mask too thin to trust is
     replaced by it."""
-    t_o = np.full(n, settings.t_o)
-    if settings.cut_behind_m > 0:
+    s = settings.masking
+    t_o = np.full(n, s.t_o)
+    if s.cut_behind_m > 0:
         uncut = np.ones(n, bool) if reference is None else ~np.isfinite(reference)
-        t_o[uncut] = min(settings.t_o, T_O)
+        t_o[uncut] = min(s.t_o, T_O)
     return t_o
 
 
@@ -311,7 +278,7 @@ def weighed_mobility(inputs: FrameInputs, mob: np.ndarray, odds: float) -> np.nd
     """``mob [M]`` with the epipolar check's decisions on the objects whose mobility is
     uncertain (0 < p < 1) weighed in at ``odds`` (:mod:`slimseg.dynamic.motion_evidence`);
     unchanged without a previous frame or such an object."""
-    if inputs.previous is None or inputs.masks is None or not uncertain(mob).any():
+    if inputs.previous is None or inputs.objects.masks is None or not uncertain(mob).any():
         return mob
     ev = epipolar_evidence(inputs, np.where(uncertain(mob), mob, 0.0), 0.0)
     if ev.result is None:
@@ -341,7 +308,7 @@ def epipolar_evidence(
         inputs.keypoints,
         inputs.descriptors,
         inputs.previous,
-        inputs.masks,
+        inputs.objects.masks,
     )
     candidates = np.flatnonzero(mob > dynamic_mobility)
     if previous is None or len(candidates) == 0:

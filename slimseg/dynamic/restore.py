@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.epipolar import OrbFeatures, match_features, orb_features
+from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.dynamic.patchmatch import NNField, patchmatch
 from slimseg.dynamic.seg_box import dilate
 
@@ -57,7 +58,7 @@ class FrameData:
 
     @classmethod
     def build(
-        cls, rgb: np.ndarray, depth: np.ndarray, removed: np.ndarray, count: int = 1000
+        cls, rgb: np.ndarray, depth: np.ndarray, removed: np.ndarray, count: int = KEYPOINTS
     ) -> FrameData:
         """Validate shapes and detect the static ORB features."""
         rgb = np.asarray(rgb)

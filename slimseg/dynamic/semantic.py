@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from slimseg.detections import Prediction
+from slimseg.objects import Objects
 
 
 def class_map_to_instances(
@@ -40,9 +41,12 @@ def class_map_to_instances(
     return np.array(boxes, np.float32), np.array(classes, np.int64), np.stack(masks)
 
 
-def instances_of(prediction: Prediction) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """``(boxes, classes, masks)`` of a prediction: its own instances, or those of its
-    ``class_map`` for semantic models (``masks`` is None for detection-only models)."""
+def objects_of(prediction: Prediction, hw: tuple[int, int]) -> Objects:
+    """A model result as the chain's :class:`~slimseg.objects.Objects` of an ``hw`` frame: its
+    own instances, or the components of a semantic ``class_map`` (each scoring 1); ``masks``
+    None for detection-only models. The chain's one way in from a :class:`Prediction`."""
     if prediction.class_map is not None:
-        return class_map_to_instances(prediction.class_map)
-    return prediction.boxes, prediction.classes, prediction.masks
+        boxes, classes, masks = class_map_to_instances(prediction.class_map)
+        return Objects(boxes, np.ones(len(boxes), np.float32), classes, masks, hw)
+    p = prediction
+    return Objects(p.boxes, p.scores, p.classes, p.masks, hw)

@@ -53,6 +53,7 @@ from slimseg.dynamic.mask_patch import (
     warp_patch,
     whole_pixel_shift,
 )
+from slimseg.dynamic.modes import FPS
 from slimseg.dynamic.track_geometry import (
     box_iou,
     box_iou_matrix,
@@ -61,15 +62,8 @@ from slimseg.dynamic.track_geometry import (
     outside_share,
 )
 from slimseg.dynamic.track_settings import TrackSettings
-from slimseg.dynamic.track_types import (
-    SOURCE_CARRIED,
-    SOURCE_COAST,
-    SOURCE_DETECTION,
-    Emitted,
-    FrameDets,
-    Track,
-    TrackedFrame,
-)
+from slimseg.dynamic.track_types import Emitted, Track
+from slimseg.objects import SOURCE_CARRIED, SOURCE_COAST, SOURCE_DETECTION, Objects
 
 STAGE_PARTS = ("motion", "lag", "predict", "associate", "warp", "update", "coast", "paste")
 """The stage's parts as timed (``Tracker.parts``): ORB matching + similarity fit and moving a
@@ -88,7 +82,7 @@ class Tracker:
         settings: TrackSettings,
         class_mobility: np.ndarray,
         *,
-        fps: float = 30.0,
+        fps: float = FPS,
         mover_prior: float = 0.0,
     ) -> None:
         """``class_mobility [K]``: class priors; only classes above ``mover_prior`` are
@@ -96,7 +90,7 @@ class Tracker:
         self.s = settings
         self.mover_prior = mover_prior
         self.priors = np.asarray(class_mobility, np.float32)
-        self.dt = 1.0 / fps if fps > 0 else 1.0 / 30
+        self.dt = 1.0 / (fps if fps > 0 else FPS)
         self.tracks: list[Track] = []
         self._next_id = 1
         self._hw: tuple[int, int] | None = None
@@ -114,13 +108,13 @@ class Tracker:
 
     def step(
         self,
-        dets: FrameDets | None,
+        dets: Objects | None,
         motion: CameraMotion,
         emit_conf: float,
         depth_m: np.ndarray | None = None,
         lag: int = 0,
         own: dict[int, np.ndarray] | None = None,
-    ) -> TrackedFrame:
+    ) -> Objects:
         """Advance one frame. ``dets``: this frame's detections at a threshold at or below
         ``low`` (None: the model did not run on this frame); ``emit_conf``: the masking score
         threshold (detections above it are always emitted); ``depth_m [H, W]`` metres (0 =
@@ -159,13 +153,13 @@ class Tracker:
         else:
             objs = self._associate(dets, emit_conf, depth_m, lag)
         t2 = time.perf_counter()
-        frame = self._frame(objs, self._hw, t0, None if dets is None else dets.masks)
+        frame = self._frame(objs, self._hw, None if dets is None else dets.masks)
         self.parts["paste"] += time.perf_counter() - t2
         return frame
 
     # -- model frames ------------------------------------------------------------------------
 
-    def _associate(self, dets: FrameDets, emit_conf: float, depth_m, lag: int) -> list[Emitted]:
+    def _associate(self, dets: Objects, emit_conf: float, depth_m, lag: int) -> list[Emitted]:
         s, hw = self.s, dets.hw
         self._hw, self._box_only = hw, dets.masks is None
         boxes = np.array(dets.boxes, np.float64).reshape(-1, 4)  # a copy: moved below
@@ -194,7 +188,7 @@ class Tracker:
         own = dets.own_motion
         for d in range(len(boxes)):
             t = matched.get(d)
-            pushed = own is None or not own[d]  # moved by its own motion already: no push
+            pushed = not own[d]  # moved by its own motion already: no push
             if t is not None and lag > 0 and t.hits > 1 and pushed:  # late: the object moved on
                 dx, dy = np.round(t.kf.velocity * lag).astype(int)
                 if dx or dy:
@@ -365,7 +359,7 @@ class Tracker:
     # -- moving probability ------------------------------------------------------------------
 
     def observe_motion(
-        self, frame: TrackedFrame, checked: list[int], decided: np.ndarray, moving: np.ndarray
+        self, frame: Objects, checked: list[int], decided: np.ndarray, moving: np.ndarray
     ) -> np.ndarray:
         """Feed the epipolar check's decisions on objects ``checked`` (indices into ``frame``)
         to their tracks' moving probability; returns the updated ``mobility float32 [M]``
@@ -384,7 +378,7 @@ class Tracker:
             mob[k] = t.mobility(self.s.coast_decay)
         return mob
 
-    def _frame(self, objs: list[Emitted], hw, t0: float, det_masks) -> TrackedFrame:
+    def _frame(self, objs: list[Emitted], hw, det_masks) -> Objects:
         n = len(objs)
         boxes = np.array([o.box for o in objs], np.float32).reshape(n, 4)
         masks = None
@@ -393,15 +387,15 @@ class Tracker:
             for k, o in enumerate(objs):  # a detection's own full mask needs no pasting
                 own = o.det_index >= 0 and not o.moved
                 masks[k] = det_masks[o.det_index] if own else o.patch.paste(hw)
-        return TrackedFrame(
+        return Objects(
             boxes=boxes,
+            scores=np.array([o.score for o in objs], np.float32),
             classes=np.array([o.cls for o in objs], np.int64),
             masks=masks,
+            hw=hw,
             mobility=np.array([o.mobility for o in objs], np.float32),
             track_ids=np.array([o.track_id for o in objs], np.int64),
-            source=[o.source for o in objs],
+            source=np.array([o.source for o in objs], object),
             misses=np.array([o.misses for o in objs], np.int64),
-            scores=np.array([o.score for o in objs], np.float32),
             det_index=np.array([o.det_index for o in objs], np.int64),
-            seconds=time.perf_counter() - t0,
         )

@@ -12,75 +12,33 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
-from slimseg.detections import Prediction
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.mask_patch import clip_patch, patch_from_mask, warp_patch
-from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
+from slimseg.dynamic.modes import EPIPOLAR_MODES, FPS, Mode
 from slimseg.dynamic.object_motion import (
     inside_boxes,
     inside_patches,
     object_shifts,
 )
-from slimseg.dynamic.pipeline import EPIPOLAR_MODES, FrameInputs, epipolar_evidence
-from slimseg.dynamic.semantic import instances_of
+from slimseg.dynamic.pipeline import FrameInputs, epipolar_evidence
 from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track import Tracker
-from slimseg.dynamic.track_settings import TrackSettings, detection_floor
-from slimseg.dynamic.track_types import FrameDets, TrackedFrame
-from slimseg.errors import SlimsegError
+from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.objects import Objects
 
 
-@dataclass(frozen=True)
-class TrackPlan:
-    """The track stage of a run: ``settings`` (None: off, the per-frame output) and the
-    model's ``rate`` (:class:`~slimseg.dynamic.model_rate.ModelRate`). A rate other than every
-    frame needs ``settings``: the tracks carry the masks over the frames without a result."""
-
-    settings: TrackSettings | None = None
-    rate: ModelRate = EVERY_FRAME
-
-    def __post_init__(self) -> None:
-        if self.settings is None and not self.rate.every_frame:
-            raise SlimsegError(
-                f"model rate '{self.rate.name}' needs --track (the tracks carry the masks over "
-                "the frames the model skips)"
-            )
-
-    @property
-    def on(self) -> bool:
-        return self.settings is not None
-
-    def floor(self, conf: float) -> float:
-        """The score threshold the model must run at: the masking one, or BYTE's ``low``."""
-        return detection_floor(conf, self.settings)
-
-    def describe(self) -> str:
-        if self.settings is None:
-            return "off (per-frame)"
-        rate = "" if self.rate.every_frame else f", {self.rate.describe()}"
-        return f"{self.settings.describe()}{rate}"
-
-
-def frame_dets(pred: Prediction, hw: tuple[int, int]) -> FrameDets:
-    """A prediction (its instances, or a semantic class map's components, each scoring 1) as
-    the track stage's detections of an ``hw`` frame."""
-    boxes, classes, masks = instances_of(pred)
-    scores = pred.scores if pred.class_map is None else np.ones(len(boxes), np.float32)
-    return FrameDets(boxes, scores, classes, masks, hw)
-
-
-def move_dets(dets: FrameDets, h: np.ndarray, shifts: np.ndarray | None = None) -> FrameDets:
+def move_dets(dets: Objects, h: np.ndarray, shifts: np.ndarray | None = None) -> Objects:
     """``dets`` of an older frame moved into the current one: by ``h float [3, 3]`` (older →
     current pixels), or by their own ``shifts float [M, 2]`` (dx, dy) px where finite (the
     result's ``own_motion``). Each box goes to the bounds of its moved corners, each mask is
     warped on its crop (nearest neighbour); what leaves the frame is cut."""
     hw = dets.hw
-    boxes = np.asarray(dets.boxes, np.float32).reshape(-1, 4)
+    boxes = dets.boxes
     own = np.zeros(len(boxes), bool) if shifts is None else np.isfinite(shifts).all(1)
     if (np.allclose(h, np.eye(3)) and not own.any()) or len(boxes) == 0:
         return dets
@@ -103,7 +61,7 @@ def move_dets(dets: FrameDets, h: np.ndarray, shifts: np.ndarray | None = None) 
             else:
                 p = warp_patch(p, hs[k], hw)
             masks[k, p.y0 : p.y0 + p.mask.shape[0], p.x0 : p.x0 + p.mask.shape[1]] = p.mask
-    return FrameDets(out.astype(np.float32), dets.scores, dets.classes, masks, hw, own)
+    return replace(dets, boxes=out.astype(np.float32), masks=masks, own_motion=own)
 
 
 class TrackedSequence:
@@ -114,9 +72,9 @@ class TrackedSequence:
         settings: TrackSettings,
         class_mobility: np.ndarray,
         *,
-        mode: str,
+        mode: Mode,
         mover_prior: float,
-        fps: float = 30.0,
+        fps: float = FPS,
     ) -> None:
         self.tracker = Tracker(settings, class_mobility, fps=fps, mover_prior=mover_prior)
         self.mode = mode
@@ -132,14 +90,15 @@ class TrackedSequence:
     def inputs(
         self,
         features: OrbFeatures,
-        dets: FrameDets | None,
+        dets: Objects | None,
         emit_conf: float,
         depth_m: np.ndarray | None,
         previous: PreviousFrame | None,
         lag: int = 0,
-    ) -> tuple[FrameInputs, TrackedFrame]:
+    ) -> FrameInputs:
         """Track one frame (``dets`` None: the model skipped it) and return the masking
-        logic's inputs with the tracked objects, and the tracker's output. ``lag``: ``dets``
+        logic's inputs: the tracked objects, their mobility updated by the epipolar check in
+        the epipolar modes. ``lag``: ``dets``
         were computed ``lag`` frames ago (a model on its own thread); they are moved into
         this frame by the camera motions in between first."""
         t0 = time.perf_counter()
@@ -148,7 +107,7 @@ class TrackedSequence:
             pairs = match_features(previous.features, features)
         motion = CameraMotion.identity()
         if previous is not None:
-            boxes = [] if dets is None else [np.asarray(dets.boxes).reshape(-1, 4)]
+            boxes = [] if dets is None else [dets.boxes]
             boxes += [t.kf.box[None] for t in self.tracker.tracks]
             objects = np.concatenate(boxes) if boxes else None
             motion = estimate_motion(previous.features, features, objects, pairs)
@@ -176,12 +135,9 @@ class TrackedSequence:
             own = self._own_motion(previous.features, features)
             self.tracker.parts["motion"] += time.perf_counter() - t2
         frame = self.tracker.step(dets, motion, emit_conf, depth_m, lag, own)
-        hw = frame.masks.shape[1:] if frame.masks is not None else self.tracker.hw
         inputs = FrameInputs(
-            keypoints=features.keypoints, boxes=frame.boxes, classes=frame.classes,
-            masks=frame.masks, hw=tuple(hw), depth_m=depth_m, descriptors=features.descriptors,
-            previous=previous, mobility=frame.mobility, predicted=frame.misses > 0,
-            scores=frame.scores, support=features.corners,
+            keypoints=features.keypoints, objects=frame, depth_m=depth_m,
+            descriptors=features.descriptors, previous=previous, support=features.corners,
         )  # fmt: skip
         if self.mode in EPIPOLAR_MODES and frame.masks is not None:
             ev = epipolar_evidence(inputs, frame.mobility, self.mover_prior, pairs)
@@ -189,10 +145,10 @@ class TrackedSequence:
             if ev.result is not None:
                 r = ev.result
                 mob = self.tracker.observe_motion(frame, ev.checked, r.decided, r.moving)
-            inputs = replace(inputs, mobility=mob, evidence=ev)
+            inputs = replace(inputs, objects=replace(frame, mobility=mob), evidence=ev)
         self.seconds += time.perf_counter() - t0
         self.frames += 1
-        return inputs, frame
+        return inputs
 
     def _own_motion(self, old: OrbFeatures, new: OrbFeatures) -> dict[int, np.ndarray]:
         """Track id → ``(dx, dy)`` px of its object from the previous frame to this one, for
@@ -211,4 +167,3 @@ class TrackedSequence:
 
 
 MAX_LAG = 30  # frames of camera motion kept for a late model result (older ones: not moved)
-TRACK_OFF = TrackPlan()  # every frame judged alone: the output of earlier versions, exactly

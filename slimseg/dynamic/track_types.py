@@ -1,5 +1,5 @@
-"""The track stage's records: one frame's detections in (:class:`FrameDets`), the objects it
-emits (:class:`Emitted` rows, gathered in :class:`TrackedFrame`) and one object over time
+"""The track stage's inner records: one object it emits this frame (an :class:`Emitted` row,
+gathered into the frame's :class:`~slimseg.objects.Objects`) and one object over time
 (:class:`Track`). The logic that moves them is :class:`slimseg.dynamic.track.Tracker`."""
 
 from __future__ import annotations
@@ -11,52 +11,10 @@ import numpy as np
 from slimseg.dynamic.kalman import BoxKalman
 from slimseg.dynamic.mask_patch import Patch
 
-SOURCE_DETECTION, SOURCE_COAST, SOURCE_CARRIED = "det", "coast", "carried"
-
-
-@dataclass
-class FrameDets:
-    """One frame's detections in frame pixels: ``boxes float [M, 4]`` xyxy, ``scores [M]``,
-    ``classes int [M]``, ``masks bool [M, H, W]`` (None: a box-only model), frame ``hw``;
-    ``own_motion bool [M]`` (None: none): a late result already moved into this frame by
-    the object's own measured motion (the tracker does not push it on by its velocity)."""
-
-    boxes: np.ndarray
-    scores: np.ndarray
-    classes: np.ndarray
-    masks: np.ndarray | None
-    hw: tuple[int, int]
-    own_motion: np.ndarray | None = None
-
-
-@dataclass
-class TrackedFrame:
-    """What the masking logic gets: per object ``boxes [M, 4]`` xyxy, ``classes [M]``,
-    ``masks bool [M, H, W]`` (None: box-only), ``mobility float32 [M]`` (replaces the class
-    prior), ``track_ids int [M]`` (-1: untracked detection), ``source [M]`` (det / coast /
-    carried), ``misses int [M]``; ``seconds`` the stage took."""
-
-    boxes: np.ndarray
-    classes: np.ndarray
-    masks: np.ndarray | None
-    mobility: np.ndarray
-    track_ids: np.ndarray
-    source: list[str]
-    misses: np.ndarray
-    scores: np.ndarray
-    det_index: np.ndarray
-    """``int [M]``: the object's index among this frame's input detections (-1: predicted)"""
-    seconds: float = 0.0
-
-    @property
-    def coasted(self) -> np.ndarray:
-        """``bool [M]``: predicted (coasted or carried), not detected, in this frame."""
-        return np.array([s != SOURCE_DETECTION for s in self.source], bool)
-
 
 @dataclass(frozen=True)
 class Emitted:
-    """One object the stage emits this frame (a row of :class:`TrackedFrame`): ``box [4]``
+    """One object the stage emits this frame (a row of its ``Objects``): ``box [4]``
     xyxy px, class ``cls``, its mask ``patch``, the ``mobility`` Eq. 1 uses, ``track_id`` (-1:
     untracked), ``source`` (det / coast / carried), ``misses``, detection ``score`` (0 for
     predicted masks), ``det_index`` among the frame's input detections (-1: predicted), and

@@ -22,6 +22,7 @@ from tqdm import tqdm
 
 from slimseg.data.frame_source import FrameSource
 from slimseg.data.tum import write_trajectory
+from slimseg.dynamic.modes import FPS
 from slimseg.errors import SlimsegError
 from slimseg.slam.conditions import Condition, condition_frames
 from slimseg.slam.engine_process import (
@@ -52,7 +53,7 @@ class EngineRunConfig:
     realtime: bool = True
     speed: float = 1.0
     limit: int | None = None
-    fps: float = 30.0
+    fps: float = FPS
     progress: bool = True
     timeout_s: float | None = None
 

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from slimseg.dynamic.masking_settings import DEFAULT, DEFAULT_PRESET
+from slimseg.dynamic.modes import Mode
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_json
 
@@ -41,7 +42,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-MODE = "fusion"  # slimseg dynamic's default mode
+MODE = Mode.FUSION.value  # slimseg dynamic's default mode
 CONDITIONS = ("raw", MODE, "gt")  # slam-eval names, in table order
 KEYS = {"raw": "raw", MODE: "slimseg", "gt": "gt_masks"}  # metrics.json keys
 LABELS = {"raw": "raw frames", MODE: "slimseg masks", "gt": "ground-truth masks"}

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from slimseg.data.tum import Camera
 from slimseg.dynamic.degrade import FAST_THRESHOLD, PYRAMID_LEVELS, PYRAMID_SCALE
+from slimseg.dynamic.modes import FPS, KEYPOINTS
 from slimseg.utils.atomic import write_text
 
 # Kinect-class sensor: virtual stereo baseline (m) and the close/far point limit in baselines
@@ -24,13 +25,13 @@ TH_DEPTH = 40.0
 class OrbSlam3Config:
     """ORB extractor and sensor parameters written next to the intrinsics."""
 
-    features: int = 1000
+    features: int = KEYPOINTS
     # the degrading rule's static support counts the corners of this pyramid at this threshold
     scale_factor: float = PYRAMID_SCALE
     levels: int = PYRAMID_LEVELS
     ini_fast: int = FAST_THRESHOLD
     min_fast: int = 7
-    fps: float = 30.0
+    fps: float = FPS
 
 
 def settings_text(camera: Camera, width: int, height: int, orb: OrbSlam3Config) -> str:

@@ -16,7 +16,7 @@ import numpy as np
 
 from slimseg.data.tum import read_trajectory
 from slimseg.data.visualize import class_color
-from slimseg.dynamic.rerun_frames import RerunRecording
+from slimseg.sequence.rerun_frames import RerunRecording
 from slimseg.slam.condition_runs import ConditionResult
 from slimseg.slam.metrics import aligned_positions
 

@@ -25,8 +25,9 @@ from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
 from slimseg.data.tum import MAX_DT, mask_name, read_trajectory
 from slimseg.dynamic.annotations import Dropout
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.errors import SlimsegError
 from slimseg.slam.condition_runs import ConditionResult, EngineRunConfig, evaluate_condition
 from slimseg.slam.conditions import (
@@ -64,12 +65,12 @@ class Plan:
     masking: MaskingSettings = DEFAULT
     """score threshold, dilation and Eq. 1/3/4 parameters of the mask modes; its dilation also
     widens the ground-truth masks"""
-    keypoints: int = 1000
+    keypoints: int = KEYPOINTS
     track: TrackPlan = TRACK_OFF
     """the track stage of the mask modes (off: every frame judged alone)"""
     dropout: Dropout | None = None
     """ground-truth instances only: simulated missed detections"""
-    features: int = 1000
+    features: int = KEYPOINTS
     realtime: bool = True
     speed: float = 1.0
     threads: int | None = None
@@ -155,7 +156,7 @@ def make_predictor(
 def _mode_condition(
     plan: Plan, predictor: object, mode: str, out: Path, say: Callable[[str], None]
 ) -> Condition:
-    from slimseg.dynamic.sequence_run import run_sequence
+    from slimseg.sequence.sequence_run import run_sequence
 
     folder = out / "masks" / mode.replace("+", "_")
     rep = run_sequence(
@@ -185,7 +186,7 @@ def restored_condition(
     plan: Plan, cond: Condition, out: Path, say: Callable[[str], None]
 ) -> Condition:
     """Restore every frame of the sequence from ``cond``'s masks (PatchMatch)."""
-    from slimseg.dynamic.restore_run import restore_sequence
+    from slimseg.sequence.restore_run import restore_sequence
 
     folder = out / "restore" / cond.name.replace("+", "_").replace(" ", "_")
 

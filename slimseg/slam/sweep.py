@@ -18,6 +18,7 @@ import itertools
 from dataclasses import dataclass, field, replace
 
 from slimseg.dynamic.masking_settings import PRESETS, MaskingSettings, SettingsError, preset_name
+from slimseg.dynamic.modes import EPIPOLAR_MODES, WEIGHED_MODES, Mode
 from slimseg.dynamic.track_settings import TrackSettings, TrackSettingsError, check_track_value
 
 SWEEP_KEYS: dict[str, str] = {
@@ -46,18 +47,19 @@ TRACK_SWEEP_KEYS: dict[str, str] = {
 INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate")
 WORD_KEYS = ("rule",)  # values are names, not numbers
 SWEEP_MODES = ("oneway", "grid")
-FUSION_MODES = ("fusion", "fusion+epipolar")
+FUSION_MODES = (Mode.FUSION, Mode.FUSION_EPIPOLAR)
+RULE_MODES = tuple(m for m in Mode if m != Mode.BOX_DEPTH_RANSAC)  # Eq. 1 or the degrading rule
 # keys that change nothing in some masking modes (a sweep of them there would be flat noise)
-ACTS_IN: dict[str, tuple[str, ...]] = {
+ACTS_IN: dict[str, tuple[Mode, ...]] = {
     "ratio": FUSION_MODES,
     "t_o": FUSION_MODES,
-    "min_static": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
-    "m_th_step": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
-    "rule": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
-    "keep_score": ("seg", "box", "fusion", "semantic+epipolar", "fusion+epipolar"),
-    "cut_behind": ("seg", "fusion", "semantic+epipolar", "fusion+epipolar"),
-    "motion_odds": ("seg", "fusion"),
-    "p_alpha": ("semantic+epipolar", "fusion+epipolar"),
+    "min_static": RULE_MODES,
+    "m_th_step": RULE_MODES,
+    "rule": RULE_MODES,
+    "keep_score": RULE_MODES,
+    "cut_behind": tuple(m for m in RULE_MODES if m != Mode.BOX),  # masks to cut
+    "motion_odds": WEIGHED_MODES,
+    "p_alpha": tuple(EPIPOLAR_MODES),
 }
 
 

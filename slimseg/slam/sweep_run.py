@@ -21,10 +21,11 @@ from pathlib import Path
 
 from slimseg.data.tum import TumSequence
 from slimseg.dynamic.annotations import Dropout
-from slimseg.dynamic.detection_cache import SettingMasks, build_cache, mask_with
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.errors import SlimsegError
+from slimseg.sequence.detection_cache import SettingMasks, build_cache, mask_with
 from slimseg.slam.condition_runs import ConditionResult, evaluate_condition
 from slimseg.slam.conditions import Condition
 from slimseg.slam.metrics import still_floor
@@ -59,8 +60,8 @@ class SweepPlan:
     engine: str = "orbslam3"
     runs: int = 3
     vocab: Path | None = None
-    keypoints: int = 1000
-    features: int = 1000
+    keypoints: int = KEYPOINTS
+    features: int = KEYPOINTS
     realtime: bool = True
     speed: float = 1.0
     threads: int | None = None

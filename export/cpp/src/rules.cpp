@@ -140,9 +140,10 @@ void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
     };
     std::vector<size_t> order;
     for (size_t k = 0; k < m; ++k)
-        if (masked[k] && score(k) < static_cast<float>(rules.keep_score)) order.push_back(k);
+        if (masked[k] && score(k) < static_cast<float>(rules.masking.keep_score))
+            order.push_back(k);
     std::int64_t have = left();
-    if (have >= rules.min_static) order.clear();
+    if (have >= rules.masking.min_static) order.clear();
     std::vector<std::int64_t> area(m, 0);  // ties: the larger region first, then the later one
     for (size_t k : order)
         for (std::uint8_t v : regions[k].pixels) area[k] += v;
@@ -153,7 +154,7 @@ void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
         return a > b;
     });
     for (size_t k : order) {
-        if (have >= rules.min_static) break;
+        if (have >= rules.masking.min_static) break;
         masked[k] = 0;
         res.dropped.push_back(static_cast<int>(k));
         have = left();
@@ -163,7 +164,7 @@ void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
             if (masked[k] && hit[k][i]) res.dynamic[i] = 1;
     for (size_t k = 0; k < m; ++k)
         if (masked[k]) paint(res.mask, w, regions[k]);
-    res.m_th = round4(rules.m_th_start);
+    res.m_th = round4(rules.masking.m_th_start);
 }
 
 }  // namespace
@@ -180,15 +181,7 @@ Rules Rules::from_metadata(const Metadata& meta, Mode mode, const std::string& p
     Rules r;
     r.class_mobility = meta.mobility;
     r.mode = mode;
-    r.min_static = s.min_static;
-    r.dilation_px = s.dilation_px;
-    r.m_th_start = s.m_th_start;
-    r.m_th_step = s.m_th_step;
-    r.frame_ratio = s.frame_ratio;
-    r.t_o = s.t_o;
-    r.degrade = s.rule == "degrade";
-    r.keep_score = s.keep_score;
-    r.cut_behind_m = s.cut_behind_m;
+    r.masking = s;
     return r;
 }
 
@@ -267,6 +260,7 @@ DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& k
 DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                            const std::vector<float>& keypoints_xy, const Rules& rules,
                            const float* depth_m) {
+    const MaskingSettings& s = rules.masking;
     if (keypoints_xy.size() % 2) throw Error("keypoints: expected (x, y) pairs, got an odd count");
     const size_t m = objects.boxes.size(), n = keypoints_xy.size() / 2;
     if (objects.classes.size() != m || (objects.has_masks && objects.masks.size() != m) ||
@@ -285,14 +279,14 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
     std::vector<WindowMask> boxes, regions;
     for (const auto& b : objects.boxes) boxes.push_back(box_window(b, h, w));
     regions = rules.mode == Mode::Box ? boxes : objects.masks;
-    const bool cut = depth_m != nullptr && rules.cut_behind_m > 0 && rules.mode != Mode::Box;
+    const bool cut = depth_m != nullptr && s.cut_behind_m > 0 && rules.mode != Mode::Box;
     std::vector<float> ref(m, std::nanf(""));
     for (size_t i = 0; cut && i < m; ++i) {  // masks that stay on their object
         ref[i] = reference_depth(regions[i], boxes[i], depth_m, w);
-        cut_behind(regions[i], boxes[i], depth_m, w, ref[i], rules.cut_behind_m);
+        cut_behind(regions[i], boxes[i], depth_m, w, ref[i], s.cut_behind_m);
     }
-    if (rules.dilation_px > 0)  // points near a mask edge belong to the object (ORB patches)
-        for (auto& r : regions) r = dilate(r, rules.dilation_px, h, w);
+    if (s.dilation_px > 0)  // points near a mask edge belong to the object (ORB patches)
+        for (auto& r : regions) r = dilate(r, s.dilation_px, h, w);
     DynamicResult res;
     std::vector<float> point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
     // Eq. 3 counts the points inside the detection boxes
@@ -300,7 +294,7 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
     if (n > 0) {
         size_t movers = 0;
         for (float v : box_mob) movers += v > 0.5f;
-        res.dynamic_frame = static_cast<double>(movers) / static_cast<double>(n) > rules.frame_ratio;
+        res.dynamic_frame = static_cast<double>(movers) / static_cast<double>(n) > s.frame_ratio;
     }
     if (rules.mode == Mode::Fusion && res.dynamic_frame && m > 0) {  // Eq. 4
         res.used_seg.assign(m, 0);
@@ -318,31 +312,31 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                          static_cast<double>(std::max<std::int64_t>(b.area(), 1));
             // slimseg.dynamic.pipeline.eq4_thresholds: a box no depth cut can trim replaces only
             // a seg mask covering at most the papers' t_o of it
-            const double t_o = rules.cut_behind_m > 0 && !std::isfinite(ref[i])
-                                   ? std::min(rules.t_o, kUncutTO) : rules.t_o;
+            const double t_o = s.cut_behind_m > 0 && !std::isfinite(ref[i])
+                                   ? std::min(s.t_o, kUncutTO) : s.t_o;
             res.used_seg[i] = s_o > t_o;
             if (!res.used_seg[i]) {
                 regions[i] = b;
-                if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], rules.cut_behind_m);
+                if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], s.cut_behind_m);
             }
         }
         point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
     }
     res.mask.assign(static_cast<size_t>(h) * w, 0);
     res.dynamic.assign(n, 0);
-    const float start = static_cast<float>(rules.m_th_start + 1e-9);
-    if (rules.degrade) {
+    const float start = static_cast<float>(s.m_th_start + 1e-9);
+    if (rules.degrade()) {
         degrade(res, regions, mob, objects.scores, keypoints_xy, rules, start, h, w);
         return res;
     }
     // Eq. 1: raise m_th until at least min_static points stay static (compared in float32,
     // as NumPy compares a float32 array with a Python float)
-    double m_th = rules.m_th_start;
+    double m_th = s.m_th_start;
     while (m_th <= 1.0 + 1e-9) {
         const float thr = static_cast<float>(m_th + 1e-9);
         size_t stat = 0;
         for (size_t i = 0; i < n; ++i) stat += !(point_mob[i] > thr);
-        if (static_cast<std::int64_t>(stat) >= rules.min_static) {
+        if (static_cast<std::int64_t>(stat) >= s.min_static) {
             for (size_t i = 0; i < n; ++i) res.dynamic[i] = point_mob[i] > thr;
             res.m_th = round4(m_th);
             const float sel = static_cast<float>(res.m_th);
@@ -352,7 +346,7 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
             }
             return res;
         }
-        m_th += rules.m_th_step;
+        m_th += s.m_th_step;
     }
     res.gave_up = true;
     for (size_t i = 0; i < m; ++i)

@@ -100,7 +100,7 @@ Rules box_rules(int min_static) {
     Rules r;
     r.class_mobility = {1.0f, 0.1f, 0.3f};  // person, chair, car
     r.mode = Mode::Box;
-    r.min_static = min_static;
+    r.masking.min_static = min_static;
     return r;
 }
 
@@ -143,7 +143,7 @@ void eq1_outcomes() {
 void rules_from_metadata() {
     const Metadata meta = Metadata::from_json(kDetector);
     const Rules r = Rules::from_metadata(meta, Mode::Box);
-    CHECK_EQ(r.min_static, 5);
+    CHECK_EQ(r.masking.min_static, 5);
     CHECK(r.class_mobility == std::vector<float>({1.0f, 0.1f}));
     MaskingSettings s;
     s.dilation_px = 3;

@@ -21,19 +21,17 @@ Mode parse_mode(const std::string& name);  // "seg", "box", "fusion"
 struct Rules {
     std::vector<float> class_mobility;  // prior per class
     Mode mode = Mode::Fusion;
-    int min_static = 100;
-    int dilation_px = 0;  // frame pixels, applied as given (see scaled_dilation_px)
-    double m_th_start = 0.25, m_th_step = 0.1, frame_ratio = 0.05, t_o = 0.25;
-    // eq1: Eq. 1 raises the threshold, then gives up the frame; degrade: the least certain
+    // the export's slam_masking settings, as they are (one home: metadata.hpp): Eq. 1's
+    // min_static / m_th_start / m_th_step, Eq. 3's frame_ratio, Eq. 4's t_o, dilation_px
+    // (frame pixels, applied as given: see scaled_dilation_px), the shortfall rule (eq1:
+    // Eq. 1 raises the threshold, then gives up the frame; degrade: the least certain
     // candidates (score x mobility) go one at a time while fewer than min_static keypoints
-    // stay outside the mask, those scoring >= keep_score never (slimseg.dynamic.degrade; the
-    // caller's keypoints are the static support)
-    bool degrade = false;
-    double keep_score = 0.5;
-    // with a depth image (seg / fusion): pixels inside an object's box more than cut_behind_m
-    // behind the median depth under its seg mask leave its region (slimseg.dynamic.depth_cut)
-    double cut_behind_m = 0.0;
+    // stay outside the mask, those scoring >= keep_score never, slimseg.dynamic.degrade; the
+    // caller's keypoints are the static support) and, with a depth image (seg / fusion),
+    // cut_behind_m (slimseg.dynamic.depth_cut); conf acts on the detector, not here
+    MaskingSettings masking;
 
+    bool degrade() const { return masking.rule == "degrade"; }
     static Rules from_metadata(const Metadata& meta, Mode mode, const std::string& preset = "");
 };
 

@@ -2,7 +2,7 @@
 
 A sweep over the masking settings (score threshold, dilation, Eq. 1/3/4) changes only the
 post-processing of the detections, so the model runs once per frame, at the lowest score
-threshold of the sweep, and every setting filters that cache (:meth:`PackedDetections.select`).
+threshold of the sweep, and every setting filters that cache (:meth:`CachedFrame.above`).
 
 Filtering is exact: NMS is greedy in decreasing score, so a detection is only ever suppressed
 by a higher-scoring one; the survivors scoring above ``c`` are therefore the same whether NMS
@@ -18,7 +18,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -27,13 +27,14 @@ from tqdm import tqdm
 
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
-from slimseg.detections import Prediction
+from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.epipolar import OrbFeatures, orb_features
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
+from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.masking_settings import MaskingSettings
-from slimseg.dynamic.packed_detections import PackedDetections
-from slimseg.dynamic.sequence_report import ModeScore, at_keypoints
-from slimseg.dynamic.track_run import TRACK_OFF, TrackPlan
+from slimseg.dynamic.modes import KEYPOINTS, Mode
+from slimseg.objects import Objects
+from slimseg.sequence.sequence_report import ModeScore, at_keypoints
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
@@ -41,16 +42,26 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class CachedFrame:
-    """One frame: colour ``stamp``, ORB ``features`` (keypoints + descriptors), ``detections``,
-    ground-truth dynamic flag per keypoint ``truth bool [N]`` (None: no ``dynamic/`` mask), and
-    the model and preparation (ORB + instance extraction) times in ms."""
+    """One frame: colour ``stamp``, ORB ``features`` (keypoints + descriptors), the model's
+    ``objects`` (decreasing score, masks left out) with their masks as tight ``crops`` (None:
+    a box-only model), ground-truth dynamic flag per keypoint ``truth bool [N]`` (None: no
+    ``dynamic/`` mask), and the model and preparation (ORB + mask crops) times in ms."""
 
     stamp: float
     features: OrbFeatures
-    detections: PackedDetections
+    objects: Objects
+    crops: list[Patch] | None
     truth: np.ndarray | None
     model_ms: float
     prep_ms: float
+
+    def above(self, conf: float) -> Objects:
+        """The objects scoring above ``conf``, their masks restored, in the cached order."""
+        keep = np.flatnonzero(self.objects.scores > conf)
+        rows = self.objects[keep]
+        if self.crops is None:
+            return rows
+        return replace(rows, masks=unpack_masks([self.crops[k] for k in keep], rows.hw))
 
 
 @dataclass
@@ -79,7 +90,7 @@ def build_cache(
     predictor: object,
     sequence: TumSequence,
     conf_floor: float,
-    keypoints: int = 1000,
+    keypoints: int = KEYPOINTS,
     progress: bool = True,
 ) -> DetectionCache:
     """Run ``predictor`` (a slimseg ``Predictor`` or ``AnnotationInstances``) once per frame of
@@ -90,19 +101,19 @@ def build_cache(
     for i in tqdm(range(len(sequence)), desc="detections", disable=not progress):
         rgb, _, stamp = sequence.load(i)
         t0 = time.perf_counter()
-        pred = segment(rgb, stamp, conf_floor)
+        objects = segment(rgb, stamp, conf_floor)
         cache.calls += 1
         t1 = time.perf_counter()
         feats = orb_features(rgb, keypoints, corners=True)  # corners: any setting's rule
-        dets = PackedDetections.of(pred, rgb.shape[:2])
+        crops = pack_masks(objects.masks)
         t2 = time.perf_counter()
         truth = None
         gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
         if gt is not None:
             truth = at_keypoints(gt > 0, feats.keypoints)
-        cache.frames.append(
-            CachedFrame(stamp, feats, dets, truth, 1000 * (t1 - t0), 1000 * (t2 - t1))
-        )
+        kept = replace(objects, masks=None)
+        ms = (1000 * (t1 - t0), 1000 * (t2 - t1))
+        cache.frames.append(CachedFrame(stamp, feats, kept, crops, truth, *ms))
     log.debug("%d frames cached at conf %.3f, %d model calls", len(cache.frames), conf_floor,
              cache.calls)  # fmt: skip
     return cache
@@ -124,17 +135,17 @@ class SettingMasks:
 
 def mask_with(
     cache: DetectionCache,
-    mode: str,
+    mode: Mode | str,
     masking: MaskingSettings,
     out: Path,
     track: TrackPlan = TRACK_OFF,
 ) -> SettingMasks:
     """Apply ``mode`` under ``masking`` to every cached frame; write ``out/<rgb ts>.png``
     (uint8, 255 = dynamic), exactly what ``slimseg dynamic --mode mode`` writes for these
-    settings: the same :class:`~slimseg.dynamic.frame_masker.FrameMasker`, its model replaced
-    by the cache and its ORB by the cached features. ``track``: the track stage (the cache must
-    hold detections down to its ``low`` threshold) at a fixed rate (every N: the model's time
-    counts once per N frames)."""
+    settings: the same :class:`~slimseg.dynamic.frame_masker.FrameMasker` on the sequence's
+    frames, its model and its ORB extractor answered from the cache. ``track``: the track
+    stage (the cache must hold detections down to its ``low`` threshold) at a fixed rate
+    (every N: the model's time counts once per N frames)."""
     if track.on and cache.conf_floor > track.floor(masking.conf) + 1e-9:
         raise ValueError(f"the cache holds detections from conf {cache.conf_floor}; the track "
                          f"stage needs them from {track.floor(masking.conf)}")  # fmt: skip
@@ -147,20 +158,15 @@ def mask_with(
     digest = hashlib.sha1()
     out.mkdir(parents=True, exist_ok=True)
     frames = {f.stamp: f for f in cache.frames}
-
-    def cached(rgb: np.ndarray, stamp: float, conf: float) -> Prediction:
-        return frames[stamp].detections.prediction(conf)
-
+    config = ChainConfig(mode=mode, masking=masking, track=track, fps=seq.fps)
     masker = FrameMasker(
-        cached, class_mobility=cache.mobility, mode=mode, masking=masking,
-        track=track.settings, rate=track.rate, fps=seq.fps,
+        lambda rgb, stamp, conf: frames[stamp].above(conf), cache.mobility, config,
+        extractor=lambda rgb, stamp: frames[stamp].features,
     )  # fmt: skip
     with masker:
         for i, f in enumerate(cache.frames):
-            _, depth, _ = seq.load(i)  # reading is not the logic's time
-            h, w = f.detections.hw
-            blank = np.zeros((h, w, 3), np.uint8)  # the cache stands in for the model and ORB
-            res = masker.step(blank, depth, f.stamp, features=f.features)
+            rgb, depth, _ = seq.load(i)  # reading is not the logic's time
+            res = masker.step(rgb, depth, f.stamp)
             t_logic += res.timing.masking / 1000
             write_png(out / mask_name(f.stamp), res.mask)
             digest.update(np.ascontiguousarray(res.mask).tobytes())

@@ -1,5 +1,5 @@
 """What a sequence run reports and draws: keypoint scores per mode, the report, the overlay
-panels, the CSV rows (used by :mod:`slimseg.dynamic.sequence_run` and the sweeps' cache)."""
+panels, the CSV rows (used by :mod:`slimseg.sequence.sequence_run` and the sweeps' cache)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.dynamic.recall_loss import RecallLoss
 from slimseg.dynamic.threshold import inside
-from slimseg.dynamic.track_types import TrackedFrame
+from slimseg.objects import Objects
+from slimseg.sequence.recall_loss import RecallLoss
 
 
 @dataclass
@@ -60,7 +60,7 @@ class SequenceReport:
     latency_ms: list[float] = field(default_factory=list)
     """per frame: from when the loop takes it up (at its arrival in a real-time replay, or
     later when the loop is behind) to its mask being ready (the chosen mode; before the
-    scoring of the others and the writing): what a SLAM front end waits per frame"""
+    writing and the scoring): what a SLAM front end waits per frame"""
     late_ms: list[float] = field(default_factory=list)
     """real-time replay: per frame, how long after its arrival the loop took it up (the
     replay's own reading, scoring and writing count here; a runtime has none of them)"""
@@ -79,34 +79,33 @@ class SequenceReport:
     """candidate objects the rule left out of the mask, over the sequence"""
     dropped_confident_frames: int = 0
     """frames in which the rule left out a candidate scoring at least ``keep_score``"""
-    replay_differs: int = 0
-    """a real-time run: frames whose mask the replay that scored it did not reproduce (the
-    epipolar check's RANSAC draws; 0 elsewhere)"""
 
 
-def coasted_only(
-    tracked: TrackedFrame | None, masks: np.ndarray | None, hw: tuple[int, int]
-) -> np.ndarray | None:
-    """``bool [H, W]``: pixels of coasted masks that no detection mask covers."""
-    if tracked is None or masks is None or not tracked.coasted.any():
-        return None if tracked is None else np.zeros(hw, bool)
-    det = masks[~tracked.coasted].any(0) if (~tracked.coasted).any() else np.zeros(hw, bool)
-    return masks[tracked.coasted].any(0) & ~det
+def coasted_only(objects: Objects) -> np.ndarray | None:
+    """``bool [H, W]``: pixels only predicted masks (coasted or carried) cover, no detection's
+    (None: no predicted mask, or a box-only model)."""
+    masks, predicted = objects.masks, objects.predicted
+    if masks is None or not predicted.any():
+        return None
+    det = masks[~predicted].any(0) if (~predicted).any() else np.zeros(objects.hw, bool)
+    return masks[predicted].any(0) & ~det
 
 
-def track_rows(stamp: float, tracked: TrackedFrame) -> list[dict]:
+def track_rows(stamp: float, objects: Objects) -> list[dict]:
+    """``tracks.csv`` rows of one frame: every object the track stage emitted, with the
+    mobility the masking rules used."""
     return [
         {
             "timestamp": f"{stamp:.6f}",
-            "track_id": int(tracked.track_ids[k]),
-            "class": int(tracked.classes[k]),
-            "source": tracked.source[k],
-            "misses": int(tracked.misses[k]),
-            "mobility": round(float(tracked.mobility[k]), 4),
-            "score": round(float(tracked.scores[k]), 4),
-            "box": " ".join(f"{v:.1f}" for v in tracked.boxes[k]),
+            "track_id": int(objects.track_ids[k]),
+            "class": int(objects.classes[k]),
+            "source": objects.source[k],
+            "misses": int(objects.misses[k]),
+            "mobility": round(float(objects.mobility[k]), 4),
+            "score": round(float(objects.scores[k]), 4),
+            "box": " ".join(f"{v:.1f}" for v in objects.boxes[k]),
         }
-        for k in range(len(tracked.boxes))
+        for k in range(len(objects))
     ]
 
 

@@ -37,8 +37,8 @@ from slimseg.data.images import decode_file
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import class_color
 from slimseg.dynamic.frame_masker import MaskedFrame
-from slimseg.dynamic.mask_bag import object_labels
 from slimseg.errors import SlimsegError
+from slimseg.sequence.mask_bag import object_labels
 from slimseg.utils.atomic import stage_name
 from slimseg.utils.outputs import claim_file
 
@@ -167,7 +167,7 @@ def class_map(f: MaskedFrame, n_classes: int) -> np.ndarray:
 
 class RerunFrames(RerunRecording):
     """Per-frame logging (see the module docstring); an observer of
-    :func:`~slimseg.dynamic.sequence_run.run_sequence`: call it with each frame's outcome."""
+    :func:`~slimseg.sequence.sequence_run.run_sequence`: call it with each frame's outcome."""
 
     def __init__(
         self, path: Path, names: list[str], application: str, truth: Path | None = None

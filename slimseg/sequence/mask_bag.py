@@ -30,8 +30,8 @@ from slimseg.data.bags.writer import BagWriter
 from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
 from slimseg.data.tum import mask_name
-from slimseg.dynamic.frame_masker import FrameObjects
 from slimseg.errors import SlimsegError
+from slimseg.objects import Objects
 
 MASK_TOPIC = "/slimseg/dynamic_mask"
 MASKED_TOPIC = "/slimseg/masked_image"
@@ -51,7 +51,7 @@ class FrameBoxes:
     colours: list[tuple[float, float, float, float]]
 
 
-def object_labels(objects: FrameObjects, names: list[str]) -> list[str]:
+def object_labels(objects: Objects, names: list[str]) -> list[str]:
     """``#<track id> <class> p <moving probability>`` per object (no ``#`` part for an
     untracked detection)."""
     out = []
@@ -63,7 +63,7 @@ def object_labels(objects: FrameObjects, names: list[str]) -> list[str]:
     return out
 
 
-def frame_boxes(objects: FrameObjects, names: list[str]) -> FrameBoxes:
+def frame_boxes(objects: Objects, names: list[str]) -> FrameBoxes:
     """``objects`` as drawn: labelled by :func:`object_labels`, red when at least half likely
     to move."""
     colours = [MOVING if float(p) >= 0.5 else STILL for p in objects.mobility]

@@ -29,6 +29,7 @@ from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import opens_sequence
 from slimseg.data.tum import depth_metres, mask_name
+from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.dynamic.restore import (
     MAX_REFS,
     STRIDE,
@@ -89,7 +90,7 @@ def ssim_in(a: np.ndarray, b: np.ndarray, region: np.ndarray) -> float:
     return float(s[region].mean())
 
 
-def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = 1000) -> int:
+def orb_in(rgb: np.ndarray, region: np.ndarray, count: int = KEYPOINTS) -> int:
     """ORB features of the whole frame whose keypoint falls inside ``region``."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     kps = cv2.ORB_create(nfeatures=count).detect(gray, None)
@@ -106,7 +107,7 @@ def restore_sequence(
     window: int = WINDOW,
     stride: int = STRIDE,
     max_refs: int = MAX_REFS,
-    keypoints: int = 1000,
+    keypoints: int = KEYPOINTS,
     progress: bool = True,
 ) -> RestoreReport:
     """Restore every associated frame of ``sequence``; ``masks(i, rgb_timestamp)`` gives frame
