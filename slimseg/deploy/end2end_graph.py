@@ -14,12 +14,14 @@ file as it is (export/CONTRACT.md "End-to-end exports"). The raw outputs are rep
   exactly); float32, float16 in FP16 files.
 
 ``K`` = ``max_det``. Steps: best class per anchor (the first on a tie) as in
-:func:`slimseg.ops.nms_numpy.nms_rows`; its score spread into a per-class layout (0 for the
-other classes) so that ``NonMaxSuppression`` (``score > conf``, suppression at ``IoU > iou``,
-each class on its own, at most ``max_det`` per class) is class-aware natively; the survivors'
-scores scattered back per anchor and the ``max_det`` best taken with ``TopK``; boxes, classes
-and mask coefficients gathered at those anchors; masks computed for the rows up to the largest
-``num_dets`` of the batch, then padded. FP16 files: ``output0`` is cast to float32 before the
+:func:`slimseg.ops.nms_numpy.nms_rows`; one ``NonMaxSuppression`` (``score > conf``,
+suppression at ``IoU > iou``, at most ``max_det``) on the best scores with each box shifted by
+``class × span`` (span: 1 + the extent of the candidates' coordinates), so that boxes of
+different classes never overlap (class-aware, as the raw path's ``batched_nms``); the
+survivors' scores scattered back per anchor and the ``max_det`` best taken with ``TopK``;
+boxes, classes and mask coefficients gathered at those anchors; masks computed for the rows up
+to the largest ``num_dets`` of the batch, cropped by products with 1-D row and column masks,
+then padded once. FP16 files: ``output0`` is cast to float32 before the
 decode, so the boxes, scores, NMS and TopK run in FP32; the mask product, sigmoid and crop run
 in FP16 on the FP16 prototypes.
 """
@@ -137,19 +139,30 @@ def append_end2end(
     xyxy = b.one("Concat", b.one("Sub", xy, half), b.one("Add", xy, half), axis=1)
     boxes = b.one("Transpose", xyxy, perm=[0, 2, 1])
     cls = b.slice(pred, 4, 4 + nc, 1)  # [B, nc, A]
-    best = b.reduce_max(cls, 1, keepdims=0)  # [B, A]
     arg = b.one("ArgMax", cls, axis=1, keepdims=1, select_last_index=0)  # [B, 1, A]
-    onehot = b.one("Equal", arg, b.const(np.arange(nc).reshape(1, nc, 1)))
-    per_class = b.one("Where", onehot, cls, b.const(0.0, np.float32))  # [B, nc, A]
+    best3 = b.one("GatherElements", cls, arg, axis=1)  # [B, 1, A]: the max, read at arg
+    best = b.one("Squeeze", best3, b.const([1]))  # [B, A]
+    # class-aware NMS in one pass, as the raw path's batched_nms: each class's boxes shifted
+    # by class x span, span > the extent of the candidates' coordinates (score > conf, and 0),
+    # so that boxes of different classes never overlap
+    cand = b.one("Greater", best, b.const(settings.conf, np.float32))  # [B, A]
+    cand = b.one("Unsqueeze", b.one("Cast", cand, to=TensorProto.FLOAT), b.const([2]))
+    coords = b.one("Mul", boxes, cand)  # [B, A, 4]: 0 for the other anchors
+    top = b.reduce_max(b.reduce_max(coords, 1, 1), 2, 1)  # [B, 1, 1]
+    neg = b.one("Mul", coords, b.const(-1.0, np.float32))
+    bottom = b.reduce_max(b.reduce_max(neg, 1, 1), 2, 1)  # -min
+    span = b.one("Add", b.one("Add", top, bottom), b.const(1.0, np.float32))
+    group = b.one("Cast", b.one("Transpose", arg, perm=[0, 2, 1]), to=TensorProto.FLOAT)
+    shift = b.one("Mul", group, span)  # [B, A, 1]
     selected = b.one(
         "NonMaxSuppression",
-        boxes,
-        per_class,
+        b.one("Add", boxes, shift),
+        best3,
         b.const([settings.max_det]),
         b.const([settings.iou], np.float32),
         b.const([settings.conf], np.float32),
         center_point_box=0,
-    )  # [N, 3]: batch, class, anchor
+    )  # [N, 3]: batch, class (0), anchor
     pairs = b.one("Concat", b.slice(selected, 0, 1, 1), b.slice(selected, 2, 3, 1), axis=1)
     kept = b.one("GatherND", best, pairs)  # [N]
     empty = b.one("Sub", b.one("Mul", best, b.const(0.0, np.float32)), b.const(1.0, np.float32))
@@ -203,8 +216,10 @@ def _append_masks(
     top_k = b.one("Slice", top_i, b.const([0]), rows, b.const([1]))  # [B, k]
     valid_k = b.one("Slice", valid, b.const([0]), rows, b.const([1]))
     at = b.one("Unsqueeze", top_k, b.const([2]))
-    coeffs = b.one("Transpose", b.slice(raw, 4 + nc, 4 + nc + nm, 1), perm=[0, 2, 1])
-    coeffs = b.one("GatherND", coeffs, at, batch_dims=1)  # [B, k, nm]
+    # the kept anchors' coefficients read in place ([B, nm, A] is not transposed whole)
+    cols = b.one("Add", b.one("Unsqueeze", top_k, b.const([1])), b.const(np.zeros((1, nm, 1))))
+    coeffs = b.one("GatherElements", b.slice(raw, 4 + nc, 4 + nc + nm, 1), cols, axis=2)
+    coeffs = b.one("Transpose", coeffs, perm=[0, 2, 1])  # [B, k, nm]
     flat = b.one("Reshape", "output1", b.const([0, nm, -1]))  # [B, nm, Hp * Wp]
     probs = b.one("Sigmoid", b.one("MatMul", coeffs, flat))  # [B, k, Hp * Wp]
     proto_shape = b.one("Shape", "output1")
@@ -233,12 +248,13 @@ def _append_masks(
         ok = b.one(
             "And", b.one("GreaterOrEqual", centre, first), b.one("LessOrEqual", centre, last)
         )  # [B, k, 1, n]
-        if axis == 2:
-            ok = b.one("Transpose", ok, perm=[0, 1, 3, 2])  # [B, k, Hp, 1]
-        inside.append(ok)
-    keep = b.one("And", inside[0], inside[1])
-    keep = b.one("And", keep, b.one("Unsqueeze", valid_k, b.const([2, 3])))
-    masks = b.one("Where", keep, probs, b.const(0.0, dtype))
+        if axis == 2:  # rows: [B, k, Hp, 1], the padding rows of a batch cleared here
+            ok = b.one("Transpose", ok, perm=[0, 1, 3, 2])
+            ok = b.one("And", ok, b.one("Unsqueeze", valid_k, b.const([2, 3])))
+        inside.append(b.one("Cast", ok, to=float_type))
+    # the crop as two broadcast products with the 1-D row and column masks (1 or 0): no
+    # [B, k, Hp, Wp] boolean is materialised
+    masks = b.one("Mul", b.one("Mul", probs, inside[0]), inside[1])
     pad_rows = b.one("Sub", b.const([settings.max_det]), rows)
     pads = b.one("Concat", b.const([0, 0, 0, 0, 0]), pad_rows, b.const([0, 0]), axis=0)
     b.rename(b.one("Pad", masks, pads, b.const(0.0, dtype)), "masks")
