@@ -40,6 +40,7 @@ from slimseg.deploy.end2end_graph import DEFAULT_END2END_CONF, DEFAULT_END2END_I
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.preprocess import preprocess_frame
+from slimseg.models.batchnorm_stats import batchnorm_from
 from slimseg.models.registry import build_model
 from slimseg.ops.nms_numpy import MAX_DET, PREDICT_CONF
 
@@ -53,14 +54,8 @@ def scored_model(name: str, nc: int, imgsz: int, density: float) -> nn.Module:
     batch = torch.from_numpy(
         np.concatenate([preprocess_frame(f, (imgsz, imgsz))[0] for f in frames])
     )
-    for m in model.modules():
-        if isinstance(m, nn.BatchNorm2d):
-            m.momentum = None
-            m.reset_running_stats()
-    model.train()
+    batchnorm_from(model, batch)
     with torch.no_grad():
-        model(batch)
-        model.eval()
         for branch in model.detect.cls:
             branch[-1].bias.fill_(0.0)
         scores = model(batch)[0][:, 4 : 4 + nc]

@@ -12,6 +12,7 @@ import pytest
 import torch
 from torch import nn
 
+from slimseg.models.batchnorm_stats import batchnorm_from
 from slimseg.models.registry import build_model
 from slimseg.objects import Objects
 
@@ -41,20 +42,6 @@ def randomize_batchnorm(model: nn.Module, seed: int = 0) -> nn.Module:
                 m.weight.copy_(torch.rand(n, generator=g) + 0.5)
                 m.bias.copy_((torch.rand(n, generator=g) - 0.5) * 0.6)
     return model
-
-
-def batchnorm_from(model: nn.Module, batch: torch.Tensor) -> nn.Module:
-    """BatchNorm statistics of one ``batch [B, 3, H, W]`` (0-1 floats): unit-variance
-    activations, so a randomly initialised network's outputs depend on the image (random init
-    alone gives near-constant activations: equal scores, empty masks). Returns it in eval."""
-    for m in model.modules():
-        if isinstance(m, nn.BatchNorm2d):
-            m.momentum = None
-            m.reset_running_stats()
-    model.train()
-    with torch.no_grad():
-        model(batch)
-    return model.eval()
 
 
 def class_map_weights(seq: Path, path: Path) -> Path:
