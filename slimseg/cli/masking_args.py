@@ -39,6 +39,12 @@ FLAGS: dict[str, tuple[str, type, str]] = {
         "seg/fusion: odds by which the epipolar check's moving/static decision weighs on an "
         "object's mobility prior (1: no check)",
     ),
+    "--motion-layer": (
+        "motion_layer_px",
+        int,
+        "with depth: keep what moved in behind an object's near layer when it covers this "
+        "many px (0: off; needs the camera's intrinsics)",
+    ),
 }
 
 

@@ -54,6 +54,7 @@ class Masker(FrameMasker):
         rate: ModelRate | str = EVERY_FRAME,
         keypoints: int = KEYPOINTS,
         camera: tuple[float, float, float, float] | None = None,
+        epipolar_depth: bool = False,
         fps: float = FPS,
         depth_scale: float | None = None,
         **masking: Any,
@@ -72,7 +73,7 @@ class Masker(FrameMasker):
             rate = ModelRate.parse(rate)
         config = ChainConfig(
             mode=mode, masking=settings, track=TrackPlan(stage, rate), keypoints=keypoints,
-            camera=camera, fps=fps, depth_scale=depth_scale,
+            camera=camera, epipolar_depth=epipolar_depth, fps=fps, depth_scale=depth_scale,
         )  # fmt: skip
         return cls(predictor, config)
 

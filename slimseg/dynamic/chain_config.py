@@ -61,15 +61,18 @@ class ChainConfig:
     """How the chain masks a stream: ``mode`` (a :class:`~slimseg.dynamic.modes.Mode` or its
     name); ``masking``: the settings (score threshold, dilation, Eq. 1/3/4, rule, depth cut);
     ``track``: the track stage and the model's rate; ``keypoints``: ORB features per frame;
-    ``camera`` ``(fx, fy, cx, cy)``: gives the epipolar check the previous depth (PnP
-    residual); ``fps``: the stream's rate (the stage's time constants); ``depth_scale``:
-    units per metre of integer depth images (TUM: 5000; float depth is metres)."""
+    ``camera`` ``(fx, fy, cx, cy)``: the intrinsics, which the depth cut's motion layers need
+    (:mod:`slimseg.dynamic.occupancy`); ``epipolar_depth``: the epipolar check also takes the
+    previous depth (its PnP residual; needs ``camera``); ``fps``: the stream's rate (the
+    stage's time constants); ``depth_scale``: units per metre of integer depth images (TUM:
+    5000; float depth is metres)."""
 
     mode: Mode = Mode.FUSION
     masking: MaskingSettings = DEFAULT
     track: TrackPlan = field(default=TRACK_OFF)
     keypoints: int = KEYPOINTS
     camera: tuple[float, float, float, float] | None = None
+    epipolar_depth: bool = False
     fps: float = FPS
     depth_scale: float | None = None
 
@@ -89,6 +92,8 @@ class ChainConfig:
                 raise SlimsegError(f"camera {self.camera!r}: expected (fx, fy, cx, cy)")
             names = ("fx", "fy", "cx", "cy")
             check_intrinsics(dict(zip(names, map(float, self.camera), strict=True)), "camera")
+        if self.epipolar_depth and self.camera is None:
+            raise SlimsegError("epipolar_depth needs the camera's intrinsics: pass camera=")
         fps = self.fps
         if (
             isinstance(fps, bool)

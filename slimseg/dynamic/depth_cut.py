@@ -52,15 +52,35 @@ def cut_behind(
     depth_m: np.ndarray,
     reference: np.ndarray,
     band_m: float,
+    layers: np.ndarray | None = None,
 ) -> np.ndarray:
     """Cut from each of ``regions bool [M, H, W]`` the pixels inside its box ``boxes [M, 4]``
     that lie deeper than ``reference [M] + band_m`` in ``depth_m [H, W]`` (a NaN reference:
-    the region is kept whole), in place; returns ``regions``."""
+    the region is kept whole), in place, except those within ``band_m`` of the object's motion
+    layer ``layers [M]`` m (:func:`slimseg.dynamic.occupancy.motion_layers`; NaN or None:
+    none); returns ``regions``."""
     for k, (y0, y1, x0, x1) in enumerate(box_spans(boxes, regions.shape[1:])):
         ref = float(reference[k])
         if not np.isfinite(ref):
             continue
+        d = depth_m[y0:y1, x0:x1]
         with np.errstate(invalid="ignore"):
-            behind = depth_m[y0:y1, x0:x1] > ref + band_m  # NaN compares False: kept
+            behind = d > ref + band_m  # NaN compares False: kept
+            if layers is not None and np.isfinite(layers[k]):
+                behind &= ~(np.abs(d - float(layers[k])) <= band_m)
         regions[k, y0:y1, x0:x1] &= ~behind
     return regions
+
+
+def behind_pixels(
+    boxes: np.ndarray, depth_m: np.ndarray, reference: np.ndarray, band_m: float
+) -> np.ndarray:
+    """``bool [H, W]``: the pixels inside some box ``boxes [M, 4]`` deeper than that object's
+    ``reference [M] + band_m`` in ``depth_m [H, W]``: those the cut may drop."""
+    out = np.zeros(depth_m.shape, bool)
+    for k, (y0, y1, x0, x1) in enumerate(box_spans(boxes, depth_m.shape)):
+        ref = float(reference[k])
+        if np.isfinite(ref):
+            with np.errstate(invalid="ignore"):
+                out[y0:y1, x0:x1] |= depth_m[y0:y1, x0:x1] > ref + band_m
+    return out

@@ -88,13 +88,16 @@ class OrbFeatures:
 
 @dataclass(frozen=True)
 class PreviousFrame:
-    """What the epipolar modes need of the previous frame: its ORB ``features``; optionally
-    its ``depth_m float32 [H, W]`` (metres, 0 = invalid) and pinhole ``camera`` ``(fx, fy, cx,
-    cy)`` px for the depth-aided residual (see the module docstring)."""
+    """What the chain needs of the previous frame: its ORB ``features``; optionally its
+    ``depth_m float32 [H, W]`` (metres, 0 = invalid) and pinhole ``camera`` ``(fx, fy, cx,
+    cy)`` px: the depth cut's motion layers (:mod:`slimseg.dynamic.occupancy`) and, with
+    ``depth_residual``, the epipolar check's depth-aided residual (see the module
+    docstring)."""
 
     features: OrbFeatures
     depth_m: np.ndarray | None = None
     camera: tuple[float, float, float, float] | None = None
+    depth_residual: bool = True
 
 
 def orb_features(
@@ -265,24 +268,45 @@ def check_motion(
     )
 
 
-def _pnp_residual(
+@dataclass(frozen=True)
+class PnpPose:
+    """The camera's motion from the previous frame to the current one, fitted by PnP on
+    previous-frame 3-D points: ``rvec`` / ``tvec`` (OpenCV's, previous camera → current camera,
+    ``X_cur = R X_prev + t``), the ``points float64 [M, 3]`` back-projected (NaN rows: no
+    depth) and the intrinsic matrix ``k [3, 3]``."""
+
+    rvec: np.ndarray
+    tvec: np.ndarray
+    points: np.ndarray
+    k: np.ndarray
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """``R float64 [3, 3]``."""
+        return cv2.Rodrigues(self.rvec)[0]
+
+
+def pnp_pose(
     p0: np.ndarray,
     p1: np.ndarray,
-    fit: np.ndarray,
+    use: np.ndarray,
     depth_m: np.ndarray,
     camera: tuple[float, float, float, float],
-) -> np.ndarray | None:
-    """Reprojection error (px) of matches with valid previous depth after a PnP pose fitted on
-    the ``fit`` ones; ``nan`` where the depth is missing; None if PnP fails."""
+) -> PnpPose | None:
+    """The camera's motion from matches ``p0 → p1 [M, 2]`` px, the previous points
+    back-projected with ``depth_m [H, W]`` (previous frame, metres) and ``camera (fx, fy, cx,
+    cy)``, fitted on the ``use bool [M]`` ones with valid depth (EPnP in RANSAC, 2 px); None:
+    fewer than 12 such matches, or no fit."""
     fx, fy, cx, cy = camera
     h, w = depth_m.shape
     xi = np.clip(np.round(p0[:, 0]).astype(int), 0, w - 1)
     yi = np.clip(np.round(p0[:, 1]).astype(int), 0, h - 1)
     z = depth_m[yi, xi].astype(np.float64)
     ok = np.isfinite(z) & (z > 0)
-    use = ok & fit
+    use = ok & use
     if use.sum() < 12:
         return None
+    z = np.where(ok, z, np.nan)
     pts3 = np.stack([(p0[:, 0] - cx) * z / fx, (p0[:, 1] - cy) * z / fy, z], 1)
     k = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], np.float64)
     found, rvec, tvec, _ = cv2.solvePnPRansac(
@@ -295,8 +319,24 @@ def _pnp_residual(
         confidence=0.999,
         flags=cv2.SOLVEPNP_EPNP,
     )
-    if not found:
+    return PnpPose(rvec, tvec, pts3, k) if found else None
+
+
+def _pnp_residual(
+    p0: np.ndarray,
+    p1: np.ndarray,
+    fit: np.ndarray,
+    depth_m: np.ndarray,
+    camera: tuple[float, float, float, float],
+) -> np.ndarray | None:
+    """Reprojection error (px) of matches with valid previous depth after a PnP pose fitted on
+    the ``fit`` ones; ``nan`` where the depth is missing; None if PnP fails."""
+    pose = pnp_pose(p0, p1, fit, depth_m, camera)
+    if pose is None:
         return None
-    proj, _ = cv2.projectPoints(pts3, rvec, tvec, k, None)
-    err = np.linalg.norm(proj[:, 0] - p1, axis=1)
-    return np.where(ok, err, np.nan)
+    ok = np.isfinite(pose.points[:, 2])
+    err = np.full(len(p0), np.nan)
+    if ok.any():
+        proj, _ = cv2.projectPoints(pose.points[ok], pose.rvec, pose.tvec, pose.k, None)
+        err[ok] = np.linalg.norm(proj[:, 0] - p1[ok], axis=1)
+    return err

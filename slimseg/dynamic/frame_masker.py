@@ -219,8 +219,10 @@ class FrameMasker:
         result = process_frame(inputs=inputs, settings=self.rules, rng=self._rng)
         t4 = time.perf_counter()
         self.feed.other_time(t4 - t1)
-        if config.camera is not None:  # the depth-aided residual needs this frame's depth
-            self._previous = PreviousFrame(features, depth_m, config.camera)
+        if config.camera is not None:  # the motion layers (and PnP residual) need its depth
+            self._previous = PreviousFrame(
+                features, depth_m, config.camera, depth_residual=config.epipolar_depth
+            )
         else:
             self._previous = PreviousFrame(features)
         self.frames += 1

@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass, fields, replace
 
 from slimseg.dynamic.degrade import KEEP_SCORE
 from slimseg.dynamic.motion_evidence import MOTION_ODDS
+from slimseg.dynamic.occupancy import MOTION_LAYER_PX
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
 from slimseg.errors import SlimsegError
@@ -58,7 +59,9 @@ class MaskingSettings:
     many metres behind their object's near depth are cut (0: off,
     :mod:`slimseg.dynamic.depth_cut`); ``motion_odds``: seg and fusion modes, the odds by
     which an epipolar check's decision moves an object's mobility (1: no check,
-    :mod:`slimseg.dynamic.motion_evidence`).
+    :mod:`slimseg.dynamic.motion_evidence`); ``motion_layer_px``: with depth, the previous
+    frame's depth and the intrinsics, what moved in behind an object's near layer is kept when
+    it covers at least this many frame pixels (0: off, :mod:`slimseg.dynamic.occupancy`).
     """
 
     conf: float
@@ -72,6 +75,7 @@ class MaskingSettings:
     keep_score: float
     cut_behind_m: float
     motion_odds: float
+    motion_layer_px: int
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -101,6 +105,7 @@ RANGES: dict[str, Range] = {
     "keep_score": (0.0, 1.0, False, "score from which the degrading rule keeps a mask, 0-1"),
     "cut_behind_m": (0.0, 100.0, False, "metres behind its object a mask pixel is cut, 0: off"),
     "motion_odds": (1.0, 1e6, False, "odds a motion check's decision weighs by, 1 (off) - 1e6"),
+    "motion_layer_px": (0, 1_000_000, True, "pixels that make a motion layer, whole, 0: off"),
 }
 # what to do when static support runs short (docs/slam_defaults.md §1)
 RULES = ("eq1", "degrade")
@@ -130,15 +135,18 @@ PAPERS = MaskingSettings(
     keep_score=KEEP_SCORE,
     cut_behind_m=0.0,
     motion_odds=1.0,
+    motion_layer_px=0,
 )
 # Chosen from the sweeps of docs/slam_defaults.md.
 # t_o 1 with cut_behind_m 0.5: on dynamic keyframes every detection's box cut to its depth
 # layer replaces the 320-px seg mask (keypoint precision 36 -> 66 %, recall 81 -> 98 % on the
 # demo's sequence); without depth that is the whole box: pass t_o 0.25 for RGB-only frames.
 # motion_odds 10: objects of a class that may move, seen static, give their keypoints back (§5).
+# motion_layer_px 100: a walker behind a nearer thing keeps its mask where it moved in (§5).
 SLIMSEG = PAPERS.with_values(
-    conf=0.1, dilation_px=5, t_o=1.0, rule="degrade", cut_behind_m=0.5, motion_odds=MOTION_ODDS
-)
+    conf=0.1, dilation_px=5, t_o=1.0, rule="degrade", cut_behind_m=0.5, motion_odds=MOTION_ODDS,
+    motion_layer_px=MOTION_LAYER_PX,
+)  # fmt: skip
 PRESETS: dict[str, MaskingSettings] = {"papers": PAPERS, "slimseg": SLIMSEG}
 DEFAULT_PRESET = "slimseg"
 DEFAULT = PRESETS[DEFAULT_PRESET]

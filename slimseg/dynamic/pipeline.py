@@ -31,11 +31,12 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.degrade import degrade
-from slimseg.dynamic.depth_cut import cut_behind, reference_depths
+from slimseg.dynamic.depth_cut import behind_pixels, cut_behind, reference_depths
 from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, KEYPOINTS, MODES, WEIGHED_MODES, Mode
 from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
+from slimseg.dynamic.occupancy import MotionLayers
 from slimseg.dynamic.seg_box import (
     T_O,
     box_keypoint_mobility,
@@ -168,6 +169,7 @@ def process_modes(
         raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
     mob = inputs.objects.priors(settings.class_mobility)
     check = weighed = None
+    moved = MotionLayers.of(inputs, settings.masking)
     if inputs.evidence is not None:
         check = mob, inputs.evidence.result, inputs.evidence.checked
     out = {}
@@ -179,14 +181,14 @@ def process_modes(
             if check is None:
                 check = epipolar_priors(inputs, mob, settings.mover_prior)
             priors, epi, checked = check
-            res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng)
+            res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng, moved)
             res.epipolar, res.checked = epi, list(checked)
         elif mode in WEIGHED_MODES and settings.masking.motion_odds > 1 and inputs.evidence is None:
             if weighed is None:
                 weighed = weighed_mobility(inputs, mob, settings.masking.motion_odds)
-            res = _one_mode(inputs, settings, mode, weighed, rng)
+            res = _one_mode(inputs, settings, mode, weighed, rng, moved)
         else:
-            res = _one_mode(inputs, settings, mode, mob, rng)
+            res = _one_mode(inputs, settings, mode, mob, rng, moved)
         res.seconds = time.perf_counter() - t0
         out[mode] = res
     return out
@@ -198,6 +200,7 @@ def _one_mode(
     mode: str,
     mob: np.ndarray,
     rng: np.random.Generator | None,
+    moved: MotionLayers | None = None,
 ) -> FrameResult:
     keypoints, hw, objects = inputs.keypoints, inputs.hw, inputs.objects
     boxes, masks, s = objects.boxes, objects.masks, settings.masking
@@ -214,10 +217,13 @@ def _one_mode(
         return FrameResult(dynamic, _mask(region, s.dilation_px), None, flag)
     regions = box_masks(boxes, hw) if mode == Mode.BOX else np.asarray(masks, bool)
     depth = inputs.depth_m if s.cut_behind_m > 0 and mode != Mode.BOX else None
-    reference = None
+    reference = layers = None
     if depth is not None:  # masks that stay on their object (seg masks, before dilation)
         reference = reference_depths(regions, boxes, depth)
-        regions = cut_behind(regions.copy(), boxes, depth, reference, s.cut_behind_m)
+        if moved is not None:  # what moved in behind the near layer stays
+            behind = behind_pixels(boxes, depth, reference, s.cut_behind_m)
+            layers = moved.layers(behind, boxes, reference, s.cut_behind_m)
+        regions = cut_behind(regions.copy(), boxes, depth, reference, s.cut_behind_m, layers)
     # points near a mask edge belong to the object (ORB patches)
     regions = dilate_masks(regions, s.dilation_px)
     point_mob = keypoint_mobility(keypoints, regions, mob)
@@ -233,8 +239,9 @@ def _one_mode(
             used = used | keep
         if depth is not None and not used.all():  # the boxes put in place of thin masks
             box = ~used
+            lay = None if layers is None else layers[box]
             fused[box] = cut_behind(fused[box], boxes[box], depth, reference[box],
-                                    s.cut_behind_m)  # fmt: skip
+                                    s.cut_behind_m, lay)  # fmt: skip
         regions, used_seg = fused, used.tolist()
         point_mob = keypoint_mobility(keypoints, regions, mob)
     if s.rule == "degrade":
@@ -323,7 +330,7 @@ def epipolar_evidence(
         previous.features,
         current,
         np.asarray(masks, bool)[candidates],
-        depth_m=previous.depth_m,
+        depth_m=previous.depth_m if previous.depth_residual else None,
         camera=previous.camera,
         pairs=pairs,
     )

@@ -48,12 +48,12 @@ def sequence_config(
     epipolar_depth: bool = False,
     track: TrackPlan = TRACK_OFF,
 ) -> ChainConfig:
-    """The chain's configuration for ``seq``: its frame rate, and with ``epipolar_depth`` its
-    intrinsics (the epipolar check's depth-aided residual)."""
+    """The chain's configuration for ``seq``: its frame rate and intrinsics (the depth cut's
+    motion layers); ``epipolar_depth``: the epipolar check's depth-aided residual too."""
     cam = seq.camera
-    camera = (cam.fx, cam.fy, cam.cx, cam.cy) if epipolar_depth else None
     return ChainConfig(mode=mode, masking=masking, track=track, keypoints=keypoints,
-                       camera=camera, fps=seq.fps)  # fmt: skip
+                       camera=(cam.fx, cam.fy, cam.cx, cam.cy), epipolar_depth=epipolar_depth,
+                       fps=seq.fps)  # fmt: skip
 
 
 def scored_modes(predictor: object, seq: FrameSource) -> tuple[str, ...]:

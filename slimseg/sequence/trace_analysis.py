@@ -24,7 +24,6 @@ from slimseg.data.images import decode_file
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
-from slimseg.dynamic.epipolar import PreviousFrame
 from slimseg.dynamic.frame_masker import MaskedFrame
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, Mode
@@ -135,7 +134,7 @@ def _packed(f: MaskedFrame) -> tuple[MaskedFrame, list[Patch] | None]:
     inputs = f.inputs
     previous = inputs.previous
     if previous is not None:
-        previous = PreviousFrame(previous.features, None, previous.camera)
+        previous = replace(previous, depth_m=None)
     objects = replace(inputs.objects, masks=None)
     inputs = replace(inputs, objects=objects, depth_m=None, previous=previous)
     return replace(f, inputs=inputs), pack_masks(f.objects.masks)
@@ -151,7 +150,7 @@ def _unpacked(
     inputs = f.inputs
     previous = inputs.previous
     if previous is not None and previous.camera is not None:
-        previous = PreviousFrame(previous.features, depth_before, previous.camera)
+        previous = replace(previous, depth_m=depth_before)
     objects: Objects = inputs.objects
     if crops is not None:
         objects = replace(objects, masks=unpack_masks(crops, objects.hw))

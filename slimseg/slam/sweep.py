@@ -33,6 +33,7 @@ SWEEP_KEYS: dict[str, str] = {
     "keep_score": "keep_score",
     "cut_behind": "cut_behind_m",
     "motion_odds": "motion_odds",
+    "motion_layer": "motion_layer_px",
 }
 # sweep key -> TrackSettings field (the track stage's knobs; they need --track)
 TRACK_SWEEP_KEYS: dict[str, str] = {
@@ -44,7 +45,7 @@ TRACK_SWEEP_KEYS: dict[str, str] = {
     "depth_band": "depth_band_m",
     "p_alpha": "p_alpha",
 }
-INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate")
+INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate", "motion_layer")
 WORD_KEYS = ("rule",)  # values are names, not numbers
 SWEEP_MODES = ("oneway", "grid")
 FUSION_MODES = (Mode.FUSION, Mode.FUSION_EPIPOLAR)
@@ -59,6 +60,7 @@ ACTS_IN: dict[str, tuple[Mode, ...]] = {
     "keep_score": RULE_MODES,
     "cut_behind": tuple(m for m in RULE_MODES if m != Mode.BOX),  # masks to cut
     "motion_odds": WEIGHED_MODES,
+    "motion_layer": tuple(m for m in RULE_MODES if m != Mode.BOX),  # the cut's masks
     "p_alpha": tuple(EPIPOLAR_MODES),
 }
 
