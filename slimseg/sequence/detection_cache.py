@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
-from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
+from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
 from slimseg.dynamic.epipolar import OrbFeatures, orb_features
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
@@ -35,6 +35,7 @@ from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, Mode
 from slimseg.objects import Objects
 from slimseg.sequence.sequence_report import ModeScore, at_keypoints
+from slimseg.sequence.sequence_run import sequence_config
 from slimseg.utils.atomic import write_png
 
 log = logging.getLogger(__name__)
@@ -158,7 +159,7 @@ def mask_with(
     digest = hashlib.sha1()
     out.mkdir(parents=True, exist_ok=True)
     frames = {f.stamp: f for f in cache.frames}
-    config = ChainConfig(mode=mode, masking=masking, track=track, fps=seq.fps)
+    config = sequence_config(seq, mode, masking, track=track)
     masker = FrameMasker(
         lambda rgb, stamp, conf: frames[stamp].above(conf), cache.mobility, config,
         extractor=lambda rgb, stamp: frames[stamp].features,
