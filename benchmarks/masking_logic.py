@@ -5,8 +5,10 @@
 Five detections (two persons, a dog, a chair, a tv) with instance masks, 1000 keypoints, a
 depth image with people at 2 m before a wall at 4 m; median of 50 calls per mode, then
 ``fusion`` under each masking preset (the ``slimseg`` preset's degrading rule with its static
-support, the FAST corners of ORB-SLAM3's pyramid, counted in), plus ORB detection of 1000
-features on a textured frame for scale. One run, one process.
+support, the FAST corners of ORB-SLAM3's pyramid, counted in), then the ``slimseg`` preset
+with a previous frame (its depth and ORB features: the motion layers' camera pose and
+moved-in pixels) against the same without them (``motion_layer_px`` 0), plus ORB detection of
+1000 features on a textured frame for scale. One run, one process.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ import cv2
 import numpy as np
 
 from slimseg.dynamic.degrade import support_points
-from slimseg.dynamic.masking_settings import PRESETS
+from slimseg.dynamic.epipolar import PreviousFrame, orb_features
+from slimseg.dynamic.masking_settings import DEFAULT, PRESETS
 from slimseg.dynamic.pipeline import (
     MODES,
     FrameInputs,
@@ -94,12 +97,45 @@ def main() -> None:
         ms = 1000 * statistics.median(times)
         ref = ref or ms
         print(f"  {name:18s} {ms:7.2f} ms  ({ms / ref:.2f} of papers): {preset.describe()}")
+    motion_layers(textured, masks, boxes, classes, scores, depth, mobility)
     times = []
     for _ in range(20):
         t = time.perf_counter()
         orb_keypoints(frame, 1000)
         times.append(time.perf_counter() - t)
     print(f"  ORB detection (1000 features, for scale): {1000 * statistics.median(times):.2f} ms")
+
+
+def motion_layers(
+    textured: np.ndarray,
+    masks: np.ndarray,
+    boxes: np.ndarray,
+    classes: np.ndarray,
+    scores: np.ndarray,
+    depth: np.ndarray,
+    mobility: np.ndarray,
+) -> None:
+    """The slimseg preset given the previous frame (people 8 px to the left in its depth),
+    with and without the motion layers, calls alternating."""
+    feats = orb_features(textured, 1000, corners=True)
+    camera = (525.0, 525.0, 319.5, 239.5)
+    previous = PreviousFrame(feats, np.roll(depth, -8, axis=1), camera)
+    objects = Objects(boxes, scores, classes, masks, (H, W))
+    inputs = FrameInputs(feats.keypoints, objects, depth_m=depth, descriptors=feats.descriptors,
+                         previous=previous, support=feats.corners)  # fmt: skip
+    arms = {"motion layers on": DEFAULT, "off (motion_layer_px 0)": DEFAULT.with_values(
+        motion_layer_px=0)}  # fmt: skip
+    times: dict[str, list[float]] = {k: [] for k in arms}
+    for _ in range(30):
+        for name, settings in arms.items():
+            t = time.perf_counter()
+            process_frame(inputs=inputs, settings=FrameRules(mobility, "fusion", settings))
+            times[name].append(time.perf_counter() - t)
+    med = {k: 1000 * statistics.median(v) for k, v in times.items()}
+    off = med["off (motion_layer_px 0)"]
+    print("slimseg preset with the previous frame (its depth and ORB features):")
+    for name, ms in med.items():
+        print(f"  {name:24s} {ms:7.2f} ms  ({ms / off:.2f} of off)")
 
 
 if __name__ == "__main__":
