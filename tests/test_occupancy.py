@@ -140,3 +140,17 @@ def test_the_presets_and_a_missing_key() -> None:
 
     old = {"slam_masking": {k: v for k, v in DEFAULT.as_dict().items() if k != "motion_layer_px"}}
     assert masking_from_metadata(old).motion_layer_px == 0  # exports before it: off
+
+
+def test_slivers_and_depth_edges_are_not_surfaces() -> None:
+    """A 2-px chair leg flickers in a depth image: it is never a candidate."""
+    from slimseg.dynamic.occupancy import surfaces
+
+    d = np.full(HW, WALL, np.float32)
+    d[10:60, 40:42] = WALKER  # a 2-px leg
+    d[10:60, 80:100] = WALKER  # a 20-px body
+    d[100:110, 10:20] = 0.0  # no depth
+    s = surfaces(d)
+    assert not s[10:60, 40:42].any() and not s[10:60, 39].any()  # the leg and its edge
+    assert s[12:58, 81:99].all() and not s[30, 79:81].any()  # the body inside, not its edge
+    assert s[30, 60] and not s[105, 15]

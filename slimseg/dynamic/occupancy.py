@@ -19,7 +19,9 @@ not do this: a surface the camera's own motion uncovers was hidden, so the previ
 *nearer* along its ray, not farther; and the neighbourhood minimum absorbs the fit's
 pixel-sized errors along depth edges and on a floor seen at a grazing angle. On the demo's
 sequence and a walking_static sequence 98–99 % of the pixels so marked lay on movers (the
-ground-truth masks), covering 9–16 % of the movers' pixels.
+ground-truth masks), covering 9–16 % of the movers' pixels. Only pixels inside a surface are
+candidates (:func:`surfaces`): thin structures (a chair's legs, a dog's) flicker in a depth
+image and were what the rest marked.
 
 An object's motion layer is the median depth of the marked pixels in its box behind its near
 layer, where they stand for at least ``motion_layer_px`` frame pixels (the masking setting,
@@ -42,6 +44,7 @@ if TYPE_CHECKING:
 
 TAU_M = 0.2  # the previous frame saw at least this much farther (m): something moved in
 NEIGHBOURHOOD_PX = 2  # the previous depth is the nearest within this many px of the landing
+SURFACE_PX = 1  # a candidate's depth spans at most TAU_M this many px around: not a sliver
 STRIDE = 2  # every STRIDE-th pixel, in x and y, is tested
 POSE_FEATURES = 300  # ORB features per frame matched for the camera's pose
 # Marked frame pixels that make an object's motion layer (the slimseg preset's
@@ -79,6 +82,19 @@ def nearest_before(previous_depth_m: np.ndarray) -> np.ndarray:
     size = 2 * NEIGHBOURHOOD_PX + 1
     near = cv2.erode(d, np.ones((size, size), np.uint8))
     return np.where(near > 0, near, np.float32(np.nan))
+
+
+def surfaces(depth_m: np.ndarray) -> np.ndarray:
+    """``bool [H, W]``: the pixels of ``depth_m [H, W]`` inside a surface, whose depths within
+    :data:`SURFACE_PX` all lie within :data:`TAU_M` of one another (none of them invalid).
+    Slivers and depth edges are not: a chair's 2-px legs behind a walker flicker in and out of
+    a depth image from frame to frame (on a held-out walking_xyz sequence they made every
+    false motion layer)."""
+    d = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
+    size = 2 * SURFACE_PX + 1
+    kernel = np.ones((size, size), np.uint8)
+    low = cv2.erode(d, kernel)
+    return (low > 0) & (cv2.dilate(d, kernel) - low <= TAU_M)
 
 
 def moved_in(
@@ -180,8 +196,9 @@ class MotionLayers:
         self, behind: np.ndarray, boxes: np.ndarray, reference: np.ndarray, band_m: float
     ) -> np.ndarray | None:
         """:func:`motion_layers` of the ``behind bool [H, W]`` pixels (those the cut would
-        drop, :func:`~slimseg.dynamic.depth_cut.behind_pixels`); None: nothing behind, or no
-        pose."""
+        drop, :func:`~slimseg.dynamic.depth_cut.behind_pixels`) inside a surface
+        (:func:`surfaces`); None: no such pixel, or no pose."""
+        behind = behind & surfaces(self.depth_m)
         if not behind.any():
             return None
         if not self._ready:
