@@ -12,6 +12,7 @@ from slimseg.ablate.config import load_ablation_config
 from slimseg.cli.arg_types import count, number
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.errors import SlimsegError
+from slimseg.utils.extras import install_command
 from slimseg.utils.shipped import shipped_names
 
 if TYPE_CHECKING:
@@ -30,7 +31,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "OUT/results.csv (one row per run), summary.csv (per arm: mean and spread, half the "
         "max-min range, over the seeds), results.md (with the paper's Table II beside the "
         "plain zoo arms) and results.png. Interrupted sweeps resume: rerun the same command. "
-        "--backend ray spreads the runs over a Ray cluster (pip install 'slimseg[ray]'). "
+        f"--backend ray spreads the runs over a Ray cluster ({install_command('ray')}). "
         f"Shipped configs (slimseg/configs/ablation): {shipped}; the config schema and the "
         "cluster setups are in docs/ablation.md.",
     )

@@ -9,6 +9,7 @@ from pathlib import Path
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.data.bags.from_tum import COLOURS, DEPTHS
 from slimseg.data.bags.writer import STORAGES
+from slimseg.utils.extras import install_command
 
 
 def add_parsers(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +20,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         description="Read a ROS 1 bag, a rosbag2 folder (MCAP or SQLite) or a bare .mcap and "
         "write the paired colour and depth frames in the TUM layout: rgb/ and depth/ PNGs "
         "(depth 16-bit at 5000 per metre), rgb.txt, depth.txt, camera.yaml and, with "
-        "--pose-topic, groundtruth.txt. Needs pip install 'slimseg[ros]'.",
+        f"--pose-topic, groundtruth.txt. Needs {install_command('ros')}.",
     )
     p.add_argument("--bag", type=Path, required=True, help="the recording")
     p.add_argument("--out", type=Path, required=True, help="TUM folder to write")
@@ -33,7 +34,7 @@ def add_parsers(sub: argparse._SubParsersAction) -> None:
         help="write a TUM RGB-D folder as a ROS bag (.bag, .mcap or rosbag2 folder)",
         description="Write a TUM-layout sequence as a ROS recording on the TUM bags' topics "
         "(/camera/rgb/image_color, /camera/depth/image, /camera/rgb/camera_info), each "
-        "message stamped with its file's timestamp. Needs pip install 'slimseg[ros]'.",
+        f"message stamped with its file's timestamp. Needs {install_command('ros')}.",
     )
     q.add_argument("--sequence", type=Path, required=True, help="TUM-layout folder")
     q.add_argument("--out", type=Path, required=True, help=".bag, .mcap, or a rosbag2 folder")

@@ -26,6 +26,7 @@ from slimseg.eval.validation import validate_dataset
 from slimseg.models.checkpoint import load_weights
 from slimseg.slam.demo_run import DEMO_RUNS
 from slimseg.utils.atomic import write_json, write_png
+from slimseg.utils.extras import install_command
 
 DEMO_RECIPE = "cpu-demo"  # slimseg/configs/train/cpu-demo.yaml
 #: The demo trains on the world it is judged on: 32 + 8 short sequences of the sequence
@@ -48,7 +49,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "ORB-SLAM3 RGB-D several times on raw frames, on frames masked by the model (fusion "
         "mode, slimseg masking defaults) and on frames masked by the ground truth, as "
         "slimseg slam-eval does: slam.png (trajectories, ATE bars) and the ATE table in "
-        "metrics.json. The SLAM stage needs pip install 'slimseg[slam]' (GPL-3.0).",
+        f"metrics.json. The SLAM stage needs {install_command('slam')} (GPL-3.0).",
     )
     p.add_argument("--out", default="runs/demo", help="demo folder (data/, train/, plots)")
     p.add_argument("--model", default="yolov8n-seg-gs-rep")
@@ -241,7 +242,7 @@ def _slam_stage(
     missing = demo_run.slam_extra_missing()
     if missing:
         print(f"[6/6] ORB-SLAM3 skipped: {' and '.join(missing)} not installed; to run it, "
-              f"pip install 'slimseg[slam]' (GPL-3.0)")  # fmt: skip
+              f"{install_command('slam')} (GPL-3.0)")  # fmt: skip
         return _SlamSummary(time.perf_counter() - t0, _timing(seconds), paths, None)
     seed = args.seed + SLAM_SEED_OFFSET if args.slam_seed is None else args.slam_seed
     s = demo_run.DemoSlamSettings(

@@ -25,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "(trainable params), GFLOPs in our convention (FlopCounterMode, eval, batch 1) and in "
         "the substation paper's (thop-style), and the fused model's params and GFLOPs; '--model "
         "all' prints the zoo and compares the s-scale segmenters with the paper's Table II. "
-        "The model report needs pip install 'slimseg[train]'.",
+        f"The model report needs {install_command('train')}.",
     )
     p.add_argument("--model", default=None, help="variant name, spec YAML path, or 'all' (the zoo)")
     p.add_argument(

@@ -23,6 +23,7 @@ from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES
 from slimseg.errors import SlimsegError
 from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
 from slimseg.utils.atomic import staged_dir
+from slimseg.utils.extras import install_command
 
 SPECIAL = ("raw", "gt", "oracle")
 DEFAULT_MODES = "raw,gt,oracle,fusion"
@@ -39,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "trajectory with evo against groundtruth.txt. Writes per-run TUM trajectories, "
         "results.csv, runs.csv, results.md and trajectories.png. With --sweep, evaluates one "
         "mask mode under many masking settings instead (sweep.csv, sweep.md, sweep.png; "
-        "docs/slam_defaults.md). Needs pip install 'slimseg[slam]' (pyorbslam3 and evo, "
+        f"docs/slam_defaults.md). Needs {install_command('slam')} (pyorbslam3 and evo, "
         "GPL-3.0).",
     )
     p.add_argument(
