@@ -2,7 +2,7 @@
 depth layer they mark behind an object's near layer (the depth cut's motion layers).
 
 The depth cut (:mod:`slimseg.dynamic.depth_cut`) keeps an object's near layer. A walker seen
-behind a table, or behind a nearer walker, has a coarse mask whose near layer is the thing in
+behind furniture, or behind a nearer walker, has a coarse mask whose near layer is the thing in
 front, and the cut drops the walker whole (12 frames in a row on a walking_static sequence;
 docs/slam_defaults.md §5). Two-view evidence says otherwise, but not per keypoint: on the
 synthetic walking sequences the matched static keypoints' PnP residuals were above 1 px for
