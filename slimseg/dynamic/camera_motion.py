@@ -63,8 +63,8 @@ def estimate_motion(
     (detections, predicted tracks) are left out. ``pairs``: precomputed
     :func:`~slimseg.dynamic.epipolar.match_features` rows, else matched here."""
     if pairs is None:
-        a, ia = _subsample(previous)
-        b, ib = _subsample(current)
+        a, ia = subsample(previous)
+        b, ib = subsample(current)
         pairs = match_features(a, b)
         pairs = np.stack([ia[pairs[:, 0]], ib[pairs[:, 1]]], 1) if len(pairs) else pairs
     if len(pairs) < MIN_MATCHES:
@@ -86,9 +86,9 @@ def estimate_motion(
     return CameraMotion(np.vstack([aff, [0.0, 0.0, 1.0]]), True, len(p0), int(inl.sum()))
 
 
-def _subsample(f: OrbFeatures) -> tuple[OrbFeatures, np.ndarray]:
+def subsample(f: OrbFeatures) -> tuple[OrbFeatures, np.ndarray]:
     """At most about :data:`MOTION_FEATURES` of ``f``'s features (a regular stride) and their
-    indices in ``f``."""
+    indices in ``f``: enough for a camera-motion fit, at ~(1/k)² of the matching's cost."""
     step = max(1, -(-len(f.keypoints) // MOTION_FEATURES))
     idx = np.arange(0, len(f.keypoints), step)
     return OrbFeatures(f.keypoints[idx], f.descriptors[idx]), idx

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from slimseg.dynamic.camera_motion import subsample
 from slimseg.dynamic.epipolar import OrbFeatures, PnpPose, PreviousFrame, match_features, pnp_pose
 from slimseg.dynamic.seg_box import box_spans
 
@@ -46,7 +47,6 @@ TAU_M = 0.2  # the previous frame saw at least this much farther (m): something 
 NEIGHBOURHOOD_PX = 2  # the previous depth is the nearest within this many px of the landing
 SURFACE_PX = 1  # a candidate's depth spans at most TAU_M this many px around: not a sliver
 STRIDE = 2  # every STRIDE-th pixel, in x and y, is tested
-POSE_FEATURES = 300  # ORB features per frame matched for the camera's pose
 # Marked frame pixels that make an object's motion layer (the slimseg preset's
 # motion_layer_px; docs/slam_defaults.md §5).
 MOTION_LAYER_PX = 100
@@ -54,24 +54,18 @@ MOTION_LAYER_PX = 100
 
 def camera_pose(previous: PreviousFrame, current: OrbFeatures) -> PnpPose | None:
     """The camera's motion from ``previous`` to ``current`` (PnP on the ORB matches with
-    previous depth, of about :data:`POSE_FEATURES` features per frame); None without previous
-    depth and intrinsics, or without a fit."""
+    previous depth, of the features :func:`~slimseg.dynamic.camera_motion.subsample` keeps);
+    None without previous depth and intrinsics, or without a fit."""
     if previous.depth_m is None or previous.camera is None:
         return None
-    a, ia = _every_kth(previous.features)
-    b, ib = _every_kth(current)
+    a, ia = subsample(previous.features)
+    b, ib = subsample(current)
     pairs = match_features(a, b)
     if len(pairs) < 12:
         return None
     p0 = previous.features.keypoints[ia[pairs[:, 0]]]
     p1 = current.keypoints[ib[pairs[:, 1]]]
     return pnp_pose(p0, p1, np.ones(len(pairs), bool), previous.depth_m, previous.camera)
-
-
-def _every_kth(f: OrbFeatures) -> tuple[OrbFeatures, np.ndarray]:
-    """About :data:`POSE_FEATURES` of ``f``'s features (a regular stride) and their indices."""
-    idx = np.arange(0, len(f.keypoints), max(1, -(-len(f.keypoints) // POSE_FEATURES)))
-    return OrbFeatures(f.keypoints[idx], f.descriptors[idx]), idx
 
 
 def nearest_before(previous_depth_m: np.ndarray) -> np.ndarray:
@@ -175,6 +169,7 @@ class MotionLayers:
         self._ready = False
         self._pose: PnpPose | None = None
         self._before: np.ndarray | None = None
+        self._surfaces: np.ndarray | None = None
 
     @classmethod
     def of(cls, inputs: FrameInputs, masking: MaskingSettings) -> MotionLayers | None:
@@ -198,7 +193,9 @@ class MotionLayers:
         """:func:`motion_layers` of the ``behind bool [H, W]`` pixels (those the cut would
         drop, :func:`~slimseg.dynamic.depth_cut.behind_pixels`) inside a surface
         (:func:`surfaces`); None: no such pixel, or no pose."""
-        behind = behind & surfaces(self.depth_m)
+        if self._surfaces is None:  # once per frame, whatever the modes
+            self._surfaces = surfaces(self.depth_m)
+        behind = behind & self._surfaces
         if not behind.any():
             return None
         if not self._ready:
