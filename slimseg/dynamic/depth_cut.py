@@ -12,7 +12,8 @@ CPU, masks covering 65 % of the frame where the walkers cover 17 %; docs/slam_de
 Every pixel of the region more than ``band_m`` metres behind the reference is cut. Pixels
 without depth (0, NaN) and pixels in front of it (an arm reaching out, a carried thing) are
 kept. Both steps work on each object's box (a detection's mask is zero outside it), so their
-cost follows the objects, not the frame.
+cost follows the objects, not the frame. What moved in behind the near layer since the
+previous frame is a second layer the cut keeps (:mod:`slimseg.dynamic.occupancy`).
 """
 
 from __future__ import annotations
