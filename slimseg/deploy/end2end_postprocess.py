@@ -15,9 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from slimseg.deploy.predict_postprocess import frame_prediction
 from slimseg.detections import Prediction
 from slimseg.errors import SlimsegError
-from slimseg.ops.letterbox import LetterboxParams, boxes_to_frame
+from slimseg.ops.letterbox import LetterboxParams
 from slimseg.ops.masks_numpy import masks_from_probs
 
 log = logging.getLogger(__name__)
@@ -79,15 +80,5 @@ def end2end_predictions(
         if "masks" in outs:
             probs = np.asarray(outs["masks"][i, idx], np.float32)
             masks = masks_from_probs(probs, boxes, p, (h, w))
-        out.append(
-            Prediction(
-                boxes=boxes_to_frame(boxes, p, h, w),
-                scores=scores[idx],
-                classes=classes,
-                names=[names[c] for c in classes],
-                mobility=[mobility[c] for c in classes],
-                masks=masks,
-                image_hw=(h, w),
-            )
-        )
+        out.append(frame_prediction(boxes, scores[idx], classes, masks, names, mobility, p, (h, w)))
     return out

@@ -56,18 +56,33 @@ def instance_predictions(
                     f"carry {coeffs.shape[1]} mask coefficients"
                 )
             masks = frame_masks(coeffs, np.asarray(proto[i], np.float32), boxes, p, (h, w))
-        out.append(
-            Prediction(
-                boxes=boxes_to_frame(boxes.reshape(-1, 4), p, h, w),
-                scores=scores,
-                classes=classes,
-                names=[names[c] for c in classes],
-                mobility=[mobility[c] for c in classes],
-                masks=masks,
-                image_hw=(h, w),
-            )
-        )
+        out.append(frame_prediction(boxes, scores, classes, masks, names, mobility, p, (h, w)))
     return out
+
+
+def frame_prediction(
+    boxes: np.ndarray,
+    scores: np.ndarray,
+    classes: np.ndarray,
+    masks: np.ndarray | None,
+    names: list[str],
+    mobility: list[float],
+    p: LetterboxParams,
+    frame_hw: tuple[int, int],
+) -> Prediction:
+    """One frame's :class:`Prediction`: ``boxes [N, 4]`` xyxy in network-input pixels mapped
+    back to the ``frame_hw`` frame through ``p``; ``scores [N]``, ``classes int [N]`` with their
+    ``names`` and ``mobility`` looked up; ``masks bool [N, H, W]`` (frame pixels) or None."""
+    h, w = frame_hw
+    return Prediction(
+        boxes=boxes_to_frame(np.asarray(boxes).reshape(-1, 4), p, h, w),
+        scores=scores,
+        classes=classes,
+        names=[names[c] for c in classes],
+        mobility=[mobility[c] for c in classes],
+        masks=masks,
+        image_hw=(h, w),
+    )
 
 
 def semantic_class_map(
