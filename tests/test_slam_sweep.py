@@ -125,11 +125,11 @@ def test_oneway_and_grid_points() -> None:
     assert len([p for p in grid if not p.reference]) == 3 * 2
     assert "preset papers" in [p.label for p in grid]  # papers' rule, t_o, cut: no point
     more = [*spec_items, "rule=eq1,degrade", "t_o=0.25,1", "cut_behind=0,0.5", "motion_odds=1,10",
-            "motion_layer=0,100"]  # fmt: skip
+            "motion_layer=0,100", "still=0,20"]  # fmt: skip
     every = sweep_points(SLIMSEG, parse_sweep(more), "grid")
-    assert len([p for p in every if not p.reference]) == 3 * 2 * 2 * 2 * 2 * 2 * 2
-    # conf 0.25, dilation 0, rule eq1, t_o 0.25, no cut, odds 1, no motion layer is a point:
-    # papers is not added
+    assert len([p for p in every if not p.reference]) == 3 * 2 * 2 * 2 * 2 * 2 * 2 * 2
+    # conf 0.25, dilation 0, rule eq1, t_o 0.25, no cut, odds 1, no motion layer, no stillness
+    # test is a point: papers is not added
     assert "preset papers" not in [p.label for p in every]
     curve = slice_through(grid, "conf", grid[0])
     assert [p.settings.conf for p in curve] == [0.05, 0.1, 0.25]

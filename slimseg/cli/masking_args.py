@@ -45,6 +45,12 @@ FLAGS: dict[str, tuple[str, type, str]] = {
         "with depth: keep what moved in behind an object's near layer when it covers this "
         "many px (0: off; needs the camera's intrinsics)",
     ),
+    "--still-frames": (
+        "still_frames",
+        int,
+        "with depth: an object whose depth has not changed against the frames this many and "
+        "half as many back is static (0: off; needs the camera's intrinsics)",
+    ),
 }
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Protocol
@@ -41,6 +42,7 @@ from slimseg.dynamic.pipeline import (
 )
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import objects_of
+from slimseg.dynamic.stillness import compared_frames, still_priors
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
@@ -144,7 +146,8 @@ class FrameMasker:
         self.feed = feed or ModelFeed(lambda rgb, s: segmenter(rgb, s, floor), config.track.rate)
         self.frames = 0
         self._rng = np.random.default_rng(0)  # depth-RANSAC's sampling
-        self._previous: PreviousFrame | None = None
+        # the last frames' features (and depth): the previous one, the stillness test's
+        self._history: deque[PreviousFrame] = deque(maxlen=max(1, config.masking.still_frames))
         self._hw: tuple[int, int] | None = None
         self._closed = False
         self._busy = threading.Lock()  # held by the step in progress: overlapping calls refused
@@ -201,7 +204,7 @@ class FrameMasker:
         t1 = time.perf_counter()
         features = self.extract(rgb, stamp)
         t2 = time.perf_counter()
-        previous = self._previous
+        previous = self._history[-1] if self._history else None
         if self.stage is None:
             objects = Objects.empty(hw) if got.objects is None else got.objects
             objects = replace(objects, mobility=objects.priors(self.mobility))
@@ -213,6 +216,9 @@ class FrameMasker:
             inputs = self.stage.inputs(
                 features, got.objects, config.masking.conf, depth_m, previous, got.lag
             )
+        earlier = compared_frames(self._history, config.masking.still_frames)
+        if earlier and depth_m is not None:
+            inputs = replace(inputs, earlier=earlier)
         if keypoints is not None:
             inputs = self._with_keypoints(inputs, np.asarray(keypoints, np.float32))
         t3 = time.perf_counter()
@@ -220,11 +226,11 @@ class FrameMasker:
         t4 = time.perf_counter()
         self.feed.other_time(t4 - t1)
         if config.camera is not None:  # the motion layers (and PnP residual) need its depth
-            self._previous = PreviousFrame(
+            self._history.append(PreviousFrame(
                 features, depth_m, config.camera, depth_residual=config.epipolar_depth
-            )
+            ))  # fmt: skip
         else:
-            self._previous = PreviousFrame(features)
+            self._history.append(PreviousFrame(features))
         self.frames += 1
         timing = FrameTiming(
             model=1000 * (t1 - t0), features=1000 * (t2 - t1), track=1000 * (t3 - t2),
@@ -293,8 +299,11 @@ class FrameMasker:
 
     def _with_keypoints(self, inputs: FrameInputs, kps: np.ndarray) -> FrameInputs:
         """The caller's keypoints classified instead of the chain's ORB; the epipolar check
-        still runs on the chain's own features (it needs their descriptors)."""
+        still runs on the chain's own features (it needs their descriptors), and so does the
+        stillness test."""
         mode, odds = self.config.mode, self.config.masking.motion_odds
+        mob = still_priors(inputs, self.config.masking, inputs.objects.priors(self.mobility))
+        inputs = replace(inputs, objects=replace(inputs.objects, mobility=mob))
         weighed = mode in WEIGHED_MODES and odds > 1
         if inputs.evidence is None and (mode in EPIPOLAR_MODES or weighed):
             mob = inputs.objects.mobility

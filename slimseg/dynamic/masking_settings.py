@@ -25,6 +25,7 @@ from slimseg.dynamic.degrade import KEEP_SCORE
 from slimseg.dynamic.motion_evidence import MOTION_ODDS
 from slimseg.dynamic.occupancy import MOTION_LAYER_PX
 from slimseg.dynamic.seg_box import T_O
+from slimseg.dynamic.stillness import STILL_FRAMES
 from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
 from slimseg.errors import SlimsegError
 from slimseg.utils.value_ranges import Range, describe_values, in_range
@@ -61,7 +62,10 @@ class MaskingSettings:
     which an epipolar check's decision moves an object's mobility (1: no check,
     :mod:`slimseg.dynamic.motion_evidence`); ``motion_layer_px``: with depth, the previous
     frame's depth and the intrinsics, what moved in behind an object's near layer is kept when
-    it covers at least this many frame pixels (0: off, :mod:`slimseg.dynamic.occupancy`).
+    it covers at least this many frame pixels (0: off, :mod:`slimseg.dynamic.occupancy`);
+    ``still_frames``: with depth and the intrinsics, an object whose depth has not changed
+    against the frames this many and half as many back gets mobility 0 (0: off,
+    :mod:`slimseg.dynamic.stillness`).
     """
 
     conf: float
@@ -76,6 +80,7 @@ class MaskingSettings:
     cut_behind_m: float
     motion_odds: float
     motion_layer_px: int
+    still_frames: int
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -106,6 +111,7 @@ RANGES: dict[str, Range] = {
     "cut_behind_m": (0.0, 100.0, False, "metres behind its object a mask pixel is cut, 0: off"),
     "motion_odds": (1.0, 1e6, False, "odds a motion check's decision weighs by, 1 (off) - 1e6"),
     "motion_layer_px": (0, 1_000_000, True, "pixels that make a motion layer, whole, 0: off"),
+    "still_frames": (0, 1000, True, "frames an object must stand still, whole, 0: off"),
 }
 # what to do when static support runs short (docs/slam_defaults.md §1)
 RULES = ("eq1", "degrade")
@@ -136,6 +142,7 @@ PAPERS = MaskingSettings(
     cut_behind_m=0.0,
     motion_odds=1.0,
     motion_layer_px=0,
+    still_frames=0,
 )
 # Chosen from the sweeps of docs/slam_defaults.md.
 # t_o 1 with cut_behind_m 0.5: on dynamic keyframes every detection's box cut to its depth
@@ -143,9 +150,10 @@ PAPERS = MaskingSettings(
 # demo's sequence); without depth that is the whole box: pass t_o 0.25 for RGB-only frames.
 # motion_odds 10: objects of a class that may move, seen static, give their keypoints back (§5).
 # motion_layer_px 100: a walker behind a nearer thing keeps its mask where it moved in (§5).
+# still_frames 20: a person standing still for 20 frames gives its keypoints back (§5).
 SLIMSEG = PAPERS.with_values(
     conf=0.1, dilation_px=5, t_o=1.0, rule="degrade", cut_behind_m=0.5, motion_odds=MOTION_ODDS,
-    motion_layer_px=MOTION_LAYER_PX,
+    motion_layer_px=MOTION_LAYER_PX, still_frames=STILL_FRAMES,
 )  # fmt: skip
 PRESETS: dict[str, MaskingSettings] = {"papers": PAPERS, "slimseg": SLIMSEG}
 DEFAULT_PRESET = "slimseg"

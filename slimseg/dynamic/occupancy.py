@@ -91,6 +91,35 @@ def surfaces(depth_m: np.ndarray) -> np.ndarray:
     return (low > 0) & (cv2.dilate(d, kernel) - low <= TAU_M)
 
 
+def warp_grid(
+    depth_m: np.ndarray, camera: tuple[float, float, float, float], pose: PnpPose,
+    where: np.ndarray,
+) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """The pixels of ``where bool [H, W]`` on the grid of every :data:`STRIDE`-th pixel with
+    valid depth in ``depth_m [H, W]`` (metres), moved into the earlier camera of ``pose``
+    (``camera (fx, fy, cx, cy)`` px): ``(ys, xs)`` their grid indices and ``(u, v)`` the
+    earlier frame's pixel they land on (``int64 [P]``), ``z float32 [P]`` their depth there;
+    only those that land inside the frame, in front of the camera."""
+    fx, fy, cx, cy = camera
+    h, w = depth_m.shape
+    grid = depth_m[::STRIDE, ::STRIDE]
+    ys, xs = np.nonzero(where[::STRIDE, ::STRIDE])
+    z = grid[ys, xs].astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(z) & (z > 0)
+    ys, xs, z = ys[ok], xs[ok], z[ok]
+    u0, v0 = xs.astype(np.float32) * STRIDE, ys.astype(np.float32) * STRIDE
+    cur = np.stack([(u0 - cx) * z / fx, (v0 - cy) * z / fy, z], 1).reshape(-1, 3)
+    r, t = pose.rotation.astype(np.float32), pose.tvec.reshape(1, 3).astype(np.float32)
+    prev = (cur - t) @ r  # X_prev = R^T (X_cur - t), as row vectors
+    zp = prev[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.round(prev[:, 0] / zp * fx + cx)
+        v = np.round(prev[:, 1] / zp * fy + cy)
+        seen = (zp > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return (ys[seen], xs[seen], u[seen].astype(np.int64), v[seen].astype(np.int64), zp[seen])
+
+
 def moved_in(
     depth_m: np.ndarray,
     before: np.ndarray,
@@ -103,30 +132,11 @@ def moved_in(
     (metres) that the previous frame, ``before`` (:func:`nearest_before` of its depth), saw
     more than :data:`TAU_M` behind along the same ray under ``pose``; ``camera (fx, fy, cx,
     cy)`` px."""
-    fx, fy, cx, cy = camera
-    h, w = depth_m.shape
-    grid = depth_m[::STRIDE, ::STRIDE]
-    out = np.zeros(grid.shape, bool)
-    ys, xs = np.nonzero(where[::STRIDE, ::STRIDE])
-    z = grid[ys, xs].astype(np.float32)
+    out = np.zeros(depth_m[::STRIDE, ::STRIDE].shape, bool)
+    ys, xs, u, v, zp = warp_grid(depth_m, camera, pose, where)
     with np.errstate(invalid="ignore"):
-        ok = np.isfinite(z) & (z > 0)
-    ys, xs, z = ys[ok], xs[ok], z[ok]
-    if not len(z):
-        return out
-    u0, v0 = xs.astype(np.float32) * STRIDE, ys.astype(np.float32) * STRIDE
-    cur = np.stack([(u0 - cx) * z / fx, (v0 - cy) * z / fy, z], 1)
-    r, t = pose.rotation.astype(np.float32), pose.tvec.reshape(1, 3).astype(np.float32)
-    prev = (cur - t) @ r  # X_prev = R^T (X_cur - t), as row vectors
-    zp = prev[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.round(prev[:, 0] / zp * fx + cx)
-        v = np.round(prev[:, 1] / zp * fy + cy)
-        seen = (zp > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    saw = before[v[seen].astype(np.int64), u[seen].astype(np.int64)]
-    with np.errstate(invalid="ignore"):
-        farther = saw > zp[seen] + TAU_M  # NaN (no depth near there) compares False
-    out[ys[seen][farther], xs[seen][farther]] = True
+        farther = before[v, u] > zp + TAU_M  # NaN (no depth near there) compares False
+    out[ys[farther], xs[farther]] = True
     return out
 
 

@@ -45,6 +45,7 @@ from slimseg.dynamic.seg_box import (
     dilate_masks,
     fuse_seg_box,
 )
+from slimseg.dynamic.stillness import still_priors
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 from slimseg.objects import Objects
 
@@ -105,6 +106,9 @@ class FrameInputs:
     """``float32 [P, 2]`` corners the SLAM engine can take outside a mask (the ``degrade``
     rule's static support, :func:`slimseg.dynamic.degrade.support_points`; None: the
     keypoints)"""
+    earlier: tuple[PreviousFrame, ...] = ()
+    """the earlier frames the stillness test compares with (``still_frames`` back and half as
+    many, :func:`slimseg.dynamic.stillness.compared_frames`; empty: no test)"""
 
     @property
     def hw(self) -> tuple[int, int]:
@@ -167,7 +171,7 @@ def process_modes(
     bad = [m for m in modes if m not in MODES]
     if bad:
         raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
-    mob = inputs.objects.priors(settings.class_mobility)
+    mob = still_priors(inputs, settings.masking, inputs.objects.priors(settings.class_mobility))
     check = weighed = None
     moved = MotionLayers.of(inputs, settings.masking)
     if inputs.evidence is not None:

@@ -34,6 +34,7 @@ SWEEP_KEYS: dict[str, str] = {
     "cut_behind": "cut_behind_m",
     "motion_odds": "motion_odds",
     "motion_layer": "motion_layer_px",
+    "still": "still_frames",
 }
 # sweep key -> TrackSettings field (the track stage's knobs; they need --track)
 TRACK_SWEEP_KEYS: dict[str, str] = {
@@ -45,7 +46,7 @@ TRACK_SWEEP_KEYS: dict[str, str] = {
     "depth_band": "depth_band_m",
     "p_alpha": "p_alpha",
 }
-INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate", "motion_layer")
+INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate", "motion_layer", "still")
 WORD_KEYS = ("rule",)  # values are names, not numbers
 SWEEP_MODES = ("oneway", "grid")
 FUSION_MODES = (Mode.FUSION, Mode.FUSION_EPIPOLAR)
