@@ -6,9 +6,11 @@ Five detections (two persons, a dog, a chair, a tv) with instance masks, 1000 ke
 depth image with people at 2 m before a wall at 4 m; median of 50 calls per mode, then
 ``fusion`` under each masking preset (the ``slimseg`` preset's degrading rule with its static
 support, the FAST corners of ORB-SLAM3's pyramid, counted in), then the ``slimseg`` preset
-with a previous frame (its depth and ORB features: the motion layers' camera pose and
-moved-in pixels) against the same without them (``motion_layer_px`` 0), plus ORB detection of
-1000 features on a textured frame for scale. One run, one process.
+with a previous frame and the frames 10 and 20 back (their depth and ORB features: the motion
+layers' camera pose and moved-in pixels, the stillness test's two poses and depth comparisons)
+against the same without the motion layers (``motion_layer_px`` 0), without the stillness test
+(``still_frames`` 0) and without both, plus ORB detection of 1000 features on a textured frame
+for scale. One run, one process.
 """
 
 from __future__ import annotations
@@ -115,16 +117,25 @@ def motion_layers(
     depth: np.ndarray,
     mobility: np.ndarray,
 ) -> None:
-    """The slimseg preset given the previous frame (people 8 px to the left in its depth),
-    with and without the motion layers, calls alternating."""
+    """The slimseg preset given the previous frame (people 8 px to the left in its depth) and
+    the frames 10 and 20 back (80 and 160 px), with and without the motion layers and the
+    stillness test, calls alternating."""
     feats = orb_features(textured, 1000, corners=True)
     camera = (525.0, 525.0, 319.5, 239.5)
-    previous = PreviousFrame(feats, np.roll(depth, -8, axis=1), camera)
+    previous, ten, twenty = (PreviousFrame(feats, np.roll(depth, -px, axis=1), camera)
+                             for px in (8, 80, 160))  # fmt: skip
     objects = Objects(boxes, scores, classes, masks, (H, W))
-    inputs = FrameInputs(feats.keypoints, objects, depth_m=depth, descriptors=feats.descriptors,
-                         previous=previous, support=feats.corners)  # fmt: skip
-    arms = {"motion layers on": DEFAULT, "off (motion_layer_px 0)": DEFAULT.with_values(
-        motion_layer_px=0)}  # fmt: skip
+    inputs = FrameInputs(
+        feats.keypoints, objects, depth_m=depth, descriptors=feats.descriptors,
+        previous=previous, support=feats.corners, earlier=(ten, twenty),
+    )  # fmt: skip
+    off = "both off"
+    arms = {
+        "both on (slimseg)": DEFAULT,
+        "motion layers off": DEFAULT.with_values(motion_layer_px=0),
+        "stillness off": DEFAULT.with_values(still_frames=0),
+        off: DEFAULT.with_values(motion_layer_px=0, still_frames=0),
+    }
     times: dict[str, list[float]] = {k: [] for k in arms}
     for _ in range(30):
         for name, settings in arms.items():
@@ -132,10 +143,9 @@ def motion_layers(
             process_frame(inputs=inputs, settings=FrameRules(mobility, "fusion", settings))
             times[name].append(time.perf_counter() - t)
     med = {k: 1000 * statistics.median(v) for k, v in times.items()}
-    off = med["off (motion_layer_px 0)"]
-    print("slimseg preset with the previous frame (its depth and ORB features):")
+    print("slimseg preset with the previous frame and the frames 10 and 20 back:")
     for name, ms in med.items():
-        print(f"  {name:24s} {ms:7.2f} ms  ({ms / off:.2f} of off)")
+        print(f"  {name:24s} {ms:7.2f} ms  ({ms / med[off]:.2f} of both off)")
 
 
 if __name__ == "__main__":

@@ -37,7 +37,6 @@ from slimseg.dynamic.occupancy import (
     STRIDE,
     TAU_M,
     camera_pose,
-    nearest_before,
     warp_grid,
 )
 
@@ -55,11 +54,15 @@ def depth_span(depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(lo, hi) float32 [H, W]``: the nearest and the farthest depth within
     :data:`~slimseg.dynamic.occupancy.NEIGHBOURHOOD_PX` of each pixel of ``depth_m [H, W]``
     (NaN where that neighbourhood holds a pixel without depth)."""
-    lo = nearest_before(depth_m)
-    d = np.nan_to_num(np.asarray(depth_m, np.float32), nan=0.0, posinf=0.0)
-    size = 2 * NEIGHBOURHOOD_PX + 1
-    hi = cv2.dilate(d, np.ones((size, size), np.uint8))
-    return lo, np.where(np.isfinite(lo), hi, np.float32(np.nan))
+    d = np.asarray(depth_m, np.float32)
+    d = np.where(np.isfinite(d) & (d > 0), d, np.float32(0.0))
+    kernel = np.ones((2 * NEIGHBOURHOOD_PX + 1,) * 2, np.uint8)
+    lo = cv2.erode(d, kernel)
+    hole = lo <= 0
+    hi = cv2.dilate(d, kernel)
+    lo[hole] = np.nan
+    hi[hole] = np.nan
+    return lo, hi
 
 
 def changed_fractions(
@@ -68,15 +71,24 @@ def changed_fractions(
     """``float64 [M]``: of each mask's pixels in ``masks bool [M, H, W]`` with depth in
     ``depth_m [H, W]`` (tested on the grid of every STRIDE-th pixel), the fraction whose depth,
     moved into the ``earlier`` frame's camera by ``pose``, lies more than TAU_M outside the
-    depths it saw around there; NaN where fewer than :data:`MIN_TESTED` could be tested."""
+    depths it saw around there (:func:`depth_span`); NaN where fewer than :data:`MIN_TESTED`
+    could be tested."""
     out = np.full(len(masks), np.nan)
     if earlier.depth_m is None or earlier.camera is None or not len(masks):
         return out
-    lo, hi = depth_span(earlier.depth_m)
     ys, xs, u, v, z = warp_grid(depth_m, earlier.camera, pose, masks.any(0))
-    low, high = lo[v, u], hi[v, u]
+    if not len(z):
+        return out
+    # the span around where they land only: a crop of the earlier depth, not the whole frame
+    h, w = earlier.depth_m.shape
+    r = NEIGHBOURHOOD_PX
+    x0, y0 = max(int(u.min()) - r, 0), max(int(v.min()) - r, 0)
+    x1, y1 = min(int(u.max()) + r + 1, w), min(int(v.max()) + r + 1, h)
+    lo, hi = depth_span(earlier.depth_m[y0:y1, x0:x1])
+    low, high = lo[v - y0, u - x0], hi[v - y0, u - x0]
     valid = np.isfinite(low)
-    changed = valid & ((z < low - TAU_M) | (z > high + TAU_M))
+    with np.errstate(invalid="ignore"):
+        changed = valid & ((z < low - TAU_M) | (z > high + TAU_M))
     for k, m in enumerate(masks):
         on = m[::STRIDE, ::STRIDE][ys, xs] & valid
         n = int(on.sum())
