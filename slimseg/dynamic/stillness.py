@@ -16,8 +16,8 @@ object is still where at most :data:`STILL_FRACTION` of its tested pixels change
 frame ``t - still_frames / 2`` and frame ``t - still_frames``; it then gets mobility 0.
 
 On the synthetic sequences (ground-truth instances, 20-frame window): of the moving persons'
-keypoints none was judged still on walking_xyz, sitting_static or the demo's sequence, while
-46–61 % of the standing persons' were (the rest: a walker crossed in front of them in one of
+keypoints none was judged still on walking_xyz, walking_rpy, sitting_static or the demo's
+sequence, while 50–65 % of the standing persons' were (docs/slam_defaults.md §5; the rest: a walker crossed in front of them in one of
 the two earlier frames, which counts as change). Undecided is dynamic: without depth, a pose,
 enough tested pixels (:data:`MIN_TESTED`), or ``still_frames`` frames of history, the prior
 stands.
