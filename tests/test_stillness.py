@@ -77,15 +77,29 @@ def test_a_statue_is_unchanged_and_a_walker_is_not_even_with_the_camera_moving()
     frac = changed_fractions(now, _earlier(before), _pose(0.0), masks)
     assert frac[0] == 0.0 and frac[1] > 0.5
     # the camera moved 0.2 m: with the pose the statue is still unchanged, without it not
-    moved, masks = _render(10 * WALKER_SPEED, cam_x=0.2)
-    frac = changed_fractions(moved, _earlier(before), _pose(0.2), masks)
+    moved, seen = _render(10 * WALKER_SPEED, cam_x=0.2)
+    frac = changed_fractions(moved, _earlier(before), _pose(0.2), seen)
     assert frac[0] <= STILL_FRACTION and frac[1] > 0.5
-    assert changed_fractions(moved, _earlier(before), _pose(0.0), masks)[0] > 0.1
-    # a walker who only recedes 0.5 m (no sideways motion) changed everywhere too
+    assert changed_fractions(moved, _earlier(before), _pose(0.0), seen)[0] > 0.1
+    # a walker who only comes 0.5 m nearer (no sideways motion) changed everywhere too (all
+    # but the 2-px rim, whose neighbourhood spans the walker and the wall behind)
+    near = now.copy()
+    near[masks[1]] = WALKER - 0.5
+    assert changed_fractions(near, _earlier(now), _pose(0.0), masks[1:])[0] > 0.7
+    # one who recedes was hidden behind its own earlier place: undecided, not still
     far = now.copy()
     far[masks[1]] = WALKER + 0.5
-    # (all but the 2-px rim, whose neighbourhood spans the walker and the wall behind)
-    assert changed_fractions(far, _earlier(now), _pose(0.0), masks[1:])[0] > 0.7
+    assert np.isnan(changed_fractions(far, _earlier(now), _pose(0.0), masks[1:])[0])
+
+
+def test_a_walker_passing_in_front_earlier_leaves_a_statue_still() -> None:
+    """What hid the statue in the earlier frame is not its motion: those pixels are not
+    tested, the rest are unchanged."""
+    now, masks = _render(0.0)
+    before = now.copy()
+    before[20:100, 30:45] = 1.5  # a walker in front of part of the statue then
+    frac = changed_fractions(now, _earlier(before), _pose(0.0), masks[:1])
+    assert frac[0] == 0.0
 
 
 def test_too_few_pixels_or_no_depth_leave_it_undecided() -> None:

@@ -69,10 +69,11 @@ def changed_fractions(
     depth_m: np.ndarray, earlier: PreviousFrame, pose: PnpPose, masks: np.ndarray
 ) -> np.ndarray:
     """``float64 [M]``: of each mask's pixels in ``masks bool [M, H, W]`` with depth in
-    ``depth_m [H, W]`` (tested on the grid of every STRIDE-th pixel), the fraction whose depth,
-    moved into the ``earlier`` frame's camera by ``pose``, lies more than TAU_M outside the
-    depths it saw around there (:func:`depth_span`); NaN where fewer than :data:`MIN_TESTED`
-    could be tested."""
+    ``depth_m [H, W]`` (tested on the grid of every STRIDE-th pixel), moved into the
+    ``earlier`` frame's camera by ``pose``, the fraction that lies more than TAU_M nearer than
+    every depth that frame saw around there (:func:`depth_span`): something moved in. Pixels
+    more than TAU_M farther than every such depth were hidden then and are not tested. NaN
+    where fewer than :data:`MIN_TESTED` could be tested."""
     out = np.full(len(masks), np.nan)
     if earlier.depth_m is None or earlier.camera is None or not len(masks):
         return out
@@ -86,9 +87,11 @@ def changed_fractions(
     x1, y1 = min(int(u.max()) + r + 1, w), min(int(v.max()) + r + 1, h)
     lo, hi = depth_span(earlier.depth_m[y0:y1, x0:x1])
     low, high = lo[v - y0, u - x0], hi[v - y0, u - x0]
-    valid = np.isfinite(low)
     with np.errstate(invalid="ignore"):
-        changed = valid & ((z < low - TAU_M) | (z > high + TAU_M))
+        # the earlier frame saw nearer all around: the pixel was hidden then (a walker passing
+        # in front, or the object's own earlier place as it recedes): not tested
+        valid = np.isfinite(low) & (z <= high + TAU_M)
+        changed = valid & (z < low - TAU_M)  # it saw farther: something moved in
     for k, m in enumerate(masks):
         on = m[::STRIDE, ::STRIDE][ys, xs] & valid
         n = int(on.sum())
