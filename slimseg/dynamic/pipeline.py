@@ -14,6 +14,10 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
   with too few matched points, and every object of the first frame (no ``previous``), keep
   their prior: undecided means dynamic. Eq. 3 then counts with the corrected priors.
 
+With ``still_frames`` on and the earlier frames in ``FrameInputs.earlier``, every object the
+stillness test finds still (:mod:`slimseg.dynamic.stillness`) gets mobility 0 before any mode
+runs: a person standing still is static structure.
+
 With the track stage (:mod:`slimseg.dynamic.track`), the objects' ``mobility`` column carries
 each one's mobility (its track's moving probability, decayed per missed frame) instead of the
 class prior, ``misses`` > 0 marks the coasted masks (Eq. 4 leaves them as they are: a
