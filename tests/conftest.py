@@ -105,3 +105,19 @@ def frame_objects(boxes, classes, masks, hw, scores=None) -> Objects:
     """A frame's :class:`~slimseg.objects.Objects` from its columns (scores: all 1 if None)."""
     scores = np.ones(len(classes), np.float32) if scores is None else scores
     return Objects(boxes, scores, classes, masks, hw)
+
+
+def sideways_pose(camera, tx: float = 0.0):
+    """A :class:`~slimseg.dynamic.epipolar.PnpPose`: the camera ``(fx, fy, cx, cy)`` moved by
+    ``tx`` m along x since the earlier frame (scene points move by -tx in its frame)."""
+    from slimseg.dynamic.epipolar import PnpPose
+
+    k = np.array([[camera[0], 0, camera[2]], [0, camera[1], camera[3]], [0, 0, 1.0]])
+    return PnpPose(np.zeros((3, 1)), np.array([[-tx], [0.0], [0.0]]), np.zeros((0, 3)), k)
+
+
+def block_texture(hw: tuple[int, int], seed: int = 0) -> np.ndarray:
+    """``uint8 [H, W, 3]`` random 4x4-px blocks: a frame ORB finds corners in everywhere."""
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 256, (hw[0] // 4, hw[1] // 4, 3), dtype=np.uint8)
+    return np.repeat(np.repeat(small, 4, 0), 4, 1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import frame_objects
+from conftest import block_texture, frame_objects, sideways_pose
 
 from slimseg.dynamic.epipolar import PnpPose, PreviousFrame, orb_features
 from slimseg.dynamic.masking_settings import DEFAULT, PAPERS
@@ -23,9 +23,7 @@ WALL, WALKER, TABLE = 5.0, 3.0, 1.5
 
 
 def _pose(tx: float = 0.0) -> PnpPose:
-    """The camera moved by ``tx`` m along x: scene points move by -tx in its frame."""
-    k = np.array([[CAMERA[0], 0, CAMERA[2]], [0, CAMERA[1], CAMERA[3]], [0, 0, 1.0]])
-    return PnpPose(np.zeros((3, 1)), np.array([[-tx], [0.0], [0.0]]), np.zeros((0, 3)), k)
+    return sideways_pose(CAMERA, tx)
 
 
 def _scene(walker_x: int, table: bool = True, box_x: int = 0) -> np.ndarray:
@@ -90,9 +88,7 @@ def test_the_layer_is_the_median_of_marked_pixels_behind_the_near_layer() -> Non
 
 
 def _texture(seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    small = rng.integers(0, 256, (HW[0] // 4, HW[1] // 4, 3), dtype=np.uint8)
-    return np.repeat(np.repeat(small, 4, 0), 4, 1)
+    return block_texture(HW, seed)
 
 
 def test_camera_pose_of_a_still_camera_is_the_identity() -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import frame_objects
+from conftest import block_texture, frame_objects, sideways_pose
 
 from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.epipolar import PnpPose, PreviousFrame, orb_features
@@ -46,9 +46,7 @@ def _render(walker_dx: float, cam_x: float = 0.0) -> tuple[np.ndarray, np.ndarra
 
 
 def _pose(tx: float) -> PnpPose:
-    """The camera moved by ``tx`` m along x since the earlier frame."""
-    k = np.array([[CAMERA[0], 0, CAMERA[2]], [0, CAMERA[1], CAMERA[3]], [0, 0, 1.0]])
-    return PnpPose(np.zeros((3, 1)), np.array([[-tx], [0.0], [0.0]]), np.zeros((0, 3)), k)
+    return sideways_pose(CAMERA, tx)
 
 
 def _earlier(depth: np.ndarray) -> PreviousFrame:
@@ -56,9 +54,7 @@ def _earlier(depth: np.ndarray) -> PreviousFrame:
 
 
 def _texture() -> np.ndarray:
-    rng = np.random.default_rng(0)
-    small = rng.integers(0, 256, (HW[0] // 4, HW[1] // 4, 3), dtype=np.uint8)
-    return np.repeat(np.repeat(small, 4, 0), 4, 1)
+    return block_texture(HW)
 
 
 def test_depth_span_is_the_neighbourhood_range() -> None:

@@ -116,6 +116,11 @@ class Camera:
     cy: float
     depth_scale: float
 
+    @property
+    def pinhole(self) -> tuple[float, float, float, float]:
+        """``(fx, fy, cx, cy)`` px, as ``slimseg.Masker(camera=)`` and the chain take them."""
+        return (self.fx, self.fy, self.cx, self.cy)
+
 
 MAX_LIST_BYTES = 1 << 30  # rgb.txt / depth.txt / groundtruth.txt: ~40 bytes a line
 

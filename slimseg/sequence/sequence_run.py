@@ -49,10 +49,10 @@ def sequence_config(
     track: TrackPlan = TRACK_OFF,
 ) -> ChainConfig:
     """The chain's configuration for ``seq``: its frame rate and intrinsics (the depth cut's
-    motion layers); ``epipolar_depth``: the epipolar check's depth-aided residual too."""
-    cam = seq.camera
+    motion layers, the stillness test); ``epipolar_depth``: the epipolar check's depth-aided
+    residual too."""
     return ChainConfig(mode=mode, masking=masking, track=track, keypoints=keypoints,
-                       camera=(cam.fx, cam.fy, cam.cx, cam.cy), epipolar_depth=epipolar_depth,
+                       camera=seq.camera.pinhole, epipolar_depth=epipolar_depth,
                        fps=seq.fps)  # fmt: skip
 
 

@@ -67,7 +67,7 @@ def tum_to_bag(
                 head = Header(stamp_ns(t), FRAME_ID)
                 if camera_info:
                     size = (rgb.shape[1], rgb.shape[0])
-                    bag.write_camera_info(INFO_TOPIC, head, size, (cam.fx, cam.fy, cam.cx, cam.cy))
+                    bag.write_camera_info(INFO_TOPIC, head, size, cam.pinhole)
                 _write_colour(bag, head, rgb, colour)
                 _write_depth(bag, Header(stamp_ns(t_depth), FRAME_ID), depth_m, depth)
             for row in poses[k:]:
