@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -31,6 +32,7 @@ from slimseg.dynamic.pipeline import (
     orb_keypoints,
     process_frame,
 )
+from slimseg.dynamic.stillness import find_still
 from slimseg.objects import Objects
 
 H, W = 480, 640
@@ -127,7 +129,7 @@ def motion_layers(
     objects = Objects(boxes, scores, classes, masks, (H, W))
     inputs = FrameInputs(
         feats.keypoints, objects, depth_m=depth, descriptors=feats.descriptors,
-        previous=previous, support=feats.corners, earlier=(ten, twenty),
+        previous=previous, support=feats.corners,
     )  # fmt: skip
     off = "both off"
     arms = {
@@ -140,7 +142,11 @@ def motion_layers(
     for _ in range(30):
         for name, settings in arms.items():
             t = time.perf_counter()
-            process_frame(inputs=inputs, settings=FrameRules(mobility, "fusion", settings))
+            frame = inputs
+            if settings.still_frames:  # what the chain does with the frames 10 and 20 back
+                prior = objects.priors(mobility)
+                frame = replace(inputs, still=find_still(inputs, (ten, twenty), prior))
+            process_frame(inputs=frame, settings=FrameRules(mobility, "fusion", settings))
             times[name].append(time.perf_counter() - t)
     med = {k: 1000 * statistics.median(v) for k, v in times.items()}
     print("slimseg preset with the previous frame and the frames 10 and 20 back:")

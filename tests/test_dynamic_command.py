@@ -37,7 +37,7 @@ def test_dynamic_command_on_a_synthetic_sequence(tmp_path: Path, capsys) -> None
         assert mask.shape == (128, 160)
     rows = (out / "frames.csv").read_text().splitlines()
     assert len(rows) == len(frames) + 1
-    assert {"support", "dropped", "dropped_confident"} <= set(rows[0].split(","))
+    assert {"support", "dropped", "dropped_confident", "still"} <= set(rows[0].split(","))
     assert (out / "overlay.png").is_file()
     printed = capsys.readouterr().out
     assert "precision %" in printed and "box+depth-ransac" in printed

@@ -149,9 +149,10 @@ def test_through_the_chain_a_statue_is_given_back_after_the_window(still_frames:
             assert walker.mean() > 0.9, i
             if still_frames and i >= still_frames:
                 assert not statue.any(), i
-                assert len(out.inputs.earlier) == 2
+                assert out.inputs.still is not None and out.inputs.still.tolist() == [True, False]
             else:
                 assert statue.all(), i
+                assert out.inputs.still is None or not out.inputs.still.any(), i
 
 
 def test_the_presets_and_a_missing_key() -> None:

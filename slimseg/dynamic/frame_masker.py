@@ -42,7 +42,7 @@ from slimseg.dynamic.pipeline import (
 )
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import objects_of
-from slimseg.dynamic.stillness import compared_frames, still_priors
+from slimseg.dynamic.stillness import compared_frames, find_still
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
@@ -217,8 +217,9 @@ class FrameMasker:
                 features, got.objects, config.masking.conf, depth_m, previous, got.lag
             )
         earlier = compared_frames(self._history, config.masking.still_frames)
-        if earlier and depth_m is not None:
-            inputs = replace(inputs, earlier=earlier)
+        if earlier:  # on the chain's own ORB, before the caller's keypoints replace them
+            still = find_still(inputs, earlier, inputs.objects.priors(self.mobility))
+            inputs = replace(inputs, still=still)
         if keypoints is not None:
             inputs = self._with_keypoints(inputs, np.asarray(keypoints, np.float32))
         t3 = time.perf_counter()
@@ -299,11 +300,9 @@ class FrameMasker:
 
     def _with_keypoints(self, inputs: FrameInputs, kps: np.ndarray) -> FrameInputs:
         """The caller's keypoints classified instead of the chain's ORB; the epipolar check
-        still runs on the chain's own features (it needs their descriptors), and so does the
-        stillness test."""
+        still runs on the chain's own features (it needs their descriptors), as the stillness
+        test did before."""
         mode, odds = self.config.mode, self.config.masking.motion_odds
-        mob = still_priors(inputs, self.config.masking, inputs.objects.priors(self.mobility))
-        inputs = replace(inputs, objects=replace(inputs.objects, mobility=mob))
         weighed = mode in WEIGHED_MODES and odds > 1
         if inputs.evidence is None and (mode in EPIPOLAR_MODES or weighed):
             mob = inputs.objects.mobility

@@ -14,8 +14,8 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
   with too few matched points, and every object of the first frame (no ``previous``), keep
   their prior: undecided means dynamic. Eq. 3 then counts with the corrected priors.
 
-With ``still_frames`` on and the earlier frames in ``FrameInputs.earlier``, every object the
-stillness test finds still (:mod:`slimseg.dynamic.stillness`) gets mobility 0 before any mode
+Objects the stillness test found still (``FrameInputs.still``; the chain runs
+:mod:`slimseg.dynamic.stillness` with ``still_frames`` on) get mobility 0 before any mode
 runs: a person standing still is static structure.
 
 With the track stage (:mod:`slimseg.dynamic.track`), the objects' ``mobility`` column carries
@@ -49,7 +49,6 @@ from slimseg.dynamic.seg_box import (
     dilate_masks,
     fuse_seg_box,
 )
-from slimseg.dynamic.stillness import still_priors
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 from slimseg.objects import Objects
 
@@ -110,9 +109,9 @@ class FrameInputs:
     """``float32 [P, 2]`` corners the SLAM engine can take outside a mask (the ``degrade``
     rule's static support, :func:`slimseg.dynamic.degrade.support_points`; None: the
     keypoints)"""
-    earlier: tuple[PreviousFrame, ...] = ()
-    """the earlier frames the stillness test compares with (``still_frames`` back and half as
-    many, :func:`slimseg.dynamic.stillness.compared_frames`; empty: no test)"""
+    still: np.ndarray | None = None
+    """``bool [M]``: the objects the stillness test found still, mobility 0 in every mode
+    (:func:`slimseg.dynamic.stillness.find_still`; None: not tested)"""
 
     @property
     def hw(self) -> tuple[int, int]:
@@ -175,7 +174,9 @@ def process_modes(
     bad = [m for m in modes if m not in MODES]
     if bad:
         raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
-    mob = still_priors(inputs, settings.masking, inputs.objects.priors(settings.class_mobility))
+    mob = inputs.objects.priors(settings.class_mobility)
+    if inputs.still is not None and inputs.still.any():  # standing still: static structure
+        mob = np.where(inputs.still, np.float32(0.0), mob).astype(mob.dtype)
     check = weighed = None
     moved = MotionLayers.of(inputs, settings.masking)
     if inputs.evidence is not None:

@@ -43,7 +43,6 @@ from slimseg.dynamic.occupancy import (
 )
 
 if TYPE_CHECKING:
-    from slimseg.dynamic.masking_settings import MaskingSettings
     from slimseg.dynamic.pipeline import FrameInputs
 
 # Frames of history the slimseg preset asks for (its still_frames; docs/slam_defaults.md §5).
@@ -136,20 +135,16 @@ def still_objects(
     return still
 
 
-def still_priors(inputs: FrameInputs, masking: MaskingSettings, mob: np.ndarray) -> np.ndarray:
-    """``mob [M]`` with the objects found still (:func:`still_objects`, those with mobility
-    above 0) set to 0; unchanged where ``still_frames`` is 0 or the frame lacks depth, ORB
-    descriptors, instance masks or the earlier frames (:func:`compared_frames`)."""
+def find_still(
+    inputs: FrameInputs, earlier: Sequence[PreviousFrame], mobility: np.ndarray
+) -> np.ndarray | None:
+    """``bool [M]``: the frame's objects with ``mobility [M]`` above 0 that
+    :func:`still_objects` finds still against the ``earlier`` frames
+    (:func:`compared_frames`); None where the test cannot run: no earlier frames, no depth,
+    no ORB descriptors (the caller's keypoints) or no instance masks."""
     masks, depth = inputs.objects.masks, inputs.depth_m
-    if masking.still_frames <= 0 or not inputs.earlier or masks is None or depth is None:
-        return mob
-    if inputs.descriptors is None or not (mob > 0).any():
-        return mob
+    if not earlier or masks is None or depth is None or inputs.descriptors is None:
+        return None
     current = OrbFeatures(np.asarray(inputs.keypoints, np.float32).reshape(-1, 2),
                           inputs.descriptors)  # fmt: skip
-    still = still_objects(depth, current, inputs.earlier, np.asarray(masks, bool), mob > 0)
-    if not still.any():
-        return mob
-    out = np.array(mob, copy=True)
-    out[still] = 0.0
-    return out
+    return still_objects(depth, current, earlier, np.asarray(masks, bool), mobility > 0)

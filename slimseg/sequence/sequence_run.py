@@ -160,6 +160,7 @@ def _loop(
                 "support": result.support,
                 "dropped": len(result.dropped),
                 "dropped_confident": confident,
+                "still": 0 if f.inputs.still is None else int(f.inputs.still.sum()),
                 "dynamic_frame": result.dynamic_frame,
                 "used_seg": result.used_seg,
                 "detections": len(objects),
