@@ -71,7 +71,7 @@ def test_a_loop_over_the_chain_writes_what_slimseg_dynamic_writes(
 ) -> None:
     run_sequence(AnnotationInstances(sequence), sequence, tmp_path, "fusion", progress=False)
     seq = TumSequence(sequence)
-    with _masker(sequence, fps=seq.fps) as m:
+    with _masker(sequence, fps=seq.fps, camera=seq.camera.pinhole) as m:
         for i in range(len(seq)):
             out = m.step(*seq.load(i))
             written = cv2.imread(str(tmp_path / "masks" / mask_name(out.stamp)), 0)
