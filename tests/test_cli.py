@@ -59,10 +59,12 @@ def test_errors_are_one_line_and_nonzero(argv: list[str], needle: str) -> None:
 
 @pytest.mark.slow
 def test_demo_end_to_end_small(tmp_path) -> None:
-    """The README's main job, shrunk: 1 epoch is not a multiple of val_every (3), so the
-    final weights must still be validated and written."""
+    """The README's main job, shrunk (one training and one validation world, still images
+    mixed in): 1 epoch is not a multiple of val_every (3), so the final weights must still be
+    validated and written."""
     out = tmp_path / "demo"
-    argv = ["demo", "--out", str(out), "--epochs", "1", "--train-images", "8", "--no-slam"]
+    argv = ["demo", "--out", str(out), "--epochs", "1", "--train-images", "8", "--no-slam",
+            "--seq-train", "1", "--seq-val", "1", "--slam-size", "320", "240"]  # fmt: skip
     assert main([*argv, "--val-images", "4", "--imgsz", "96", "--quiet"]) == 0
     for rel in ("results.png", "predictions.png", "metrics.json", "train/weights/best.pt"):
         assert (out / rel).is_file(), rel
