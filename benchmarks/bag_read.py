@@ -109,13 +109,12 @@ def write_foxglove(folder: Path, out: Path, compress: bool) -> None:
     from slimseg.data.tum import TumSequence
 
     seq = TumSequence(folder)
-    c = seq.camera
     with FoxgloveWriter(out, compress=compress) as w:
         for i in range(len(seq)):
             rgb, depth_m, t = seq.load(i)
             head = Header(stamp_ns(t), "camera")
             w.write_calibration("/camera/color/camera_info", head, (rgb.shape[1], rgb.shape[0]),
-                                (c.fx, c.fy, c.cx, c.cy))  # fmt: skip
+                                seq.camera.pinhole)  # fmt: skip
             w.write_image("/camera/color/image_raw", head, rgb, "rgb8")
             mm = np.round(depth_m * 1000).astype(np.uint16)
             w.write_image("/camera/depth/image_raw", Header(stamp_ns(seq.frames[i][1][0]),

@@ -61,7 +61,7 @@ def main() -> None:
         )
         seq_dir = Path(tmp) / "sequences" / "seq_000"
         seq, ann = TumSequence(seq_dir), AnnotationInstances(seq_dir)
-        cam = (seq.camera.fx, seq.camera.fy, seq.camera.cx, seq.camera.cy)
+        cam = seq.camera.pinhole
         frames = []
         for i in range(len(seq)):
             rgb, depth, stamp = seq.load(i)
