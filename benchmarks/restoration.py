@@ -47,6 +47,11 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=31)
     ap.add_argument("--targets", type=int, default=5)
     args = ap.parse_args()
+    if args.targets < 1 or args.frames < args.targets + 2:
+        ap.error(
+            f"--frames {args.frames} --targets {args.targets}: the targets are middle frames "
+            "with a neighbour on each side, so give --targets >= 1 and --frames >= --targets + 2"
+        )
     with tempfile.TemporaryDirectory() as tmp:
         generate(
             Path(tmp),
