@@ -102,7 +102,7 @@ class TrackedSequence:
         were computed ``lag`` frames ago (a model on its own thread); they are moved into
         this frame by the camera motions in between first."""
         t0 = time.perf_counter()
-        pairs = None  # the epipolar check needs every match; camera motion alone a subset
+        pairs = None  # matched once and shared where the epipolar check needs them too
         if previous is not None and self.mode in EPIPOLAR_MODES:
             pairs = match_features(previous.features, features)
         motion = CameraMotion.identity()

@@ -1,0 +1,60 @@
+"""The track stage's camera motion on rendered frames of a fast-turning camera."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slimseg.data.synth.sequence import render_sequence_frame
+from slimseg.data.synth.world import build_world
+from slimseg.dynamic.camera_motion import estimate_motion
+from slimseg.dynamic.epipolar import orb_features
+
+STEP_PX = 8  # static pixels sampled on this grid
+
+
+def _static_flow(world, i: int, frame, dynamic: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(xy, uv) float64 [N, 2]``: static pixels of frame ``i - 1`` with depth and where the
+    renderer's poses put them in frame ``i``."""
+    k = world.k
+    h, w = dynamic.shape
+    ys, xs = np.mgrid[0:h:STEP_PX, 0:w:STEP_PX].reshape(2, -1)
+    z = frame.depth_m[ys, xs].astype(np.float64)
+    ok = (z > 0) & ~dynamic[ys, xs]
+    xs, ys, z = xs[ok], ys[ok], z[ok]
+    p0, p1 = world.pose(i - 1), world.pose(i)
+    r1 = p1.rotation()
+    cam0 = np.stack([(xs - k.cx) * z / k.fx, (ys - k.cy) * z / k.fy, z], 1)
+    world_pts = cam0 @ p0.rotation().T + np.array([p0.x, p0.y, p0.z])
+    cam1 = (world_pts - np.array([p1.x, p1.y, p1.z])) @ r1
+    uv = np.stack([cam1[:, 0] / cam1[:, 2] * k.fx + k.cx, cam1[:, 1] / cam1[:, 2] * k.fy + k.cy], 1)
+    return np.stack([xs, ys], 1).astype(np.float64), uv
+
+
+def _mover_boxes(frame) -> np.ndarray:
+    """``float64 [K, 4]`` xyxy boxes of the moving instances' visible pixels."""
+    out = []
+    for j, p in enumerate(frame.placements):
+        ys, xs = np.nonzero(frame.labels == j + 1)
+        if p.moving and len(xs):
+            out.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+    return np.array(out, np.float64).reshape(-1, 4)
+
+
+def test_camera_motion_follows_a_fast_turn() -> None:
+    """Twenty frame pairs of two walking_rpy worlds (640x480, 20 ms motion blur), the walkers'
+    boxes left out of the fit: the similarity is fitted in 14 of them and moves static pixels
+    to within a median 2.2 px of where the camera's turn puts them. Matching every fourth
+    feature of each frame, as before, fitted none (the identity: a median 15 px off)."""
+    errors, fitted = [], 0
+    for seed in (4, 5):
+        world = build_world(seed, 0, 40, preset="walking_rpy")
+        for i in range(3, 40, 4):
+            a, b = (render_sequence_frame(world, j) for j in (i - 1, i))
+            motion = estimate_motion(
+                orb_features(a.frame.rgb), orb_features(b.frame.rgb), _mover_boxes(b.frame)
+            )
+            fitted += motion.ok
+            xy, uv = _static_flow(world, i, a.frame, a.dynamic > 0)
+            errors.append(np.median(np.linalg.norm(motion.points(xy) - uv, axis=1)))
+    assert fitted >= 12, errors
+    assert np.median(errors) < 3.0, errors
