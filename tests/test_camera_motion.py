@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from slimseg.data.synth.camera import project
 from slimseg.data.synth.sequence import render_sequence_frame
 from slimseg.data.synth.world import build_world
 from slimseg.dynamic.camera_motion import estimate_motion
@@ -21,12 +22,9 @@ def _static_flow(world, i: int, frame, dynamic: np.ndarray) -> tuple[np.ndarray,
     z = frame.depth_m[ys, xs].astype(np.float64)
     ok = (z > 0) & ~dynamic[ys, xs]
     xs, ys, z = xs[ok], ys[ok], z[ok]
-    p0, p1 = world.pose(i - 1), world.pose(i)
-    r1 = p1.rotation()
+    p0 = world.pose(i - 1)
     cam0 = np.stack([(xs - k.cx) * z / k.fx, (ys - k.cy) * z / k.fy, z], 1)
-    world_pts = cam0 @ p0.rotation().T + np.array([p0.x, p0.y, p0.z])
-    cam1 = (world_pts - np.array([p1.x, p1.y, p1.z])) @ r1
-    uv = np.stack([cam1[:, 0] / cam1[:, 2] * k.fx + k.cx, cam1[:, 1] / cam1[:, 2] * k.fy + k.cy], 1)
+    uv, _ = project(k, world.pose(i), cam0 @ p0.rotation().T + p0.position())
     return np.stack([xs, ys], 1).astype(np.float64), uv
 
 
