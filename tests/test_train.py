@@ -257,3 +257,33 @@ def test_freeze_with_an_unknown_part_fails_before_any_write(
         == 2
     )
     assert not (tmp_path / "r").exists()
+
+
+def test_best_weights_are_written_before_last(tmp_path: Path, monkeypatch) -> None:
+    """``weights/last.pt`` at the last epoch tells a resumed sweep the run is trained: a run
+    killed between the two writes must not have a last.pt without its best.pt (a Ray worker
+    killed there left an arm that no retry could finish)."""
+    from types import SimpleNamespace
+
+    from slimseg.engine import train as train_mod
+
+    written: list[str] = []
+
+    def save(path: Path, model: object, info: object) -> None:
+        written.append(path.name)
+        if len(written) == 1:
+            raise KeyboardInterrupt  # the node dies after the first write
+
+    monkeypatch.setattr(train_mod, "save_weights", save)
+    writer = train_mod.RunWriter(tmp_path)
+    metrics = {"val/mask_map50_95": torch.tensor(0.0)}
+    trainer = SimpleNamespace(
+        is_global_zero=True, sanity_checking=False, current_epoch=2, callback_metrics=metrics
+    )
+    module = SimpleNamespace(
+        cfg=TrainConfig(epochs=3), spec=None, names=["person"], mobility=[1.0],
+        last_metrics={}, eval_model=None,
+    )  # fmt: skip
+    with pytest.raises(KeyboardInterrupt):
+        writer.on_validation_end(trainer, module)
+    assert written == ["best.pt"]

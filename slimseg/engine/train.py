@@ -61,8 +61,8 @@ QUIET_WARNINGS = (
 
 
 class RunWriter(L.Callback):
-    """After each validation (rank 0): ``weights/last.pt``, ``best.pt`` (highest mask
-    mAP50-95, box for detection-only models, mIoU for semantic models) and a ``results.csv``
+    """After each validation (rank 0): ``weights/best.pt`` (highest mask mAP50-95, box for
+    detection-only models, mIoU for semantic models), then ``last.pt``, and a ``results.csv``
     row."""
 
     def __init__(self, out: Path) -> None:
@@ -85,10 +85,13 @@ class RunWriter(L.Callback):
             metrics=module.last_metrics,
             train_config=dataclasses.asdict(module.cfg),
         )
-        save_weights(self.out / "weights" / "last.pt", module.eval_model, info)
+        # best.pt first: last.pt holding the recipe's last epoch is what tells a resumed sweep
+        # the run is trained (ablate.sweep.trained_epochs); a run killed between the two
+        # writes must not look finished without its best.pt
         if score > self.best:  # best = highest mIoU / mask mAP50-95 / box mAP50-95
             self.best = score
             save_weights(self.out / "weights" / "best.pt", module.eval_model, info)
+        save_weights(self.out / "weights" / "last.pt", module.eval_model, info)
         row = {"epoch": epoch}
         row |= {k: round(float(v), 6) for k, v in metrics.items() if "/" in k}
         path = self.out / "results.csv"
