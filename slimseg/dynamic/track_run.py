@@ -102,11 +102,10 @@ class TrackedSequence:
         were computed ``lag`` frames ago (a model on its own thread); they are moved into
         this frame by the camera motions in between first."""
         t0 = time.perf_counter()
-        pairs = None  # matched once and shared where the epipolar check needs them too
-        if previous is not None and self.mode in EPIPOLAR_MODES:
-            pairs = match_features(previous.features, features)
+        pairs = None  # matched once: the camera motion and the epipolar check share them
         motion = CameraMotion.identity()
         if previous is not None:
+            pairs = match_features(previous.features, features)
             boxes = [] if dets is None else [dets.boxes]
             boxes += [t.kf.box[None] for t in self.tracker.tracks]
             objects = np.concatenate(boxes) if boxes else None
