@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from slimseg.data.augment import masks_to_boxes
 from slimseg.data.synth.camera import project
 from slimseg.data.synth.sequence import render_sequence_frame
 from slimseg.data.synth.world import build_world
@@ -29,13 +30,11 @@ def _static_flow(world, i: int, frame, dynamic: np.ndarray) -> tuple[np.ndarray,
 
 
 def _mover_boxes(frame) -> np.ndarray:
-    """``float64 [K, 4]`` xyxy boxes of the moving instances' visible pixels."""
-    out = []
-    for j, p in enumerate(frame.placements):
-        ys, xs = np.nonzero(frame.labels == j + 1)
-        if p.moving and len(xs):
-            out.append([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
-    return np.array(out, np.float64).reshape(-1, 4)
+    """``float32 [K, 4]`` xyxy boxes of the moving instances' visible pixels."""
+    movers = [j + 1 for j, p in enumerate(frame.placements) if p.moving]
+    masks = np.stack([frame.labels == j for j in movers]) if movers else np.zeros((0, 1, 1))
+    boxes = masks_to_boxes(masks)
+    return boxes[(boxes[:, 2:] > boxes[:, :2]).all(1)]  # the visible ones
 
 
 def test_camera_motion_follows_a_fast_turn() -> None:
