@@ -137,6 +137,7 @@ class FrameMasker:
             self.stage = TrackedSequence(
                 config.track.settings, self.mobility, mode=config.mode,
                 mover_prior=self.rules.mover_prior, fps=config.fps,
+                motion_odds=config.masking.motion_odds,
             )  # fmt: skip
         degrade = config.masking.rule == "degrade"  # the corners: its static support
         self.extract = extractor or (

@@ -48,6 +48,12 @@ def weigh_motion(
         p = float(out[k])
         if not dec or p <= 0.0 or p >= 1.0:
             continue
-        ratio = odds if mov else 1.0 / odds
-        out[k] = p * ratio / (p * ratio + 1.0 - p)
+        out[k] = weigh_odds(p, bool(mov), odds)
     return out
+
+
+def weigh_odds(p: float, moving: bool, odds: float) -> float:
+    """One mobility ``0 < p < 1`` after a decided check: its odds times ``odds`` (moving)
+    or divided by them (static)."""
+    ratio = odds if moving else 1.0 / odds
+    return p * ratio / (p * ratio + 1.0 - p)

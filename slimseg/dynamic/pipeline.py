@@ -126,6 +126,9 @@ class MotionEvidence:
 
     result: EpipolarResult | None
     checked: list[int]
+    weighed: bool = False
+    """the check's decisions were weighed in at the motion odds (seg, fusion), not applied
+    as the epipolar modes' verdict"""
 
 
 @dataclass(frozen=True)
@@ -179,7 +182,7 @@ def process_modes(
         mob = np.where(inputs.still, np.float32(0.0), mob).astype(mob.dtype)
     check = weighed = None
     moved = MotionLayers.of(inputs, settings.masking)
-    if inputs.evidence is not None:
+    if inputs.evidence is not None and not inputs.evidence.weighed:
         check = mob, inputs.evidence.result, inputs.evidence.checked
     out = {}
     for mode in modes:

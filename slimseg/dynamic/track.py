@@ -54,6 +54,7 @@ from slimseg.dynamic.mask_patch import (
     whole_pixel_shift,
 )
 from slimseg.dynamic.modes import FPS
+from slimseg.dynamic.motion_evidence import weigh_odds
 from slimseg.dynamic.track_geometry import (
     box_iou,
     box_iou_matrix,
@@ -376,6 +377,36 @@ class Tracker:
                 continue
             t.p = (1 - self.s.p_alpha) * t.p + self.s.p_alpha * float(mov)
             mob[k] = t.mobility(self.s.coast_decay)
+        return mob
+
+    def beliefs(self, frame: Objects) -> np.ndarray:
+        """``float32 [M]``: what is believed of each object's motion: its track's moving
+        probability ``p`` (its emitted mobility is ``p`` times ``coast_decay`` per miss), the
+        emitted mobility of an untracked one."""
+        by_id = {t.id: t.p for t in self.tracks}
+        ids = frame.track_ids.tolist()
+        return np.array([by_id.get(int(i), m) for i, m in zip(ids, frame.mobility.tolist(),
+                                                           strict=True)], np.float32)  # fmt: skip
+
+    def weigh_motion(
+        self,
+        frame: Objects,
+        checked: list[int],
+        decided: np.ndarray,
+        moving: np.ndarray,
+        odds: float,
+    ) -> np.ndarray:
+        """The motion odds of the seg and fusion modes (:mod:`slimseg.dynamic.motion_evidence`)
+        on the objects ``checked``: a decided check weighs the belief (:meth:`beliefs`), and
+        a coasted mask keeps its decay on top, so a person (``p`` 1) is beyond argument while
+        it coasts as while it is detected. ``p`` itself is not updated (the odds are this
+        frame's evidence, as without the track stage). Returns ``mobility float32 [M]``."""
+        belief = self.beliefs(frame)
+        mob = frame.mobility.copy()
+        for k, dec, mov in zip(checked, decided, moving, strict=True):
+            if dec and 0.0 < belief[k] < 1.0:
+                decay = self.s.coast_decay ** int(frame.misses[k])
+                mob[k] = weigh_odds(float(belief[k]), bool(mov), odds) * decay
         return mob
 
     def _frame(self, objs: list[Emitted], hw, det_masks) -> Objects:

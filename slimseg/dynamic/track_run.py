@@ -19,7 +19,8 @@ import numpy as np
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.mask_patch import clip_patch, patch_from_mask, warp_patch
-from slimseg.dynamic.modes import EPIPOLAR_MODES, FPS, Mode
+from slimseg.dynamic.modes import EPIPOLAR_MODES, FPS, WEIGHED_MODES, Mode
+from slimseg.dynamic.motion_evidence import uncertain
 from slimseg.dynamic.object_motion import (
     inside_boxes,
     inside_patches,
@@ -75,10 +76,12 @@ class TrackedSequence:
         mode: Mode,
         mover_prior: float,
         fps: float = FPS,
+        motion_odds: float = 1.0,
     ) -> None:
         self.tracker = Tracker(settings, class_mobility, fps=fps, mover_prior=mover_prior)
         self.mode = mode
         self.mover_prior = mover_prior
+        self.motion_odds = motion_odds
         self.seconds = 0.0
         self.frames = 0
         self.motion_ok = 0
@@ -144,6 +147,16 @@ class TrackedSequence:
             if ev.result is not None:
                 r = ev.result
                 mob = self.tracker.observe_motion(frame, ev.checked, r.decided, r.moving)
+            inputs = replace(inputs, objects=replace(frame, mobility=mob), evidence=ev)
+        elif self.mode in WEIGHED_MODES and self.motion_odds > 1 and frame.masks is not None:
+            belief = self.tracker.beliefs(frame)  # the odds weigh what is believed, not decayed
+            ev = epipolar_evidence(inputs, np.where(uncertain(belief), belief, 0.0), 0.0, pairs)
+            mob = frame.mobility
+            if ev.result is not None:
+                r = ev.result
+                mob = self.tracker.weigh_motion(frame, ev.checked, r.decided, r.moving,
+                                                self.motion_odds)  # fmt: skip
+            ev = replace(ev, weighed=True)
             inputs = replace(inputs, objects=replace(frame, mobility=mob), evidence=ev)
         self.seconds += time.perf_counter() - t0
         self.frames += 1
