@@ -32,7 +32,8 @@ from slimseg.deploy.predict_postprocess import instance_predictions, semantic_pr
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.raw_dump import frame_dump, read_raw, write_raw
 from slimseg.dynamic.epipolar import orb_features
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.frame_inputs import FrameInputs
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 from slimseg.dynamic.semantic import objects_of
 from slimseg.ops.letterbox import letterbox_params
 from slimseg.ops.nms import MAX_DET, NMS_IOU

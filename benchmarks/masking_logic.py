@@ -24,10 +24,10 @@ import numpy as np
 
 from slimseg.dynamic.degrade import support_points
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import DEFAULT, PRESETS
 from slimseg.dynamic.pipeline import (
     MODES,
-    FrameInputs,
     FrameRules,
     orb_keypoints,
     process_frame,

@@ -62,7 +62,7 @@ class Env:
 
     def dynamic(self, seq: Path, out: Path, *extra: str) -> list[str]:
         return ["dynamic", "--model", str(self.weights), "--sequence", str(seq), "--out",
-                str(out), "--conf", "0", "--threads", "1", "--quiet", *extra]  # fmt: skip
+                str(out), "--set", "conf=0", "--threads", "1", "--quiet", *extra]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

@@ -63,7 +63,7 @@ class Env:
 
     def dynamic(self, seq: Path, out: Path, *extra: str) -> list[str]:
         return ["dynamic", "--model", str(self.weights), "--sequence", str(seq), "--out",
-                str(out), "--conf", "0", "--threads", "1", "--quiet", *extra]  # fmt: skip
+                str(out), "--set", "conf=0", "--threads", "1", "--quiet", *extra]  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -236,7 +236,7 @@ def test_bag2tum_writes_the_pose_topic_as_groundtruth(env: Env, tmp_path: Path) 
 def test_slam_eval_on_a_bag_scores_as_on_the_folder(env: Env, tmp_path: Path, capsys) -> None:
     pytest.importorskip("evo")
     base = ["slam-eval", "--engine", "dense", "--modes", "raw,fusion", "--json", "--quiet"]
-    base += ["--model", str(env.weights), "--conf", "0", "--threads", "1"]
+    base += ["--model", str(env.weights), "--set", "conf=0", "--threads", "1"]
     ates = []
     for k, source in enumerate((
         [str(env.seq)],

@@ -32,8 +32,9 @@ from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.preprocess import preprocess_frame
 from slimseg.deploy.raw_dump import frame_dump, read_raw, write_raw
 from slimseg.detections import Prediction
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
-from slimseg.dynamic.pipeline import FrameInputs, FrameResult, FrameRules, process_frame
+from slimseg.dynamic.pipeline import FrameResult, FrameRules, process_frame
 from slimseg.dynamic.semantic import objects_of
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
@@ -433,8 +434,8 @@ def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_
     # the dumps carry no depth (predict reads colour frames) and the C++ core runs no epipolar
     # check: slimseg dynamic without the depth cut and the motion evidence (both pinned with
     # depth and keypoints by the parity tests above)
-    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet", "--cut-behind", "0",
-            "--motion-odds", "1"]  # fmt: skip
+    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet",
+            "--set", "cut_behind_m=0", "motion_odds=1"]  # fmt: skip
     assert main([*argv, "--out", str(tmp_path / "dyn")]) == 0
     cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
     done = subprocess.run([*cmd, "--out", str(out), "--frames", str(dumps)], capture_output=True)

@@ -11,8 +11,9 @@ import pytest
 from conftest import frame_objects
 
 from slimseg.dynamic.degrade import degrade, support_points
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS, PRESETS, SLIMSEG, SettingsError
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 
 HW = (60, 80)
 MOBILITY = np.array([1.0], np.float32)  # one class: person
@@ -120,7 +121,7 @@ def test_presets_and_settings() -> None:
 def test_cli_refuses_an_unknown_rule_in_one_line(tmp_path) -> None:
     r = subprocess.run(
         [sys.executable, "-m", "slimseg", "dynamic", "--sequence", str(tmp_path),
-         "--model", str(tmp_path / "m.onnx"), "--rule", "sometimes"],
+         "--model", str(tmp_path / "m.onnx"), "--set", "rule=sometimes"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert r.returncode == 2

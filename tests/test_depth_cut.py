@@ -8,8 +8,9 @@ import numpy as np
 from conftest import frame_objects
 
 from slimseg.dynamic.depth_cut import cut_behind, reference_depths
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 
 HW = (60, 80)
 

@@ -29,7 +29,7 @@ def test_dynamic_command_on_a_synthetic_sequence(tmp_path: Path, capsys) -> None
     weights = save_weights(tmp_path / "w.pt", model, info)
     out = tmp_path / "out"
     argv = ["dynamic", "--model", str(weights), "--sequence", str(seq), "--out", str(out)]
-    assert main([*argv, "--conf", "0.0", "--min-static", "5", "--quiet"]) == 0
+    assert main([*argv, "--set", "conf=0.0", "min_static=5", "--quiet"]) == 0
     frames = TumSequence(seq)
     for i in range(len(frames)):
         _, _, stamp = frames.load(i)
@@ -118,8 +118,8 @@ def test_the_rules_report_what_they_gave_up(small_sequence: Path, tmp_path: Path
     """Support that can never suffice: Eq. 1 gives up every frame with a walker, the degrading
     rule never drops a ground-truth instance (score 1 >= keep_score)."""
     base = ["dynamic", "--gt-instances", "--sequence", str(small_sequence), "--quiet",
-            "--min-static", "100000", "--mode", "seg"]  # fmt: skip
-    assert main([*base, "--out", str(tmp_path / "eq1"), "--rule", "eq1"]) == 0
+            "--set", "min_static=100000", "--mode", "seg"]  # fmt: skip
+    assert main([*base, "--out", str(tmp_path / "eq1"), "--set", "rule=eq1"]) == 0
     eq1 = capsys.readouterr().out
     assert main([*base, "--out", str(tmp_path / "deg")]) == 0
     deg = capsys.readouterr().out

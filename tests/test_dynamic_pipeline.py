@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from conftest import frame_objects
 
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS
 from slimseg.dynamic.pipeline import (
     MODES,
-    FrameInputs,
     FrameRules,
     orb_keypoints,
     process_frame,

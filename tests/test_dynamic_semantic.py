@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.frame_inputs import FrameInputs
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 from slimseg.dynamic.semantic import class_map_to_instances, objects_of
 
 

@@ -19,8 +19,9 @@ from slimseg.dynamic.epipolar import (
     epipolar_distance,
     orb_features,
 )
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 
 H, W = 240, 320
 FB = 12.0  # focal length (px) × baseline (m) of the camera step

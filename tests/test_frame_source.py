@@ -103,7 +103,7 @@ def test_commands_close_every_recording_they_open(
     for kind in ("bag", "mcap"):
         source = str(made[kind])
         assert main(["dynamic", *model, "--sequence", source, "--out",
-                     str(tmp_path / f"dyn_{kind}"), "--conf", "0"]) == 0  # fmt: skip
+                     str(tmp_path / f"dyn_{kind}"), "--set", "conf=0"]) == 0  # fmt: skip
         # refused after the recording was opened: a bag has no ground-truth instances
         assert main(["dynamic", "--gt-instances", "--sequence", source, "--out",
                      str(tmp_path / f"gt_{kind}")]) == 2  # fmt: skip

@@ -149,17 +149,17 @@ def test_run_sequence_with_the_model_on_its_own_thread(sequence: Path, tmp_path:
 def test_cli_rates_and_their_errors(sequence: Path, tmp_path: Path, capsys) -> None:
     base = ["dynamic", "--gt-instances", "--sequence", str(sequence), "--mode", "seg",
             "--quiet", "--out", str(tmp_path / "o")]  # fmt: skip
-    assert main([*base, "--track", "--model-thread", "--fps", "0"]) == 0
+    assert main([*base, "--track", "--rate", "thread", "--fps", "0"]) == 0
     text = capsys.readouterr().out
     assert "latency per frame (model on its own thread)" in text and "replay kept up" in text
     assert "track stage per frame by part (ms): motion" in text
-    assert main([*base, "--track", "--budget-ms", "50"]) == 0
+    assert main([*base, "--track", "--rate", "budget:50"]) == 0
     assert "budget of 50 ms" in capsys.readouterr().out
     for bad, msg in (
-        (["--fps", "5"], "add --model-thread"),
-        (["--track", "--model-thread", "--fps", "-1"], "--fps -1"),
-        (["--track", "--budget-ms", "10", "--segment-every", "2"], "give one way"),
-        (["--model-thread"], "needs the track stage"),
+        (["--fps", "5"], "add --rate thread"),
+        (["--track", "--rate", "thread", "--fps", "-1"], "--fps -1"),
+        (["--track", "--rate", "budget:10", "--rate", "2"], "give one way"),
+        (["--rate", "thread"], "needs the track stage"),
     ):
         assert main([*base, *bad]) == 2
         err = capsys.readouterr().err

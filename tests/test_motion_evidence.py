@@ -9,9 +9,10 @@ from conftest import frame_objects
 from test_epipolar import H, W, _on, _pair
 
 from slimseg.dynamic.epipolar import PreviousFrame
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS, SLIMSEG, SettingsError
 from slimseg.dynamic.motion_evidence import weigh_motion
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 
 
 def test_odds_by_hand() -> None:

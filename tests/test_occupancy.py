@@ -7,6 +7,7 @@ import pytest
 from conftest import block_texture, frame_objects, sideways_pose
 
 from slimseg.dynamic.epipolar import PnpPose, PreviousFrame, orb_features
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import DEFAULT, PAPERS
 from slimseg.dynamic.occupancy import (
     STRIDE,
@@ -15,7 +16,7 @@ from slimseg.dynamic.occupancy import (
     moved_in,
     nearest_before,
 )
-from slimseg.dynamic.pipeline import FrameInputs, FrameRules, process_frame
+from slimseg.dynamic.pipeline import FrameRules, process_frame
 
 HW = (120, 160)
 CAMERA = (100.0, 100.0, 79.5, 59.5)

@@ -155,14 +155,14 @@ def test_folder_coasts_the_missed_walker(scripted, tmp_path, capsys):
 def test_segment_every_runs_the_model_on_half_the_frames(scripted, tmp_path, capsys):
     src, out = _folder(tmp_path), tmp_path / "out"
     argv = ["predict", "--model", "m.onnx", "--source", str(src), "--out", str(out)]
-    assert main([*argv, "--track", "--segment-every", "2", "--quiet"]) == 0
+    assert main([*argv, "--track", "--rate", "2", "--quiet"]) == 0
     assert "8 frame(s) (model on 4)" in capsys.readouterr().out
     assert scripted.calls == [0, 2, 4, 6]
     rows = _read_tracks(out, [f"{i:04d}" for i in range(8)])
     carried = {int(r["frame"]) for r in rows if r["source"] == "carried"}
     assert carried and carried <= {1, 3, 5, 7}
-    # without --track, --segment-every is refused in one line
-    assert main([*argv, "--segment-every", "2"]) == 2
+    # without --track, --rate is refused in one line
+    assert main([*argv, "--rate", "2"]) == 2
     assert "needs the track stage" in capsys.readouterr().err
 
 
@@ -242,7 +242,7 @@ def test_real_model_on_a_folder_and_a_video(tiny_weights, tmp_path, capsys):
     writer.release()
     out = tmp_path / "video"
     argv = [*base, "--source", str(video), "--out", str(out), "--track", "no-coast"]
-    assert main([*argv, "--segment-every", "3", "--quiet"]) == 0
+    assert main([*argv, "--rate", "3", "--quiet"]) == 0
     assert "6 frame(s) (model on 2)" in capsys.readouterr().out
     _read_tracks(out, [f"frame_{i:06d}" for i in range(6)])
     assert Image.open(out / "tracks.gif").n_frames == 6

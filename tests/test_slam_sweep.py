@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from slimseg.cli.masking_args import add_masking_args, masking_from_args
 
 from slimseg.cli.main import main
-from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence
 from slimseg.deploy.metadata import (
@@ -93,10 +93,10 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys) -> None:
             "--gt-instances", "--engine", "dense"]  # fmt: skip
     cases = [
         (["--sweep", "bogus=1"], "unknown key 'bogus'"),
-        (["--sweep", "dilation=x"], "'x' is not a whole number"),
-        (["--sweep", "dilation=1", "--modes", "seg,fusion"], "exactly one mask mode"),
-        (["--sweep", "dilation=1", "--modes", "oracle"], "a sweep takes one mask mode"),
-        (["--sweep", "dilation=1", "--restore"], "--restore is not swept"),
+        (["--sweep", "dilation_px=x"], "'x' is not a whole number"),
+        (["--sweep", "dilation_px=1", "--modes", "seg,fusion"], "exactly one mask mode"),
+        (["--sweep", "dilation_px=1", "--modes", "oracle"], "a sweep takes one mask mode"),
+        (["--sweep", "dilation_px=1", "--restore"], "--restore is not swept"),
         (["--conf", "2"], "masking setting conf = 2.0"),
         (["--sequence", str(tmp_path)], "several --sequence values need --sweep"),
     ]
@@ -275,7 +275,7 @@ def test_outputs_are_atomic(seq: Path, tmp_path: Path, monkeypatch, capsys) -> N
     monkeypatch.setattr(Figure, "savefig", broken)
     out = tmp_path / "o"
     args = ["slam-eval", "--sequence", str(seq), "--gt-instances", "--engine", "dense",
-            "--sweep", "dilation=0", "--out", str(out), "--quiet"]  # fmt: skip
+            "--sweep", "dilation_px=0", "--out", str(out), "--quiet"]  # fmt: skip
     assert main(args) == 2  # an OSError is one line, exit 2, like any bad path
     assert capsys.readouterr().err.strip().endswith("error: disk full")
     left = sorted(p.name for p in out.iterdir())
@@ -287,7 +287,7 @@ def test_outputs_are_atomic(seq: Path, tmp_path: Path, monkeypatch, capsys) -> N
 def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "o"
     args = ["slam-eval", "--sequence", str(seq), "--gt-instances", "--engine", "dense",
-            "--modes", "seg", "--preset", "papers", "--sweep", "dilation=3,9", "--sweep",
+            "--modes", "seg", "--preset", "papers", "--sweep", "dilation_px=3,9", "--sweep",
             "m_th_start=0.6", "--sweep", "m_th_step=0.2", "--out", str(out), "--quiet",
             "--json"]  # fmt: skip
     assert main(args) == 0
@@ -325,7 +325,7 @@ def test_presets_reach_the_cli_and_the_metadata() -> None:
     add_masking_args(p)
     assert masking_from_args(p.parse_args([])) == DEFAULT == PRESETS["slimseg"]
     assert masking_from_args(p.parse_args(["--preset", "papers"])) == PAPERS
-    over = masking_from_args(p.parse_args(["--preset", "papers", "--dilation", "7"]))
+    over = masking_from_args(p.parse_args(["--preset", "papers", "--set", "dilation_px=7"]))
     assert over == PAPERS.with_values(dilation_px=7)
     with pytest.raises(SettingsError, match="unknown masking preset"):
         preset("fast")

@@ -283,14 +283,14 @@ def test_carried_frames_keep_what_the_model_frames_found(
 def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "cli"
     rc = main(["dynamic", "--gt-instances", "--sequence", str(sequence), "--out", str(out),
-               "--mode", "seg", "--track", "--track-max-coast", "5", "--gt-dropout", "0.1:3",
+               "--mode", "seg", "--track", "--set", "max_coast=5", "--gt-dropout", "0.1:3",
                "--quiet"])  # fmt: skip
     text = capsys.readouterr().out
     assert rc == 0 and "max_coast 5" in text and "where recall is lost" in text
     assert (out / "tracks.csv").read_text().startswith("timestamp,track_id")
     for bad, msg in (
-        (["--segment-every", "2"], "needs the track stage"),
-        (["--track-high", "2"], "track setting high"),
+        (["--rate", "2"], "needs the track stage"),
+        (["--set", "high=2"], "track setting high"),
         (["--track", "nope"], "invalid choice"),
     ):
         args = ["dynamic", "--gt-instances", "--sequence", str(sequence), "--out", str(out),
@@ -336,7 +336,7 @@ def test_slam_eval_tracked_conditions(sequence: Path, tmp_path: Path, capsys) ->
     assert main([*base, "--modes", "raw,seg", "--out", str(tmp_path / "e")]) == 0
     rows = {r["condition"]: r for r in json.loads(capsys.readouterr().out)}
     assert "seg (gt instances, dropout 0.2:3, tracked)" in rows
-    assert main([*base, "--modes", "seg", "--sweep", "dilation=0,5",
+    assert main([*base, "--modes", "seg", "--sweep", "dilation_px=0,5",
                  "--out", str(tmp_path / "s")]) == 0  # fmt: skip
     capsys.readouterr()
     text = (tmp_path / "s" / "sweep.md").read_text()

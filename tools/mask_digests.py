@@ -35,8 +35,8 @@ MODES = ("seg", "box", "fusion", "box+depth-ransac", "semantic+epipolar", "fusio
 TRACKS = {
     "off": [],
     "track": ["--track"],
-    "track-e2": ["--track", "--segment-every", "2"],
-    "nocoast-e3": ["--track", "no-coast", "--segment-every", "3"],
+    "track-e2": ["--track", "--rate", "2"],
+    "nocoast-e3": ["--track", "no-coast", "--rate", "3"],
 }
 
 
@@ -147,7 +147,7 @@ def runs() -> dict:
         run(
             tmp,
             "gt-eq1-odds/fusion/off",
-            [*gt, "--mode", "fusion", "--rule", "eq1", "--motion-odds", "3"],
+            [*gt, "--mode", "fusion", "--set", "rule=eq1", "--set", "motion_odds=3"],
             out,
         )
         yolo = yolo_weights(seq, tmp / "yolo.pt")

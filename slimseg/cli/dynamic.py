@@ -18,15 +18,9 @@ import numpy as np
 from slimseg.cli.arg_types import count, threads
 from slimseg.cli.bag_args import SEQUENCE_HELP, add_bag_args, bag_options_from_args
 from slimseg.cli.commands import COMMAND_HELP
-from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.rerun_args import add_rerun_arg, kept_recording, rerun_path
-from slimseg.cli.track_args import (
-    add_dropout_arg,
-    add_rate_args,
-    add_track_args,
-    dropout_from_args,
-    track_plan_from_args,
-)
+from slimseg.cli.settings_args import add_settings_args, settings_from_args
+from slimseg.cli.track_args import add_dropout_arg, dropout_from_args
 from slimseg.data.bags.sequence import BagSequence
 from slimseg.data.bags.writer import STORAGES
 from slimseg.data.frame_source import FrameSource
@@ -107,9 +101,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=KEYPOINTS,
         help="ORB features per frame",
     )
-    add_masking_args(p)
-    add_track_args(p)
-    add_rate_args(p)
+    add_settings_args(p)
+    p.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        help="--rate thread: replay rate in frames per second (default: the sequence's "
+        "timestamps; 0: as fast as the masking goes)",
+    )
     p.add_argument(
         "--epipolar-depth",
         action="store_true",
@@ -148,10 +147,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if (args.model is None) == (not args.gt_instances):
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
-    masking = masking_from_args(args)
-    track = track_plan_from_args(args)
+    masking, track = settings_from_args(args)
     if args.fps is not None and not track.rate.thread:
-        raise SlimsegError("--fps sets the real-time replay of --model-thread: add --model-thread")
+        raise SlimsegError("--fps sets the real-time replay of --rate thread: add --rate thread")
     if args.fps is not None and not (args.fps >= 0 and math.isfinite(args.fps)):
         raise SlimsegError(f"--fps {args.fps}: expected frames per second >= 0")
     dropout = dropout_from_args(args)

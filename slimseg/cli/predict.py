@@ -41,7 +41,7 @@ from tqdm import tqdm
 from slimseg.cli.arg_types import FRACTION, count, multiple_of, threads
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.cli.rerun_args import add_rerun_arg, kept_recording, rerun_path
-from slimseg.cli.track_args import add_track_args, track_plan_from_args
+from slimseg.cli.settings_args import add_settings_args, settings_from_args
 from slimseg.data.bags.colour_stream import BagColour
 from slimseg.data.bags.reader import is_bag
 from slimseg.data.images import read_rgb
@@ -112,7 +112,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=KEYPOINTS,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
     )
-    add_track_args(p)
+    add_settings_args(p, masking=False)
     add_rerun_arg(p, "--track's frames: image, class-coloured mask, boxes, keypoints, timing")
     p.set_defaults(run=run)
 
@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.max_det < 1:
         raise SlimsegError(f"--max-det must be >= 1, got {args.max_det}")
-    plan = track_plan_from_args(args)
+    _, plan = settings_from_args(args)
     if plan.on:
         if args.dump_raw:
             raise SlimsegError("--dump-raw writes per-frame outputs; drop --track to use it")

@@ -11,17 +11,11 @@ from pathlib import Path
 from slimseg.cli.arg_types import count, number, threads
 from slimseg.cli.bag_args import add_bag_args, bag_options_from_args
 from slimseg.cli.commands import COMMAND_HELP
-from slimseg.cli.masking_args import add_masking_args, masking_from_args
 from slimseg.cli.rerun_args import add_rerun_arg, rerun_path
-from slimseg.cli.track_args import (
-    add_dropout_arg,
-    add_track_args,
-    dropout_from_args,
-    track_plan_from_args,
-)
+from slimseg.cli.settings_args import add_settings_args, settings_from_args
+from slimseg.cli.track_args import add_dropout_arg, dropout_from_args
 from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES
 from slimseg.errors import SlimsegError
-from slimseg.slam.sweep import SWEEP_KEYS, TRACK_SWEEP_KEYS
 from slimseg.utils.atomic import staged_dir
 from slimseg.utils.extras import install_command
 
@@ -95,16 +89,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=KEYPOINTS,
         help="ORB features (mask modes)",
     )
-    add_masking_args(p)
-    add_track_args(p)
+    add_settings_args(p)
     p.add_argument(
         "--sweep",
         action="append",
         metavar="KEY=v1,v2,...",
-        help=f"evaluate the mask mode under each value (repeatable): keys "
-        f"{', '.join(SWEEP_KEYS)} (ratio: Eq. 3, t_o: Eq. 4, rule: eq1 or degrade), and with "
-        f"--track the track stage's {', '.join(TRACK_SWEEP_KEYS)}; --modes names one mask "
-        "mode (default fusion)",
+        help="evaluate the mask mode under each value (repeatable): any --set key (listed "
+        "below; the track stage's with --track); --modes names one mask mode (default fusion)",
     )
     p.add_argument(
         "--sweep-mode",
@@ -179,8 +170,7 @@ def run(args: argparse.Namespace) -> int:
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
-    masking = masking_from_args(args)
-    track = track_plan_from_args(args)
+    masking, track = settings_from_args(args)
     dropout = dropout_from_args(args)
     if args.runs < 1:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")

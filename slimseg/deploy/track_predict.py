@@ -3,7 +3,7 @@ an animation.
 
 Per frame the chain (:class:`~slimseg.dynamic.frame_masker.FrameMasker` in mode ``seg``: no
 epipolar check, no depth gate) runs the model at the track stage's low threshold (with
-``--segment-every N`` on frames 0, N, 2N, ... only) and its stage matches the detections to
+``--rate N`` on frames 0, N, 2N, ... only) and its stage matches the detections to
 the tracks. It emits every detection scoring above
 ``conf`` and, besides, the predicted masks of tracks the model just lost (``coast``) or did not
 run on (``carried``). Classes whose mobility prior is at most the masking threshold

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from slimseg.dynamic.knobs import papers
 from slimseg.dynamic.threshold import inside
 
 # ORB-SLAM3's extractor (its example settings' ORBextractor.iniThFAST, nLevels, scaleFactor):
@@ -35,7 +36,7 @@ PYRAMID_LEVELS = 8
 PYRAMID_SCALE = 1.2
 # A candidate scoring at least this is never given up by the degrading rule (the ``keep_score``
 # masking setting's default).
-KEEP_SCORE = 0.5
+KEEP_SCORE = papers("keep_score")
 
 
 def support_points(image: np.ndarray) -> np.ndarray:

@@ -29,13 +29,12 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
+from slimseg.dynamic.frame_inputs import FrameInputs, MotionEvidence
 from slimseg.dynamic.model_feed import Feed, ModelFeed
 from slimseg.dynamic.modes import EPIPOLAR_MODES, WEIGHED_MODES
 from slimseg.dynamic.pipeline import (
-    FrameInputs,
     FrameResult,
     FrameRules,
-    MotionEvidence,
     epipolar_priors,
     process_frame,
     weighed_mobility,

@@ -14,58 +14,49 @@ Two named presets (``docs/slam_defaults.md``):
 These are a separate family from the detection-style thresholds of ``slimseg.ops.nms``
 (``PREDICT_CONF`` for ``predict``, ``EVAL_CONF`` for mAP): never one number serving both
 (docs/conventions.md §6). ``slimseg dynamic``, ``slimseg slam-eval`` and the export metadata
-read the ``slimseg`` preset from here.
+read the ``slimseg`` preset from here. Each field's range, help and preset values live in
+:data:`slimseg.dynamic.knobs.KNOBS` (the table of docs/settings.md).
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
-from slimseg.dynamic.degrade import KEEP_SCORE
-from slimseg.dynamic.motion_evidence import MOTION_ODDS
-from slimseg.dynamic.occupancy import MOTION_LAYER_PX
-from slimseg.dynamic.seg_box import T_O
-from slimseg.dynamic.stillness import STILL_FRAMES
-from slimseg.dynamic.threshold import DYNAMIC_FRAME_RATIO, M_TH_START, M_TH_STEP
-from slimseg.errors import SlimsegError
-from slimseg.utils.value_ranges import Range, describe_values, in_range
+from slimseg.dynamic.knobs import BY_KEY, MASKING_PRESETS, KnobError, Rule, preset_values
+from slimseg.utils.value_ranges import describe_values
 
 # Frame width the dilation was chosen at (TUM / Bonn RGB-D frames are 640 x 480): a runtime on
 # other frame sizes scales it by max(h, w) / DILATION_REFERENCE_PX.
 DILATION_REFERENCE_PX = 640
-# The detection-style default score threshold the papers' detectors ran with (YOLO's 0.25).
-PAPERS_CONF = 0.25
-# Eq. 1's "too few static points" is unspecified in the paper: the pipeline's long-standing 100.
-PAPERS_MIN_STATIC = 100
 
 
-class SettingsError(SlimsegError):
+class SettingsError(KnobError):
     """A masking setting out of its range (one line, naming the setting)."""
 
 
 @dataclass(frozen=True)
 class MaskingSettings:
-    """How detections become a dynamic mask for SLAM.
+    """How detections become a dynamic mask for SLAM; one field per masking knob of
+    :data:`slimseg.dynamic.knobs.KNOBS` (its help says what each does, docs/settings.md lists
+    them).
 
     ``conf``: detector score threshold (keep detections scoring above it); ``dilation_px``:
     pixels added around every mask before keypoints are classified (frame pixels at a
     ``DILATION_REFERENCE_PX``-wide frame); ``min_static``: Eq. 1's static points needed;
     ``m_th_start`` / ``m_th_step``: Eq. 1's starting mobility threshold and its step;
     ``frame_ratio``: Eq. 3's fraction of points on mobile objects making a dynamic keyframe;
-    ``t_o``: Eq. 4's seg-mask-to-box coverage above which the seg mask is kept; ``rule``:
-    what happens when static support runs short, ``eq1`` (raise the mobility threshold, then
-    give up the frame: the paper's Eq. 1) or ``degrade`` (give up the least certain masks one
-    at a time, :mod:`slimseg.dynamic.degrade`); ``keep_score``: ``degrade`` never gives up a
-    candidate scoring at least this; ``cut_behind_m``: with depth, mask pixels more than this
-    many metres behind their object's near depth are cut (0: off,
-    :mod:`slimseg.dynamic.depth_cut`); ``motion_odds``: seg and fusion modes, the odds by
-    which an epipolar check's decision moves an object's mobility (1: no check,
-    :mod:`slimseg.dynamic.motion_evidence`); ``motion_layer_px``: with depth, the previous
-    frame's depth and the intrinsics, what moved in behind an object's near layer is kept when
-    it covers at least this many frame pixels (0: off, :mod:`slimseg.dynamic.occupancy`);
-    ``still_frames``: with depth and the intrinsics, an object whose depth has not changed
-    against the frames this many and half as many back gets mobility 0 (0: off,
-    :mod:`slimseg.dynamic.stillness`).
+    ``t_o``: Eq. 4's seg-mask-to-box coverage above which the seg mask is kept; ``rule``
+    (:class:`~slimseg.dynamic.knobs.Rule`): what happens when static support runs short;
+    ``keep_score``: ``degrade`` never gives up a candidate scoring at least this;
+    ``cut_behind_m``: with depth, mask pixels more than this many metres behind their
+    object's near depth are cut (0: off, :mod:`slimseg.dynamic.depth_cut`); ``motion_odds``:
+    seg and fusion modes, the odds by which an epipolar check's decision moves an object's
+    mobility (1: no check, :mod:`slimseg.dynamic.motion_evidence`); ``motion_layer_px``: with
+    depth, the previous frame's depth and the intrinsics, what moved in behind an object's
+    near layer is kept when it covers at least this many frame pixels (0: off,
+    :mod:`slimseg.dynamic.occupancy`); ``still_frames``: with depth and the intrinsics, an
+    object whose depth has not changed against the frames this many and half as many back
+    gets mobility 0 (0: off, :mod:`slimseg.dynamic.stillness`).
     """
 
     conf: float
@@ -85,77 +76,42 @@ class MaskingSettings:
     def __post_init__(self) -> None:
         for f in fields(self):
             check_value(f.name, getattr(self, f.name))
+        object.__setattr__(self, "rule", Rule(self.rule))
 
     def with_values(self, **values: float | str) -> MaskingSettings:
         """A copy with some fields replaced (validated)."""
         return replace(self, **values)
 
     def as_dict(self) -> dict[str, float | int | str]:
-        return asdict(self)
+        """``{field: value}``, plain types (the rule as its name)."""
+        return {k: str(v) if isinstance(v, Rule) else v for k, v in asdict(self).items()}
 
     def describe(self) -> str:
         """``slimseg preset (conf 0.1, dilation_px 5, ...)``, or ``custom (...)``."""
         return describe_values(preset_name(self), self.as_dict())
 
-
-# field -> (lowest, highest, integer, what it is); bounds inclusive except those listed below
-RANGES: dict[str, Range] = {
-    "conf": (0.0, 1.0, False, "detector score threshold, 0 <= conf < 1"),
-    "dilation_px": (0, 200, True, "mask dilation in whole pixels, 0-200"),
-    "min_static": (0, 100_000, True, "Eq. 1 static points, a whole number >= 0"),
-    "m_th_start": (0.0, 1.0, False, "Eq. 1 starting threshold, 0-1"),
-    "m_th_step": (0.0, 1.0, False, "Eq. 1 step, 0 < step <= 1"),
-    "frame_ratio": (0.0, 1.0, False, "Eq. 3 fraction, 0-1"),
-    "t_o": (0.0, 1.0, False, "Eq. 4 coverage threshold, 0-1"),
-    "keep_score": (0.0, 1.0, False, "score from which the degrading rule keeps a mask, 0-1"),
-    "cut_behind_m": (0.0, 100.0, False, "metres behind its object a mask pixel is cut, 0: off"),
-    "motion_odds": (1.0, 1e6, False, "odds a motion check's decision weighs by, 1 (off) - 1e6"),
-    "motion_layer_px": (0, 1_000_000, True, "pixels that make a motion layer, whole, 0: off"),
-    "still_frames": (0, 1000, True, "frames an object must stand still, whole, 0: off"),
-}
-# what to do when static support runs short (docs/slam_defaults.md §1)
-RULES = ("eq1", "degrade")
-OPEN_LOW = ("m_th_step",)  # the lower bound itself is not allowed
-OPEN_HIGH = ("conf",)
+    def inert(self, key: str) -> bool:
+        """Does the knob ``key`` change nothing under these settings' ``rule``
+        (``m_th_step`` under ``degrade``, ``keep_score`` under ``eq1``)?"""
+        rule = BY_KEY[key].rule
+        return rule is not None and rule != self.rule
 
 
 def check_value(name: str, value: object) -> None:
     """Raise :class:`SettingsError` unless ``value`` is valid for field ``name``."""
-    if name == "rule":
-        if value not in RULES:
-            raise SettingsError(f"masking setting rule = {value!r}: expected one of {RULES}")
-        return
-    if not in_range(value, RANGES[name], name in OPEN_LOW, name in OPEN_HIGH):
-        raise SettingsError(f"masking setting {name} = {value!r}: expected {RANGES[name][3]}")
+    try:
+        BY_KEY[name].check(value)
+    except KnobError as e:
+        raise SettingsError(f"masking {e}") from None
 
 
-PAPERS = MaskingSettings(
-    conf=PAPERS_CONF,
-    dilation_px=0,
-    min_static=PAPERS_MIN_STATIC,
-    m_th_start=M_TH_START,
-    m_th_step=M_TH_STEP,
-    frame_ratio=DYNAMIC_FRAME_RATIO,
-    t_o=T_O,
-    rule="eq1",
-    keep_score=KEEP_SCORE,
-    cut_behind_m=0.0,
-    motion_odds=1.0,
-    motion_layer_px=0,
-    still_frames=0,
-)
-# Chosen from the sweeps of docs/slam_defaults.md.
-# t_o 1 with cut_behind_m 0.5: on dynamic keyframes every detection's box cut to its depth
-# layer replaces the 320-px seg mask (keypoint precision 36 -> 66 %, recall 81 -> 98 % on the
-# demo's sequence); without depth that is the whole box: pass t_o 0.25 for RGB-only frames.
-# motion_odds 10: objects of a class that may move, seen static, give their keypoints back (§5).
-# motion_layer_px 100: a walker behind a nearer thing keeps its mask where it moved in (§5).
-# still_frames 20: a person standing still for 20 frames gives its keypoints back (§5).
-SLIMSEG = PAPERS.with_values(
-    conf=0.1, dilation_px=5, t_o=1.0, rule="degrade", cut_behind_m=0.5, motion_odds=MOTION_ODDS,
-    motion_layer_px=MOTION_LAYER_PX, still_frames=STILL_FRAMES,
-)  # fmt: skip
-PRESETS: dict[str, MaskingSettings] = {"papers": PAPERS, "slimseg": SLIMSEG}
+PRESETS: dict[str, MaskingSettings] = {
+    name: MaskingSettings(**preset_values(name)) for name in MASKING_PRESETS
+}
+"""``papers``: the equations as printed; ``slimseg``: chosen from the sweeps of
+docs/slam_defaults.md (values and reasons: docs/settings.md)."""
+PAPERS = PRESETS["papers"]
+SLIMSEG = PRESETS["slimseg"]
 DEFAULT_PRESET = "slimseg"
 DEFAULT = PRESETS[DEFAULT_PRESET]
 

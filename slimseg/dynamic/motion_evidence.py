@@ -21,10 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from slimseg.dynamic.knobs import shipped
+
 # The odds a decided check multiplies (moving) or divides (static) a mobility's odds by: 10
 # turns the synthetic world's static dogs and balls (prior 0.75) to 0.23 on a static decision,
 # under Eq. 1's starting threshold (docs/slam_defaults.md §5). 1: the check is not run.
-MOTION_ODDS = 10.0
+MOTION_ODDS = shipped("motion_odds")
 
 
 def uncertain(mobility: np.ndarray) -> np.ndarray:

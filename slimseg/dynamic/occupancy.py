@@ -25,7 +25,7 @@ image and were what the rest marked.
 
 An object's motion layer is the median depth of the marked pixels in its box behind its near
 layer, where they stand for at least ``motion_layer_px`` frame pixels (the masking setting,
-:data:`MOTION_LAYER_PX` in the ``slimseg`` preset); the cut then keeps that layer too.
+100 in the ``slimseg`` preset, :mod:`slimseg.dynamic.knobs`); the cut then keeps that layer too.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ from slimseg.dynamic.epipolar import OrbFeatures, PnpPose, PreviousFrame, match_
 from slimseg.dynamic.seg_box import box_spans
 
 if TYPE_CHECKING:
+    from slimseg.dynamic.frame_inputs import FrameInputs
     from slimseg.dynamic.masking_settings import MaskingSettings
-    from slimseg.dynamic.pipeline import FrameInputs
 
 TAU_M = 0.2  # the previous frame saw at least this much farther (m): something moved in
 NEIGHBOURHOOD_PX = 2  # the previous depth is the nearest within this many px of the landing
@@ -48,7 +48,6 @@ SURFACE_PX = 1  # a candidate's depth spans at most TAU_M this many px around: n
 STRIDE = 2  # every STRIDE-th pixel, in x and y, is tested
 # Marked frame pixels that make an object's motion layer (the slimseg preset's
 # motion_layer_px; docs/slam_defaults.md §5).
-MOTION_LAYER_PX = 100
 # Features per frame the pose is fitted on (:func:`subsample`); docs/slam_defaults.md §5 ("An
 # accurate camera pose") says why the stride stays.
 MOTION_FEATURES = 300

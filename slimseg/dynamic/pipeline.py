@@ -36,7 +36,8 @@ import numpy as np
 
 from slimseg.dynamic.degrade import degrade
 from slimseg.dynamic.depth_cut import behind_pixels, cut_behind, reference_depths
-from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, PreviousFrame, check_motion
+from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, check_motion
+from slimseg.dynamic.frame_inputs import FrameInputs, MotionEvidence
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
 from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, KEYPOINTS, MODES, WEIGHED_MODES, Mode
 from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
@@ -50,7 +51,6 @@ from slimseg.dynamic.seg_box import (
     fuse_seg_box,
 )
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
-from slimseg.objects import Objects
 
 
 @dataclass
@@ -87,48 +87,6 @@ def orb_keypoints(rgb: np.ndarray, count: int = KEYPOINTS) -> np.ndarray:
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     kps = cv2.ORB_create(nfeatures=count).detect(gray, None)
     return np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
-
-
-@dataclass(frozen=True)
-class FrameInputs:
-    """What one frame brings, in frame pixels: ``keypoints float32 [N, 2]`` (x, y), the
-    ``objects`` (:class:`~slimseg.objects.Objects`: boxes, classes, masks or None for a
-    detector only, scores; with the track stage each one's mobility and whether its mask is a
-    track's prediction); ``depth_m float32 [H, W]`` metres (depth-RANSAC, the depth cut);
-    epipolar modes: ``descriptors uint8 [N, 32]`` (ORB, see ``epipolar.orb_features``) and
-    the ``previous`` frame's features (None on the first frame: no check)."""
-
-    keypoints: np.ndarray
-    objects: Objects
-    depth_m: np.ndarray | None = None
-    descriptors: np.ndarray | None = None
-    previous: PreviousFrame | None = None
-    evidence: MotionEvidence | None = None
-    """the epipolar check the track stage ran (its outcome is already in the mobilities)"""
-    support: np.ndarray | None = None
-    """``float32 [P, 2]`` corners the SLAM engine can take outside a mask (the ``degrade``
-    rule's static support, :func:`slimseg.dynamic.degrade.support_points`; None: the
-    keypoints)"""
-    still: np.ndarray | None = None
-    """``bool [M]``: the objects the stillness test found still, mobility 0 in every mode
-    (:func:`slimseg.dynamic.stillness.find_still`; None: not tested)"""
-
-    @property
-    def hw(self) -> tuple[int, int]:
-        """The frame's ``(H, W)``."""
-        return self.objects.hw
-
-
-@dataclass(frozen=True)
-class MotionEvidence:
-    """An epipolar check's ``result`` on the objects ``checked`` (indices into the frame's
-    objects); ``result`` None: nothing was checked (first frame, no candidates)."""
-
-    result: EpipolarResult | None
-    checked: list[int]
-    weighed: bool = False
-    """the check's decisions were weighed in at the motion odds (seg, fusion), not applied
-    as the epipolar modes' verdict"""
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-T_O = 0.25  # Eq. 4: keep the seg mask when it covers more than this fraction of its box
+from slimseg.dynamic.knobs import papers
+
+T_O = papers("t_o")  # Eq. 4: keep the seg mask when it covers more than this fraction of its box
 
 
 def box_masks(boxes: np.ndarray, hw: tuple[int, int]) -> np.ndarray:

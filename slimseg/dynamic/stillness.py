@@ -47,10 +47,8 @@ from slimseg.dynamic.occupancy import (
 )
 
 if TYPE_CHECKING:
-    from slimseg.dynamic.pipeline import FrameInputs
+    from slimseg.dynamic.frame_inputs import FrameInputs
 
-# Frames of history the slimseg preset asks for (its still_frames; docs/slam_defaults.md §5).
-STILL_FRAMES = 20
 STILL_FRACTION = 0.05  # an object with at most this fraction of its pixels changed is still
 MIN_TESTED = 100  # grid pixels (every STRIDE-th in x and y) an object needs to be judged
 

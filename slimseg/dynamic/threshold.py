@@ -6,13 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-M_TH_START = 0.25
-M_TH_STEP = 0.1
+from slimseg.dynamic.knobs import papers
+
+M_TH_START = papers("m_th_start")
+M_TH_STEP = papers("m_th_step")
 DYNAMIC_FRAME_M_TH = 0.5
 # Eq. 3 is printed garbled in the paper ("m_cd <= 1/N"); we test the ratio m_cd / N against
 # this fraction: a frame is a dynamic keyframe when more than 5 % of its points sit on objects
 # with mobility > 0.5.
-DYNAMIC_FRAME_RATIO = 0.05
+DYNAMIC_FRAME_RATIO = papers("frame_ratio")
 
 
 def inside(points: np.ndarray, masks: np.ndarray) -> np.ndarray:

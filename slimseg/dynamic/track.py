@@ -27,7 +27,7 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
 Every detection the per-frame logic would use (score above the masking threshold) is emitted
 whether or not it matched, so recall can only go up; low-score detections matched to a
 confirmed track (BYTE's second pass) and coasted masks are added. On the frames the model
-skips (``dets`` None: ``--segment-every N``, a model on its own thread) every track the last
+skips (``dets`` None: ``--rate N``, a model on its own thread) every track the last
 model frame saw (tentative ones too) and every confirmed track still coasting is carried, so
 what the model found stays masked between its frames.
 """
@@ -62,7 +62,18 @@ from slimseg.dynamic.track_geometry import (
     motion_scale,
     outside_share,
 )
-from slimseg.dynamic.track_settings import TrackSettings
+from slimseg.dynamic.track_settings import (
+    CONFIRM_SCORE,
+    IOU_HIGH,
+    IOU_LOW,
+    KEEP_FRAMES,
+    MAX_OUTSIDE,
+    MIN_DEPTH_SHARE,
+    MIN_HITS,
+    NEW_SCORE,
+    P_RELAX_S,
+    TrackSettings,
+)
 from slimseg.dynamic.track_types import Emitted, Track
 from slimseg.objects import SOURCE_CARRIED, SOURCE_COAST, SOURCE_DETECTION, Objects
 
@@ -128,7 +139,7 @@ class Tracker:
         if dets is None and self._hw is None:
             raise ValueError("the first frame of a sequence needs detections (the model runs)")
         self.frame_no += 1
-        relax = 0.0 if self.s.p_relax_s <= 0 else math.exp(-self.dt / self.s.p_relax_s)
+        relax = math.exp(-self.dt / P_RELAX_S)
         scale = motion_scale(motion)
         own = own or {}
         for t in self.tracks:
@@ -177,7 +188,7 @@ class Tracker:
         low = np.flatnonzero((scores >= s.low) & ~first & movers)
         matched: dict[int, Track] = {}
         free = list(self.tracks)
-        for idx, pool, gate in ((high, free, s.iou_high), (low, None, s.iou_low)):
+        for idx, pool, gate in ((high, free, IOU_HIGH), (low, None, IOU_LOW)):
             pool = [t for t in free if t.confirmed] if pool is None else pool
             pairs = self._match(idx, pool, patches, boxes, classes, gate)
             for d, t in pairs:
@@ -199,7 +210,7 @@ class Tracker:
                     moved.add(d)
             if t is not None:
                 self._observe(t, patches[d], boxes[d], depth_m, scores[d])
-            elif (emitted[d] or scores[d] >= s.new) and movers[d]:
+            elif (emitted[d] or scores[d] >= NEW_SCORE) and movers[d]:
                 t = self._open(classes[d], scores[d], patches[d], boxes[d], depth_m)
             if t is None and scores[d] <= emit_conf:
                 continue  # below the masking threshold and no track backs it
@@ -215,7 +226,7 @@ class Tracker:
             t.misses += 1
             t.dead = t.dead or not t.confirmed  # a tentative track ends at its first miss
         objs += self._coast([t for t in free if t.confirmed], depth_m, SOURCE_COAST)
-        self.tracks = [t for t in self.tracks if t.misses <= s.keep_frames and not t.dead]
+        self.tracks = [t for t in self.tracks if t.misses <= KEEP_FRAMES and not t.dead]
         return objs
 
     def _match(self, idx, pool, patches, boxes, classes, gate) -> list[tuple[int, Track]]:
@@ -242,8 +253,8 @@ class Tracker:
         t.patch, t.transform, t.predicted, t.predicted_at = patch, np.eye(3), None, -1
         t.hits += 1
         t.misses = t.since_seen = 0
-        t.strong = t.strong or score >= self.s.new
-        t.confirmed = t.confirmed or (t.strong and t.hits >= self.s.min_hits)
+        t.strong = t.strong or score >= NEW_SCORE
+        t.confirmed = t.confirmed or (t.strong and t.hits >= MIN_HITS)
         t.depth_frame = depth_m  # its median is taken only if the track coasts
         self.parts["update"] += time.perf_counter() - t0
 
@@ -251,8 +262,8 @@ class Tracker:
         t0 = time.perf_counter()
         prior = float(self.priors[cls])
         t = Track(self._next_id, int(cls), prior, prior, BoxKalman(box), patch)
-        t.strong = score >= self.s.new
-        t.confirmed = t.strong and (score >= self.s.confirm or self.s.min_hits <= 1)
+        t.strong = score >= NEW_SCORE
+        t.confirmed = t.strong and (score >= CONFIRM_SCORE or MIN_HITS <= 1)
         t.depth_frame = depth_m
         self._next_id += 1
         self.tracks.append(t)
@@ -332,7 +343,7 @@ class Tracker:
             if t.misses > s.max_coast:  # carried frames keep the misses of the last model frame
                 continue
             box = t.kf.box
-            if outside_share(box, hw) > s.max_outside:
+            if outside_share(box, hw) > MAX_OUTSIDE:
                 t.dead = True
                 continue
             if t.patch is None:
@@ -344,7 +355,7 @@ class Tracker:
                 d = patch_depth(patch, depth_m)
                 known = patch.mask & (d > 0)
                 near = known & (np.abs(d - t.depth_m) <= s.depth_band_m)
-                if known.sum() and near.sum() < s.min_depth_share * known.sum():
+                if known.sum() and near.sum() < MIN_DEPTH_SHARE * known.sum():
                     t.dead = True
                     continue
                 patch = Patch(patch.y0, patch.x0, patch.mask & (near | (d <= 0)))

@@ -18,6 +18,7 @@ import numpy as np
 
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.mask_patch import clip_patch, patch_from_mask, warp_patch
 from slimseg.dynamic.modes import EPIPOLAR_MODES, FPS, WEIGHED_MODES, Mode
 from slimseg.dynamic.motion_evidence import uncertain
@@ -26,7 +27,7 @@ from slimseg.dynamic.object_motion import (
     inside_patches,
     object_shifts,
 )
-from slimseg.dynamic.pipeline import FrameInputs, epipolar_evidence
+from slimseg.dynamic.pipeline import epipolar_evidence
 from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_settings import TrackSettings

@@ -17,32 +17,57 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
 
-from slimseg.errors import SlimsegError
-from slimseg.utils.value_ranges import Range, describe_values, in_range
+from slimseg.dynamic.knobs import BY_KEY, KnobError, preset_values
+from slimseg.utils.value_ranges import describe_values
+
+# The stage's constants: never swept, the same in every preset (docs/tracking.md §2).
+NEW_SCORE = 0.25
+"""an unmatched detection scoring at least this opens a strong track (one that can coast)"""
+CONFIRM_SCORE = 0.5
+"""a new track backed by a detection scoring at least this is confirmed at once"""
+MIN_HITS = 2
+"""matches that confirm a strong track otherwise"""
+IOU_HIGH = 0.3
+"""the first BYTE pass's mask IoU gate (box IoU for box-only models)"""
+IOU_LOW = 0.5
+"""the second pass's gate"""
+MIN_DEPTH_SHARE = 0.3
+"""a coasted track ends when less than this share of its mask lies inside its depth band"""
+MAX_OUTSIDE = 0.5
+"""... or more than this share of its predicted box has left the image"""
+KEEP_FRAMES = 15
+"""model frames an unmatched track is remembered"""
+P_RELAX_S = 1.0
+"""seconds in which a moving probability relaxes to its class prior between observations"""
 
 
-class TrackSettingsError(SlimsegError):
+class TrackSettingsError(KnobError):
     """A track setting out of its range (one line, naming the setting)."""
+
+
+_COAST = preset_values("coast")
 
 
 @dataclass(frozen=True)
 class TrackSettings:
-    """How detections become tracks and tracks become masks (docs/tracking.md §2).
+    """How detections become tracks and tracks become masks (docs/tracking.md §2); the knobs
+    of :data:`slimseg.dynamic.knobs.KNOBS` (group ``track``), the rest module constants.
 
     Association (BYTE): detections scoring ``>= high`` are matched first against every track,
     then those in ``[low, high)`` against the confirmed tracks still unmatched; a match needs
-    a mask IoU (box IoU for box-only models) of at least ``iou_high`` / ``iou_low``. An
-    unmatched detection that is emitted (above the masking threshold) or scores ``>= new``
-    opens a tentative track; one backed by a detection scoring ``>= new`` is confirmed after
-    ``min_hits`` matches (at once when it scores ``>= confirm``); a tentative track ends at
-    its first model frame without a match.
+    a mask IoU (box IoU for box-only models) of at least :data:`IOU_HIGH` / :data:`IOU_LOW`.
+    An unmatched detection that is emitted (above the masking threshold) or scores
+    ``>= NEW_SCORE`` opens a tentative track; one backed by a detection scoring ``>=
+    NEW_SCORE`` is confirmed after :data:`MIN_HITS` matches (at once when it scores ``>=
+    CONFIRM_SCORE``); a tentative track ends at its first model frame without a match.
 
     Coasting: a confirmed track without a match emits its predicted mask for up to
     ``max_coast`` frames (0: never), dilated by ``coast_dilate_px`` per missed frame; its
     mobility is multiplied by ``coast_decay`` per miss. Pixels of a coasted mask farther than
     ``depth_band_m`` from the track's depth are dropped, and the track ends when less than
-    ``min_depth_share`` of them remain or more than ``max_outside`` of its predicted box has
-    left the image. A track unmatched for ``keep_frames`` model frames is forgotten.
+    :data:`MIN_DEPTH_SHARE` of them remain or more than :data:`MAX_OUTSIDE` of its predicted
+    box has left the image. A track unmatched for :data:`KEEP_FRAMES` model frames is
+    forgotten.
 
     Own motion: a late model result (the model on its own thread) is moved into the current
     frame, and every track's mask from one frame to the next, by the object's own motion:
@@ -52,26 +77,17 @@ class TrackSettings:
 
     Moving probability: ``p <- (1 - p_alpha) p + p_alpha s`` with ``s`` = 1 (the epipolar
     check says moving) or 0 (static), no update while undecided; between observations ``p``
-    relaxes to the class prior with time constant ``p_relax_s`` seconds.
+    relaxes to the class prior with time constant :data:`P_RELAX_S` seconds.
     """
 
-    high: float = 0.25
-    low: float = 0.05
-    new: float = 0.25
-    confirm: float = 0.5
-    min_hits: int = 2
-    iou_high: float = 0.3
-    iou_low: float = 0.5
-    max_coast: int = 3
-    coast_decay: float = 0.7
-    coast_dilate_px: int = 2
-    depth_band_m: float = 0.4
-    min_depth_share: float = 0.3
-    max_outside: float = 0.5
-    keep_frames: int = 15
-    p_alpha: float = 0.3
-    p_relax_s: float = 1.0
-    own_matches: int = 6
+    high: float = _COAST["high"]
+    low: float = _COAST["low"]
+    max_coast: int = _COAST["max_coast"]
+    coast_decay: float = _COAST["coast_decay"]
+    coast_dilate_px: int = _COAST["coast_dilate_px"]
+    depth_band_m: float = _COAST["depth_band_m"]
+    p_alpha: float = _COAST["p_alpha"]
+    own_matches: int = _COAST["own_matches"]
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -95,34 +111,12 @@ class TrackSettings:
         return describe_values(name, self.as_dict())
 
 
-# field -> (lowest, highest, integer, what it is), bounds inclusive
-TRACK_RANGES: dict[str, Range] = {
-    "high": (0.0, 1.0, False, "first-pass score threshold, 0-1"),
-    "low": (0.0, 1.0, False, "second-pass score threshold, 0-1"),
-    "new": (0.0, 1.0, False, "score that opens a strong track (one that can coast), 0-1"),
-    "confirm": (0.0, 1.0, False, "score that confirms a new track at once, 0-1"),
-    "min_hits": (1, 100, True, "matches that confirm a track, a whole number >= 1"),
-    "iou_high": (0.0, 1.0, False, "first-pass IoU gate, 0-1"),
-    "iou_low": (0.0, 1.0, False, "second-pass IoU gate, 0-1"),
-    "max_coast": (0, 1000, True, "frames a lost track's mask is emitted, a whole number >= 0"),
-    "coast_decay": (0.0, 1.0, False, "mobility factor per missed frame, 0-1"),
-    "coast_dilate_px": (0, 100, True, "px of dilation per missed frame, 0-100"),
-    "depth_band_m": (0.0, 100.0, False, "depth band of a coasted mask in metres (0: off)"),
-    "min_depth_share": (0.0, 1.0, False, "share of a coasted mask inside the band, 0-1"),
-    "max_outside": (0.0, 1.0, False, "share of a predicted box outside the image, 0-1"),
-    "keep_frames": (1, 10_000, True, "frames a lost track is remembered, a whole number >= 1"),
-    "p_alpha": (0.0, 1.0, False, "moving-probability update weight, 0-1"),
-    "p_relax_s": (0.0, 1e6, False, "relaxation time to the class prior in s (0: at once)"),
-    "own_matches": (0, 10_000, True, "ORB matches that move a mask by its own motion, >= 0"),
-}
-
-
 def check_track_value(name: str, value: object) -> None:
     """Raise :class:`TrackSettingsError` unless ``value`` is valid for field ``name``."""
-    if not in_range(value, TRACK_RANGES[name]):
-        raise TrackSettingsError(
-            f"track setting {name} = {value!r}: expected {TRACK_RANGES[name][3]}"
-        )
+    try:
+        BY_KEY[name].check(value)
+    except KnobError as e:
+        raise TrackSettingsError(f"track {e}") from None
 
 
 COAST = TrackSettings()

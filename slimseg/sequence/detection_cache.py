@@ -131,7 +131,7 @@ class SettingMasks:
     frames: int
     digest: str = ""
     model_share: float = 1.0
-    """share of frames the model ran on (``--segment-every N``: 1/N)"""
+    """share of frames the model ran on (``--rate N``: 1/N)"""
 
 
 def mask_with(

@@ -1,15 +1,14 @@
 """``slam-eval --sweep KEY=v1,v2,...``: parse the sweep and list the settings it evaluates.
 
-Keys (:data:`SWEEP_KEYS`) name fields of :class:`slimseg.dynamic.masking_settings.MaskingSettings`:
-``conf`` (detector score threshold), ``dilation`` (px), ``min_static`` (Eq. 1),
-``m_th_start`` / ``m_th_step`` (Eq. 1), ``ratio`` (Eq. 3's fraction), ``t_o`` (Eq. 4). With
-``--track``, the keys of :data:`TRACK_SWEEP_KEYS` name knobs of the track stage
-(:class:`slimseg.dynamic.track_settings.TrackSettings`): ``max_coast``, ``coast_decay``,
-``coast_dilate``, ``track_high``, ``track_low``, ``depth_band``, ``p_alpha``.
+Keys: every knob of :data:`slimseg.dynamic.knobs.KNOBS`, under the name ``--set`` and the
+settings use (:data:`SWEEP_KEYS`: the masking settings; :data:`TRACK_SWEEP_KEYS`: the track
+stage's, with ``--track``). A key that changes nothing in the chosen mode (the registry's
+``acts_in``) is refused.
 
 Modes: ``oneway`` varies one key at a time, the others at the base settings (the chosen
-preset with any flags applied); ``grid`` evaluates the full product. Both always include the
-base settings, and every named preset not already among the points is added as a reference.
+preset with any ``--set`` applied); ``grid`` evaluates the full product. Both always include
+the base settings, and every named preset not already among the points is added as a
+reference.
 """
 
 from __future__ import annotations
@@ -17,53 +16,15 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field, replace
 
+from slimseg.dynamic.knobs import BY_KEY, MASKING_KEYS, TRACK_KEYS, KnobError
 from slimseg.dynamic.masking_settings import PRESETS, MaskingSettings, SettingsError, preset_name
-from slimseg.dynamic.modes import EPIPOLAR_MODES, WEIGHED_MODES, Mode
-from slimseg.dynamic.track_settings import TrackSettings, TrackSettingsError, check_track_value
+from slimseg.dynamic.track_settings import TrackSettings, TrackSettingsError
 
-SWEEP_KEYS: dict[str, str] = {
-    "conf": "conf",
-    "dilation": "dilation_px",
-    "min_static": "min_static",
-    "m_th_start": "m_th_start",
-    "m_th_step": "m_th_step",
-    "ratio": "frame_ratio",
-    "t_o": "t_o",
-    "rule": "rule",
-    "keep_score": "keep_score",
-    "cut_behind": "cut_behind_m",
-    "motion_odds": "motion_odds",
-    "motion_layer": "motion_layer_px",
-    "still": "still_frames",
-}
-# sweep key -> TrackSettings field (the track stage's knobs; they need --track)
-TRACK_SWEEP_KEYS: dict[str, str] = {
-    "max_coast": "max_coast",
-    "coast_decay": "coast_decay",
-    "coast_dilate": "coast_dilate_px",
-    "track_high": "high",
-    "track_low": "low",
-    "depth_band": "depth_band_m",
-    "p_alpha": "p_alpha",
-}
-INT_KEYS = ("dilation", "min_static", "max_coast", "coast_dilate", "motion_layer", "still")
-WORD_KEYS = ("rule",)  # values are names, not numbers
+# the keys: every knob of the registry (masking, and the track stage's with --track), one name
+# per knob (the settings field, the --set key, the metadata key)
+SWEEP_KEYS: tuple[str, ...] = MASKING_KEYS
+TRACK_SWEEP_KEYS: tuple[str, ...] = TRACK_KEYS
 SWEEP_MODES = ("oneway", "grid")
-FUSION_MODES = (Mode.FUSION, Mode.FUSION_EPIPOLAR)
-RULE_MODES = tuple(m for m in Mode if m != Mode.BOX_DEPTH_RANSAC)  # Eq. 1 or the degrading rule
-# keys that change nothing in some masking modes (a sweep of them there would be flat noise)
-ACTS_IN: dict[str, tuple[Mode, ...]] = {
-    "ratio": FUSION_MODES,
-    "t_o": FUSION_MODES,
-    "min_static": RULE_MODES,
-    "m_th_step": RULE_MODES,
-    "rule": RULE_MODES,
-    "keep_score": RULE_MODES,
-    "cut_behind": tuple(m for m in RULE_MODES if m != Mode.BOX),  # masks to cut
-    "motion_odds": WEIGHED_MODES,
-    "motion_layer": tuple(m for m in RULE_MODES if m != Mode.BOX),  # the cut's masks
-    "p_alpha": tuple(EPIPOLAR_MODES),
-}
 
 
 class SweepError(SettingsError):
@@ -91,8 +52,6 @@ def parse_sweep(items: list[str]) -> dict[str, tuple[Value, ...]]:
         if not values:
             raise SweepError(f"--sweep {item!r}: no values after '='")
         parsed = [_number(key, v, item) for v in values]
-        for v in parsed:
-            _check(key, v, item)
         out[key] = tuple(dict.fromkeys(parsed))
     if not out:
         raise SweepError("--sweep: nothing to sweep")
@@ -100,32 +59,18 @@ def parse_sweep(items: list[str]) -> dict[str, tuple[Value, ...]]:
 
 
 def _number(key: str, text: str, item: str) -> Value:
-    if key in WORD_KEYS:
-        return text
+    """``text`` parsed and checked by the knob ``key``."""
     try:
-        return int(text) if key in INT_KEYS else float(text)
-    except ValueError:
-        kind = "a whole number" if key in INT_KEYS else "a number"
-        raise SweepError(f"--sweep {item!r}: {text!r} is not {kind}") from None
-
-
-def _check(key: str, value: Value, item: str) -> None:
-    from slimseg.dynamic.masking_settings import check_value
-
-    try:
-        if key in TRACK_SWEEP_KEYS:
-            check_track_value(TRACK_SWEEP_KEYS[key], value)
-        else:
-            check_value(SWEEP_KEYS[key], value)
-    except (SettingsError, TrackSettingsError) as e:
+        return BY_KEY[key].parse(text)
+    except KnobError as e:
         raise SweepError(f"--sweep {item!r}: {e}") from None
 
 
 def check_mode(spec: dict[str, tuple[Value, ...]], mode: str, gt_instances: bool) -> None:
     """Refuse keys that cannot change ``mode``'s masks (or ``conf`` on score-1 instances)."""
     for key in spec:
-        modes = ACTS_IN.get(key)
-        if modes is not None and mode not in modes:
+        modes = BY_KEY[key].acts_in
+        if mode not in modes:
             raise SweepError(f"--sweep {key}: has no effect in mode {mode} (acts in "
                              f"{', '.join(modes)}); choose --modes {modes[0]}")  # fmt: skip
     if gt_instances and "conf" in spec:
@@ -149,8 +94,8 @@ class SweepPoint:
 def key_value(settings: MaskingSettings, track: TrackSettings | None, key: str) -> Value | None:
     """The value of sweep ``key`` in the masking ``settings`` or the ``track`` knobs."""
     if key in TRACK_SWEEP_KEYS:
-        return None if track is None else getattr(track, TRACK_SWEEP_KEYS[key])
-    return getattr(settings, SWEEP_KEYS[key])
+        return None if track is None else getattr(track, key)
+    return settings.as_dict()[key]
 
 
 def values_of(
@@ -195,12 +140,12 @@ def sweep_points(
     else:
         combos = [dict(zip(keys, c, strict=True)) for c in itertools.product(*spec.values())]
     for combo in combos:
-        masking = {SWEEP_KEYS[k]: v for k, v in combo.items() if k in SWEEP_KEYS}
-        knobs = {TRACK_SWEEP_KEYS[k]: v for k, v in combo.items() if k in TRACK_SWEEP_KEYS}
+        masking = {k: v for k, v in combo.items() if k in SWEEP_KEYS}
+        knobs = {k: v for k, v in combo.items() if k in TRACK_SWEEP_KEYS}
         s = base.with_values(**masking)
         try:
             t = track.with_values(**knobs) if track is not None else None
-        except TrackSettingsError as e:  # e.g. track_low above track_high
+        except TrackSettingsError as e:  # e.g. low above high
             raise SweepError(f"--sweep {combo}: {e}") from None
         if any(same(p, s, t) for p in points):
             continue

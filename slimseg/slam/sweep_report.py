@@ -27,7 +27,7 @@ from slimseg.slam.sweep_run import SequenceSweep, SweepPlan
 from slimseg.utils.atomic import atomic_path, write_text
 from slimseg.utils.table import format_table
 
-SETTING_COLUMNS = tuple(SWEEP_KEYS.values()) + tuple(f"track_{k}" for k in TRACK_SWEEP_KEYS)
+SETTING_COLUMNS = SWEEP_KEYS + tuple(f"track_{k}" for k in TRACK_SWEEP_KEYS)
 COLUMNS = (
     "sequence", "condition", "kind", *SETTING_COLUMNS, "ate_rmse", "ate_min", "ate_max",
     "ate_std", "rpe_trans_s", "rpe_rot_s", "precision", "recall", "tp", "fp", "fn",
@@ -86,7 +86,7 @@ def table(rows: list[dict], keys: list[str], markdown: bool = True) -> str:
     body = []
     for r in rows:
         spread = "-" if r["ate_min"] is None else f"{r['ate_min']:.4f}–{r['ate_max']:.4f}"
-        cols = [f"track_{k}" if k in TRACK_SWEEP_KEYS else SWEEP_KEYS[k] for k in keys]
+        cols = [f"track_{k}" if k in TRACK_SWEEP_KEYS else k for k in keys]
         vals = ["" if r[c] is None else format_value(r[c]) for c in cols]
         lost = "-" if r["lost_median"] is None else f"{int(r['lost_median'])}/{r['lost_max']}"
         body.append([r["condition"], *vals, _m(r["ate_rmse"]), spread, _m(r["rpe_trans_s"]),

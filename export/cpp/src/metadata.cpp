@@ -56,31 +56,34 @@ double in_range(double v, double lo, double hi, bool open_lo, bool open_hi,
     return v;
 }
 
-// slimseg.dynamic.masking_settings: the papers preset, then the entry's own values (ranges as
-// masking_settings.RANGES).
+// slimseg.dynamic.masking_settings: the papers preset, then the entry's own values, each
+// checked against its knob's range (settings_generated.hpp, from slimseg.dynamic.knobs).
+double knob(const Json& e, const std::string& field, const char* key, double fallback) {
+    const Json* v = e.find(key);
+    if (v == nullptr) return fallback;
+    for (const auto& r : generated::kMaskingRanges) {
+        if (std::string(r.key) != key) continue;
+        const std::string name = field + "." + key;
+        if (r.integer) return integer(*v, name, static_cast<int>(r.low), static_cast<int>(r.high));
+        return in_range(num(*v, name), r.low, r.high, r.open_low, r.open_high, name);
+    }
+    bad(field + "." + key, "not a masking knob");
+}
+
 MaskingSettings masking_entry(const Json& e, const std::string& field) {
     if (e.kind != Json::Kind::Object) bad(field, "expected an object");
     MaskingSettings s;  // papers preset defaults
-    auto real = [&](const char* key, double& out, bool open_lo, bool open_hi) {
-        if (const Json* v = e.find(key))
-            out = in_range(num(*v, field + "." + key), 0.0, 1.0, open_lo, open_hi,
-                           field + "." + key);
-    };
-    real("conf", s.conf, false, true);
-    real("m_th_start", s.m_th_start, false, false);
-    real("m_th_step", s.m_th_step, true, false);
-    real("frame_ratio", s.frame_ratio, false, false);
-    real("t_o", s.t_o, false, false);
-    if (const Json* v = e.find("dilation_px"))
-        s.dilation_px = integer(*v, field + ".dilation_px", 0, 200);
-    if (const Json* v = e.find("min_static"))
-        s.min_static = integer(*v, field + ".min_static", 0, 100000);
+    s.conf = knob(e, field, "conf", s.conf);
+    s.m_th_start = knob(e, field, "m_th_start", s.m_th_start);
+    s.m_th_step = knob(e, field, "m_th_step", s.m_th_step);
+    s.frame_ratio = knob(e, field, "frame_ratio", s.frame_ratio);
+    s.t_o = knob(e, field, "t_o", s.t_o);
+    s.dilation_px = static_cast<int>(knob(e, field, "dilation_px", s.dilation_px));
+    s.min_static = static_cast<int>(knob(e, field, "min_static", s.min_static));
     if (const Json* v = e.find("dilation_reference_px"))
         s.dilation_reference_px = integer(*v, field + ".dilation_reference_px", 1, 1 << 20);
-    real("keep_score", s.keep_score, false, false);
-    if (const Json* v = e.find("cut_behind_m"))
-        s.cut_behind_m = in_range(num(*v, field + ".cut_behind_m"), 0.0, 100.0, false, false,
-                                  field + ".cut_behind_m");
+    s.keep_score = knob(e, field, "keep_score", s.keep_score);
+    s.cut_behind_m = knob(e, field, "cut_behind_m", s.cut_behind_m);
     if (const Json* v = e.find("rule")) {
         s.rule = text(*v, field + ".rule");
         if (s.rule != "eq1" && s.rule != "degrade")
@@ -174,7 +177,7 @@ Metadata Metadata::from_object(const Json& root) {
                                                  false, "mobility_threshold");
         if (root.find("recommended_mask_dilation_px") != nullptr) {
             double side = std::max(m.input_h, m.input_w);
-            double px = m.recommended_mask_dilation_px * 640.0 / side;
+            double px = m.recommended_mask_dilation_px * generated::kDilationReferencePx / side;
             m.slam_masking.dilation_px = static_cast<int>(std::nearbyint(px));  // half to even
             in_range(m.slam_masking.dilation_px, 0, 200, false, false,
                      "recommended_mask_dilation_px");

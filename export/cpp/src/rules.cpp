@@ -12,10 +12,10 @@
 namespace slimseg {
 namespace {
 
-// slimseg.dynamic.depth_cut.REFERENCE_QUANTILE: an object's depth is this quantile of its mask's.
-constexpr double kReferenceQuantile = 0.1;
-// slimseg.dynamic.seg_box.T_O: Eq. 4's t_o where the depth cut cannot act (no depth under it).
-constexpr double kUncutTO = 0.25;
+// an object's depth is this quantile of its mask's; Eq. 4's t_o where the depth cut cannot act
+// (no depth under it): both generated from the Python chain's (settings_generated.hpp)
+constexpr double kReferenceQuantile = generated::kReferenceQuantile;
+constexpr double kUncutTO = generated::kUncutTO;
 
 // Frame pixels whose centre lies in an xyxy box (c + 0.5 >= x1 and c + 0.5 < x2), as a window.
 WindowMask box_window(const std::array<float, 4>& b, int h, int w) {

@@ -8,6 +8,7 @@
 
 #include "slimseg/error.hpp"
 #include "slimseg/json.hpp"
+#include "slimseg/settings_generated.hpp"
 
 namespace slimseg {
 
@@ -18,18 +19,18 @@ struct NmsSettings {
     bool class_aware = true;
 };
 
-struct MaskingSettings {  // slam_masking: the SLAM-facing defaults
-    double conf = 0.25;
-    int dilation_px = 0;
-    int min_static = 100;
-    double m_th_start = 0.25;
-    double m_th_step = 0.1;
-    double frame_ratio = 0.05;
-    double t_o = 0.25;
-    int dilation_reference_px = 640;
-    std::string rule = "eq1";  // eq1 | degrade (what happens when static support runs short)
-    double keep_score = 0.5;   // degrade: a candidate scoring this or more is never given up
-    double cut_behind_m = 0.0; // with depth: mask pixels this far behind the object are cut
+struct MaskingSettings {  // slam_masking: the SLAM-facing defaults (the papers preset)
+    double conf = generated::kConf;
+    int dilation_px = generated::kDilationPx;
+    int min_static = generated::kMinStatic;
+    double m_th_start = generated::kMThStart;
+    double m_th_step = generated::kMThStep;
+    double frame_ratio = generated::kFrameRatio;
+    double t_o = generated::kTO;
+    int dilation_reference_px = generated::kDilationReferencePx;
+    std::string rule = generated::kRule;  // eq1 | degrade (when static support runs short)
+    double keep_score = generated::kKeepScore;  // degrade: scoring this or more: never given up
+    double cut_behind_m = generated::kCutBehindM;  // with depth: pixels this far behind: cut
 };
 
 struct Metadata {
