@@ -92,3 +92,21 @@ def test_readme_is_a_path() -> None:
     assert where < 60, f"the where-next table starts at line {where + 1}"
     table = [line for line in lines[where:] if line.startswith("|")][:20]
     assert sum("docs/" in line for line in table) >= 10, "the where-next table lost its rows"
+
+
+def test_readme_layout_is_current() -> None:
+    """Every path the Layout section starts a line with exists, and every package is named."""
+    text = (ROOT / "README.md").read_text()
+    block = text.split("## Layout", 1)[1].split("```", 2)[1]
+    named = [line.split("  ")[0].strip() for line in block.splitlines() if line[:1].strip()]
+    missing = []
+    for entry in named:
+        first, *rest = [part.strip() for part in entry.split(",")]
+        folder = Path(first).parent
+        for name in [first, *(str(folder / r) for r in rest)]:
+            if not (ROOT / name).exists():
+                missing.append(name)
+    assert not missing, f"README Layout names paths that do not exist: {missing}"
+    packages = {p.parent.name for p in (ROOT / "slimseg").glob("*/__init__.py")}
+    listed = {Path(e.split(",")[0]).name.rstrip("/") for e in named if e.startswith("slimseg/")}
+    assert packages <= listed, f"README Layout misses {sorted(packages - listed)}"
