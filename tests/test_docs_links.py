@@ -6,6 +6,7 @@ it has), every docs file is in the docs index, and the README keeps its two set-
 from __future__ import annotations
 
 import re
+import shlex
 from pathlib import Path
 
 import pytest
@@ -110,3 +111,36 @@ def test_readme_layout_is_current() -> None:
     packages = {p.parent.name for p in (ROOT / "slimseg").glob("*/__init__.py")}
     listed = {Path(e.split(",")[0]).name.rstrip("/") for e in named if e.startswith("slimseg/")}
     assert packages <= listed, f"README Layout misses {sorted(packages - listed)}"
+
+
+def test_readme_commands_parse() -> None:
+    """Each `slimseg ...` line of the README's shell blocks is accepted by the real parser."""
+    from slimseg.cli.main import build_parser
+
+    text = (ROOT / "README.md").read_text()
+    lines = [ln for b in re.findall(r"```bash\n(.*?)```", text, re.S) for ln in b.splitlines()]
+    commands = [ln.split(" #")[0].strip() for ln in lines if ln.startswith("slimseg ")]
+    assert len(commands) >= 10, commands
+    for line in commands:
+        line = re.sub(r"\[(--[\w-]+)\]", r"\1", line).replace("$S", "data/seq/sequences/seq_000")
+        argv = shlex.split(line)[1:]
+        try:
+            build_parser(argv).parse_args(argv)
+        except SystemExit as exc:
+            pytest.fail(f"README command does not parse (exit {exc.code}): {line}")
+
+
+def test_readme_python_names_exist() -> None:
+    """The README's Python blocks compile and every ``slimseg.<name>`` they use exists."""
+    import ast
+
+    import slimseg
+
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+    assert blocks
+    for block in blocks:
+        tree = ast.parse(block)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name):
+                if node.value.id == "slimseg":
+                    assert hasattr(slimseg, node.attr), f"slimseg.{node.attr} (README) is gone"
