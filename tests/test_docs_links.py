@@ -141,6 +141,6 @@ def test_readme_python_names_exist() -> None:
     for block in blocks:
         tree = ast.parse(block)
         for node in ast.walk(tree):
-            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name):
-                if node.value.id == "slimseg":
-                    assert hasattr(slimseg, node.attr), f"slimseg.{node.attr} (README) is gone"
+            name = node.value if isinstance(node, ast.Attribute) else None
+            if isinstance(name, ast.Name) and name.id == "slimseg":
+                assert hasattr(slimseg, node.attr), f"slimseg.{node.attr} (README) is gone"
