@@ -54,6 +54,13 @@ def _links(page: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_links_are_whole(page: Path) -> None:
+    """Every ``](`` opens a link that closes on its line (a cut link is found, not skipped)."""
+    cut = [ln for ln in _prose(page.read_text()) if ln.count("](") != len(LINK.findall(ln))]
+    assert not cut, f"{page.relative_to(ROOT)}: unclosed links in {cut}"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
 def test_relative_links_resolve(page: Path) -> None:
     bad = []
     for target in _links(page):
