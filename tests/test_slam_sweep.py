@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from slimseg.cli.masking_args import add_masking_args, masking_from_args
 
 from slimseg.cli.main import main
+from slimseg.cli.settings_args import add_settings_args, settings_from_args
 from slimseg.data.synth import generate
 from slimseg.data.tum import TumSequence
 from slimseg.deploy.metadata import (
@@ -52,9 +52,11 @@ pytest.importorskip("evo", reason="the [slam] extra (make test installs it)")
 
 
 def test_parse_sweep_values_and_order() -> None:
-    spec = parse_sweep(["dilation=0,5,11", "conf=0.1, 0.05,0.1", "ratio=0.2"])
-    assert list(spec) == ["dilation", "conf", "ratio"]
-    assert spec["dilation"] == (0, 5, 11) and all(isinstance(v, int) for v in spec["dilation"])
+    spec = parse_sweep(["dilation_px=0,5,11", "conf=0.1, 0.05,0.1", "frame_ratio=0.2"])
+    assert list(spec) == ["dilation_px", "conf", "frame_ratio"]
+    assert spec["dilation_px"] == (0, 5, 11) and all(
+        isinstance(v, int) for v in spec["dilation_px"]
+    )
     assert spec["conf"] == (0.1, 0.05)  # duplicates dropped, order kept
 
 
@@ -64,9 +66,9 @@ def test_parse_sweep_values_and_order() -> None:
         (["speed=1"], "unknown key 'speed'; valid: conf, dilation"),
         (["conf"], "expected KEY=v1,v2"),
         (["conf="], "no values after"),
-        (["conf=0.1,abc"], "'abc' is not a number"),
-        (["dilation=2.5"], "'2.5' is not a whole number"),
-        (["conf=1.5"], "conf = 1.5: expected detector score threshold"),
+        (["conf=0.1,abc"], "'abc': not a number"),
+        (["dilation_px=2.5"], "'2.5': not a whole number"),
+        (["conf=1.5"], "conf = 1.5: expected 0 <= x < 1"),
         (["conf=1"], "conf = 1.0"),
         (["conf=-0.1"], "conf = -0.1"),
         (["t_o=-0.1"], "t_o = -0.1"),
@@ -93,11 +95,11 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys) -> None:
             "--gt-instances", "--engine", "dense"]  # fmt: skip
     cases = [
         (["--sweep", "bogus=1"], "unknown key 'bogus'"),
-        (["--sweep", "dilation_px=x"], "'x' is not a whole number"),
+        (["--sweep", "dilation_px=x"], "'x': not a whole number"),
         (["--sweep", "dilation_px=1", "--modes", "seg,fusion"], "exactly one mask mode"),
         (["--sweep", "dilation_px=1", "--modes", "oracle"], "a sweep takes one mask mode"),
         (["--sweep", "dilation_px=1", "--restore"], "--restore is not swept"),
-        (["--conf", "2"], "masking setting conf = 2.0"),
+        (["--set", "conf=2"], "setting conf = 2.0"),
         (["--sequence", str(tmp_path)], "several --sequence values need --sweep"),
     ]
     for extra, match in cases:
@@ -111,21 +113,21 @@ def test_cli_errors_are_one_line(tmp_path: Path, capsys) -> None:
 
 
 def test_oneway_and_grid_points() -> None:
-    spec_items = ["conf=0.05,0.1,0.25", "dilation=0,5"]
+    spec_items = ["conf=0.05,0.1,0.25", "dilation_px=0,5"]
     spec = parse_sweep(spec_items)
     one = sweep_points(SLIMSEG, spec, "oneway")
     assert one[0].label == "base (slimseg)" and one[0].settings == SLIMSEG
     labels = [p.label for p in one]
     # conf 0.1 and dilation 5 are the base's own values: not repeated
-    assert labels[1:4] == ["conf=0.05", "conf=0.25", "dilation=0"]
+    assert labels[1:4] == ["conf=0.05", "conf=0.25", "dilation_px=0"]
     assert len({p.settings for p in one}) == len(one)
     refs = [p for p in one if p.reference]
     assert [p.label for p in refs] == ["preset papers"] and refs[0].settings == PAPERS
     grid = sweep_points(SLIMSEG, spec, "grid")
     assert len([p for p in grid if not p.reference]) == 3 * 2
     assert "preset papers" in [p.label for p in grid]  # papers' rule, t_o, cut: no point
-    more = [*spec_items, "rule=eq1,degrade", "t_o=0.25,1", "cut_behind=0,0.5", "motion_odds=1,10",
-            "motion_layer=0,100", "still=0,20"]  # fmt: skip
+    more = [*spec_items, "rule=eq1,degrade", "t_o=0.25,1", "cut_behind_m=0,0.5", "motion_odds=1,10",
+            "motion_layer_px=0,100", "still_frames=0,20"]  # fmt: skip
     every = sweep_points(SLIMSEG, parse_sweep(more), "grid")
     assert len([p for p in every if not p.reference]) == 3 * 2 * 2 * 2 * 2 * 2 * 2 * 2
     # conf 0.25, dilation 0, rule eq1, t_o 0.25, no cut, odds 1, no motion layer, no stillness
@@ -138,8 +140,8 @@ def test_oneway_and_grid_points() -> None:
         sweep_points(SLIMSEG, spec, "random")
     # ground-truth instances all score 1: conf makes no setting of its own
     gti = sweep_points(PAPERS.with_values(conf=0.1, dilation_px=5),
-                       parse_sweep(["dilation=0,9"]), ignore_conf=True)  # fmt: skip
-    assert [p.label for p in gti][1:3] == ["dilation=0 (= preset papers)", "dilation=9"]
+                       parse_sweep(["dilation_px=0,9"]), ignore_conf=True)  # fmt: skip
+    assert [p.label for p in gti][1:3] == ["dilation_px=0 (= preset papers)", "dilation_px=9"]
     assert "preset papers" not in [p.label for p in gti]
 
 
@@ -292,12 +294,12 @@ def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
             "--json"]  # fmt: skip
     assert main(args) == 0
     rows = {r["condition"]: r for r in json.loads(capsys.readouterr().out)}
-    spec = parse_sweep(["dilation=3,9", "m_th_start=0.6", "m_th_step=0.2"])
+    spec = parse_sweep(["dilation_px=3,9", "m_th_start=0.6", "m_th_step=0.2"])
     assert list(rows) == ["raw", "gt"] + [p.label for p in sweep_points(PAPERS, spec)]
     assert rows["gt"]["ate_rmse"] < rows["raw"]["ate_rmse"]
-    assert rows["dilation=9"]["dilation_px"] == 9 and rows["m_th_start=0.6"]["m_th_start"] == 0.6
+    assert rows["dilation_px=9"]["dilation_px"] == 9 and rows["m_th_start=0.6"]["m_th_start"] == 0.6
     # seg masks only grow with the dilation: every dynamic keypoint stays found
-    assert rows["dilation=9"]["recall"] >= rows["dilation=3"]["recall"] >= rows[
+    assert rows["dilation_px=9"]["recall"] >= rows["dilation_px=3"]["recall"] >= rows[
         "base (papers)"]["recall"]  # fmt: skip
     # above 0.5, Eq. 1 no longer drops points on the static bottles (mobility 0.5)
     assert rows["m_th_start=0.6"]["fp"] <= rows["base (papers)"]["fp"]
@@ -307,13 +309,13 @@ def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
     assert step["same_masks_as"] == "base (papers)" and "masks = base (papers)'s" in step["status"]
     assert step["ate_rmse"] == rows["base (papers)"]["ate_rmse"]
     ran = (out / "seq_000" / "runs.csv").read_text()
-    assert "m_th_step=0.2" not in ran and "dilation=9" in ran
+    assert "m_th_step=0.2" not in ran and "dilation_px=9" in ran
     md = (out / "sweep.md").read_text()
-    assert "## seq_000" in md and "| dilation=9 " in md
+    assert "## seq_000" in md and "| dilation_px=9 " in md
     assert "base settings: papers preset (conf 0.25" in md
     assert (out / "sweep.png").stat().st_size > 10_000
     assert (out / "seq_000" / "runs.csv").is_file()
-    masks = list((out / "seq_000" / "masks" / "dilation_9").glob("*.png"))
+    masks = list((out / "seq_000" / "masks" / "dilation_px_9").glob("*.png"))
     assert len(masks) == len(TumSequence(seq))
 
 
@@ -322,7 +324,11 @@ def test_tiny_sweep_end_to_end(seq: Path, tmp_path: Path, capsys) -> None:
 
 def test_presets_reach_the_cli_and_the_metadata() -> None:
     p = argparse.ArgumentParser()
-    add_masking_args(p)
+    add_settings_args(p)
+
+    def masking_from_args(args: argparse.Namespace):
+        return settings_from_args(args)[0]
+
     assert masking_from_args(p.parse_args([])) == DEFAULT == PRESETS["slimseg"]
     assert masking_from_args(p.parse_args(["--preset", "papers"])) == PAPERS
     over = masking_from_args(p.parse_args(["--preset", "papers", "--set", "dilation_px=7"]))

@@ -22,15 +22,13 @@ from slimseg.dynamic.track_settings import (
 from slimseg.errors import SlimsegError
 
 
-def _pair(text: str) -> tuple[str, Value]:
-    """``KEY=VALUE`` → ``(key, value)``, the value parsed and checked by its knob."""
+def _pair(text: str) -> tuple[str, str]:
+    """``KEY=VALUE`` → ``(key, text)``; :func:`settings_from_args` checks both (its one-line
+    error names the knob and its range)."""
     key, sep, value = (part.strip() for part in text.partition("="))
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE (e.g. conf=0.2)")
-    try:
-        return key, knob(key).parse(value)
-    except KnobError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
+    return key, value
 
 
 def _rate(text: str) -> ModelRate:
@@ -105,7 +103,11 @@ def settings_from_args(args: argparse.Namespace) -> tuple[MaskingSettings, Track
     """The preset with every ``--set`` applied, and the track stage with its rate
     (validated: a :class:`SlimsegError` names a bad value)."""
     given: dict[str, Value] = {}
-    for key, value in args.settings:
+    for key, text in args.settings:
+        try:
+            value = knob(key).parse(text)
+        except KnobError as e:
+            raise KnobError(f"--set {e}") from None
         if key in given and given[key] != value:
             raise SlimsegError(f"--set {key} given twice ({given[key]} and {value})")
         given[key] = value
