@@ -8,12 +8,12 @@ from conftest import frame_objects
 
 from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS
+from slimseg.dynamic.modes import MODES, Mode
 from slimseg.dynamic.pipeline import (
-    MODES,
     FrameRules,
+    apply_rules,
     orb_keypoints,
     process_frame,
-    process_modes,
 )
 
 HW = (60, 80)
@@ -72,21 +72,22 @@ def test_orb_finds_corners() -> None:
     assert len(orb_keypoints(img, 200)) > 4
 
 
-def test_process_modes_equals_one_mode_at_a_time() -> None:
+def test_rules_of_every_mode_on_one_decision_per_mode_equal_one_mode_at_a_time() -> None:
+    """What the report does (each mode decides, then applies its rules on the same inputs)
+    equals each mode's own :func:`process_frame`."""
     kps, boxes, classes, masks, depth = _frame()
     inputs = FrameInputs(kps, frame_objects(boxes, classes, masks, HW), depth_m=depth)
     settings = FrameRules(MOBILITY, masking=PAPERS.with_values(min_static=10))
-    together = process_modes(
-        inputs=inputs, settings=settings, modes=MODES, rng=np.random.default_rng(0)
-    )
-    rng = np.random.default_rng(0)
+    rng_a, rng_b = np.random.default_rng(0), np.random.default_rng(0)
     for mode in MODES:
+        shared = apply_rules(inputs, settings.decide(inputs, Mode(mode)), settings,
+                             mode=Mode(mode), rng=rng_a)  # fmt: skip
         alone = process_frame(
             inputs=inputs,
             settings=FrameRules(MOBILITY, mode, PAPERS.with_values(min_static=10)),
-            rng=rng,
+            rng=rng_b,
         )
-        assert np.array_equal(together[mode].dynamic, alone.dynamic), mode
-        assert np.array_equal(together[mode].mask, alone.mask) and together[mode].seconds > 0
-    with pytest.raises(ValueError, match="unknown mode"):
-        process_modes(inputs=inputs, settings=settings, modes=["segm"])
+        assert np.array_equal(shared.dynamic, alone.dynamic), mode
+        assert np.array_equal(shared.mask, alone.mask) and shared.seconds > 0
+    with pytest.raises(ValueError, match="mode 'segm'"):
+        apply_rules(inputs, settings.decide(inputs), settings, mode="segm")

@@ -148,7 +148,7 @@ def test_a_late_result_lands_where_the_object_is_now() -> None:
     centres = {}
     for late in (6, 0):
         settings = COAST.with_values(own_matches=late)
-        stage = TrackedSequence(settings, np.array([1.0]), mode="seg", mover_prior=0.5)
+        stage = TrackedSequence(settings, np.array([1.0]), mover_prior=0.5)
         previous = None
         for k, img in enumerate(frames):
             feats = orb_features(img, 1000)

@@ -158,7 +158,7 @@ def test_cli_rates_and_their_errors(sequence: Path, tmp_path: Path, capsys) -> N
     for bad, msg in (
         (["--fps", "5"], "add --rate thread"),
         (["--track", "--rate", "thread", "--fps", "-1"], "--fps -1"),
-        (["--track", "--rate", "budget:10", "--rate", "2"], "give one way"),
+        (["--track", "--rate", "sometimes"], "expected N, budget:MS or thread"),
         (["--rate", "thread"], "needs the track stage"),
     ):
         assert main([*base, *bad]) == 2

@@ -29,8 +29,10 @@ class Env:
         self.seq = root / "d" / "sequences" / "seq_000"
         self.weights = class_map_weights(self.seq, root / "w.pt")
 
-    def common(self) -> list[str]:
-        return ["--model", str(self.weights), "--conf", "0", "--threads", "1", "--quiet"]
+    def common(self, chain: bool = True) -> list[str]:
+        """The model at score threshold 0: the chain's (``--set conf=0``) or predict's."""
+        conf = ["--set", "conf=0"] if chain else ["--conf", "0"]
+        return ["--model", str(self.weights), *conf, "--threads", "1", "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -107,7 +109,7 @@ def test_predict_track_writes_one_mask_per_frame(env: Env, tmp_path: Path) -> No
     rrd = tmp_path / "pred.rrd"
     rrd.write_bytes(b"RRF2" + bytes(12))  # an earlier recording (by its magic) is replaced
     cmd = ["predict", "--source", str(env.seq / "rgb"), "--out", str(tmp_path / "p"),
-           "--track", "--rerun", str(rrd), *env.common()]  # fmt: skip
+           "--track", "--rerun", str(rrd), *env.common(chain=False)]  # fmt: skip
     assert main(cmd) == 0
     rows = read_rrd(rrd)
     assert _frames(rows["/camera/image/dynamic_mask"]) == list(range(FRAMES))
@@ -154,7 +156,7 @@ def test_rerun_refusals_before_any_work(env: Env, tmp_path: Path, capsys) -> Non
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.rrd"]
     assert user.read_text() == "my notes"
     pred = ["predict", "--source", str(env.seq / "rgb"), "--out", str(tmp_path / "p"),
-            "--rerun", str(tmp_path / "p.rrd"), *env.common()]  # fmt: skip
+            "--rerun", str(tmp_path / "p.rrd"), *env.common(chain=False)]  # fmt: skip
     assert main(pred) == 2 and "add --track" in capsys.readouterr().err
 
 

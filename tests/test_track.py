@@ -290,7 +290,7 @@ def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) ->
     assert (out / "tracks.csv").read_text().startswith("timestamp,track_id")
     for bad, msg in (
         (["--rate", "2"], "needs the track stage"),
-        (["--set", "high=2"], "track setting high"),
+        (["--set", "high=2"], "setting high = 2.0"),
         (["--track", "nope"], "invalid choice"),
     ):
         args = ["dynamic", "--gt-instances", "--sequence", str(sequence), "--out", str(out),

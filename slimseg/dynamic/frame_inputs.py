@@ -1,5 +1,5 @@
-"""What one frame brings to the masking rules (:class:`FrameInputs`) and the motion evidence
-already weighed into it (:class:`MotionEvidence`): the record every stage of the chain reads."""
+"""What one frame brings to the masking chain (:class:`FrameInputs`): the record its stages
+read (the objects' mobility is decided from it, :mod:`slimseg.dynamic.mobility`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slimseg.dynamic.epipolar import EpipolarResult, PreviousFrame
+from slimseg.dynamic.epipolar import PreviousFrame
 from slimseg.objects import Objects
 
 
@@ -25,8 +25,9 @@ class FrameInputs:
     depth_m: np.ndarray | None = None
     descriptors: np.ndarray | None = None
     previous: PreviousFrame | None = None
-    evidence: MotionEvidence | None = None
-    """the epipolar check the track stage ran (its outcome is already in the mobilities)"""
+    matches: np.ndarray | None = None
+    """the frame pair's ORB matches (:func:`~slimseg.dynamic.epipolar.match_features` rows,
+    previous → these keypoints) when the track stage computed them: the check reuses them"""
     support: np.ndarray | None = None
     """``float32 [P, 2]`` corners the SLAM engine can take outside a mask (the ``degrade``
     rule's static support, :func:`slimseg.dynamic.degrade.support_points`; None: the
@@ -39,15 +40,3 @@ class FrameInputs:
     def hw(self) -> tuple[int, int]:
         """The frame's ``(H, W)``."""
         return self.objects.hw
-
-
-@dataclass(frozen=True)
-class MotionEvidence:
-    """An epipolar check's ``result`` on the objects ``checked`` (indices into the frame's
-    objects); ``result`` None: nothing was checked (first frame, no candidates)."""
-
-    result: EpipolarResult | None
-    checked: list[int]
-    weighed: bool = False
-    """the check's decisions were weighed in at the motion odds (seg, fusion), not applied
-    as the epipolar modes' verdict"""

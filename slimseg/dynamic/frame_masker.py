@@ -18,7 +18,8 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -29,16 +30,12 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
-from slimseg.dynamic.frame_inputs import FrameInputs, MotionEvidence
-from slimseg.dynamic.model_feed import Feed, ModelFeed
-from slimseg.dynamic.modes import EPIPOLAR_MODES, WEIGHED_MODES
-from slimseg.dynamic.pipeline import (
-    FrameResult,
-    FrameRules,
-    epipolar_priors,
-    process_frame,
-    weighed_mobility,
-)
+from slimseg.dynamic.frame_inputs import FrameInputs
+from slimseg.dynamic.knobs import Rule
+from slimseg.dynamic.mobility import Decision, MotionBelief
+from slimseg.dynamic.model_feed import FedDetections, Feed, ModelFeed
+from slimseg.dynamic.occupancy import MotionLayers
+from slimseg.dynamic.pipeline import FrameResult, FrameRules, apply_rules
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import objects_of
 from slimseg.dynamic.stillness import compared_frames, find_still
@@ -60,17 +57,37 @@ class FrameError(SlimsegError):
     """A frame the chain cannot take (dtype, shape, a size change, a depth of another size)."""
 
 
+STAGES = ("model", "features", "objects", "stillness", "mobility", "layers", "rules")
+"""The chain's stages in the order :meth:`FrameMasker.step` runs them (docs/architecture.md,
+"The masking chain")."""
+
+
 @dataclass(frozen=True)
 class FrameTiming:
-    """Milliseconds of one frame by part, on the caller's thread: ``model`` (inline runs, or
-    waiting for the worker), ORB ``features``, the ``track`` stage, the mode's ``logic``
-    (Eq. 1/3/4); ``latency``: from the call to the mask being ready."""
+    """Milliseconds of one frame by stage (:data:`STAGES`), on the caller's thread (``model``:
+    the inline run, or waiting for the worker); ``latency``: from the call to the mask."""
 
-    model: float
-    features: float
-    track: float
-    logic: float
+    stages: dict[str, float]
     latency: float
+
+    @property
+    def model(self) -> float:
+        return self.stages["model"]
+
+    @property
+    def features(self) -> float:
+        """ORB features of the frame."""
+        return self.stages["features"]
+
+    @property
+    def track(self) -> float:
+        """The objects (the track stage, or the priors) and the stillness test."""
+        return self.stages["objects"] + self.stages["stillness"]
+
+    @property
+    def logic(self) -> float:
+        """The mobility decision, the motion layers and the mode's rules (Eq. 1/3/4)."""
+        return self.stages["mobility"] + self.stages["layers"] + self.stages["rules"]
 
     @property
     def masking(self) -> float:
@@ -83,8 +100,9 @@ class MaskedFrame:
     """One frame's outcome: ``mask uint8 [H, W]`` (255 = dynamic, drop features there) and
     ``dynamic bool [N]`` per keypoint; ``lag``: a model result arrived this frame, computed
     that many frames ago (None: none arrived); the mode's ``result`` (Eq. 1's threshold,
-    dropped objects, Eq. 4 decisions); ``inputs``: what the rules saw (the keypoints, the
-    objects, depth, the previous frame): the trace a report scores other modes on."""
+    dropped objects, Eq. 4 decisions); ``inputs``: what the chain saw (the keypoints, the
+    objects with their base mobility, depth, the previous frame) and ``decision``: the
+    mobility the rules used: the trace a report scores other modes on."""
 
     index: int
     stamp: float
@@ -94,6 +112,7 @@ class MaskedFrame:
     timing: FrameTiming
     result: FrameResult
     inputs: FrameInputs
+    decision: Decision
 
     @property
     def keypoints(self) -> np.ndarray:
@@ -109,6 +128,28 @@ class MaskedFrame:
     def model_ran(self) -> bool:
         """A model result arrived this frame."""
         return self.lag is not None
+
+
+class _StageClock:
+    """Milliseconds per named stage of one frame (``with clock("name"): ...``)."""
+
+    def __init__(self) -> None:
+        self.start = time.perf_counter()
+        self.ms: dict[str, float] = {}
+        self._began: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        t0 = self._began[name] = time.perf_counter()
+        yield
+        self.ms[name] = 1000 * (time.perf_counter() - t0)
+
+    def since(self, name: str) -> float:
+        """Seconds from the start of stage ``name`` to now."""
+        return time.perf_counter() - self._began[name]
+
+    def total_ms(self) -> float:
+        return 1000 * (time.perf_counter() - self.start)
 
 
 class FrameMasker:
@@ -132,13 +173,16 @@ class FrameMasker:
         self.mobility = np.asarray(class_mobility, np.float32)
         self.rules = FrameRules(self.mobility, config.mode, config.masking)
         self.stage = None
+        self._belief: MotionBelief | None = None  # where the check's decisions go (tracks)
         if config.track.on:
             self.stage = TrackedSequence(
-                config.track.settings, self.mobility, mode=config.mode,
-                mover_prior=self.rules.mover_prior, fps=config.fps,
-                motion_odds=config.masking.motion_odds,
-            )  # fmt: skip
-        degrade = config.masking.rule == "degrade"  # the corners: its static support
+                config.track.settings,
+                self.mobility,
+                mover_prior=self.rules.mover_prior,
+                fps=config.fps,
+            )
+            self._belief = self.stage.tracker
+        degrade = config.masking.rule == Rule.DEGRADE  # the corners: its static support
         self.extract = extractor or (
             lambda rgb, stamp: orb_features(rgb, config.keypoints, corners=degrade)
         )
@@ -187,6 +231,7 @@ class FrameMasker:
         stamp: float | None,
         keypoints: np.ndarray | None,
     ) -> MaskedFrame:
+        """The chain, one stage after another (:data:`STAGES`)."""
         i, config = self.frames, self.config
         hw = self._check(rgb, depth, keypoints)
         depth_m = self._metres(depth)
@@ -199,49 +244,72 @@ class FrameMasker:
                 min(config.masking.t_o, T_O),
             )  # fmt: skip
         stamp = i / config.fps if stamp is None else float(stamp)
-        t0 = time.perf_counter()
-        got = self.feed.frame(i, rgb, stamp)
-        t1 = time.perf_counter()
-        features = self.extract(rgb, stamp)
-        t2 = time.perf_counter()
+        clock = _StageClock()
+        with clock("model"):  # this frame's model result, if one arrived
+            got = self.feed.frame(i, rgb, stamp)
+        with clock("features"):  # the chain's own ORB
+            features = self.extract(rgb, stamp)
         previous = self._history[-1] if self._history else None
-        if self.stage is None:
-            objects = Objects.empty(hw) if got.objects is None else got.objects
-            objects = replace(objects, mobility=objects.priors(self.mobility))
-            inputs = FrameInputs(
-                keypoints=features.keypoints, objects=objects, depth_m=depth_m,
-                descriptors=features.descriptors, previous=previous, support=features.corners,
-            )  # fmt: skip
-        else:
-            inputs = self.stage.inputs(
-                features, got.objects, config.masking.conf, depth_m, previous, got.lag
-            )
-        earlier = compared_frames(self._history, config.masking.still_frames)
-        if earlier:  # on the chain's own ORB, before the caller's keypoints replace them
-            still = find_still(inputs, earlier, inputs.objects.priors(self.mobility))
-            inputs = replace(inputs, still=still)
+        with clock("objects"):  # the track stage, or the detections with their priors
+            inputs = self._objects(hw, features, got, depth_m, previous)
+        with clock("stillness"):
+            inputs = self._stillness(inputs)
+        with clock("mobility"):  # prior or track → stillness → the check's evidence
+            decision = self.rules.decide(inputs, belief=self._belief)
+        with clock("layers"):  # on the chain's ORB, before the caller's keypoints replace them
+            moved = MotionLayers.of(inputs, config.masking)
         if keypoints is not None:
-            inputs = self._with_keypoints(inputs, np.asarray(keypoints, np.float32))
-        t3 = time.perf_counter()
-        result = process_frame(inputs=inputs, settings=self.rules, rng=self._rng)
-        t4 = time.perf_counter()
-        self.feed.other_time(t4 - t1)
-        if config.camera is not None:  # the motion layers (and PnP residual) need its depth
-            self._history.append(PreviousFrame(
-                features, depth_m, config.camera, depth_residual=config.epipolar_depth
-            ))  # fmt: skip
-        else:
-            self._history.append(PreviousFrame(features))
+            kps = np.asarray(keypoints, np.float32)
+            inputs = replace(inputs, keypoints=kps, descriptors=None, matches=None)
+        with clock("rules"):  # regions, depth cut, dilation, Eq. 3/4, the shortfall rule
+            result = apply_rules(inputs, decision, self.rules, rng=self._rng, moved=moved)
+        self.feed.other_time(clock.since("features"))
+        self._remember(features, depth_m)
         self.frames += 1
-        timing = FrameTiming(
-            model=1000 * (t1 - t0), features=1000 * (t2 - t1), track=1000 * (t3 - t2),
-            logic=1000 * (t4 - t3), latency=1000 * (t4 - t0),
-        )  # fmt: skip
         return MaskedFrame(
             index=i, stamp=stamp, mask=result.mask, dynamic=result.dynamic,
-            lag=None if got.objects is None else got.lag, timing=timing, result=result,
-            inputs=inputs,
+            lag=None if got.objects is None else got.lag,
+            timing=FrameTiming(clock.ms, clock.total_ms()), result=result, inputs=inputs,
+            decision=decision,
         )  # fmt: skip
+
+    def _objects(
+        self,
+        hw: tuple[int, int],
+        features: OrbFeatures,
+        got: FedDetections,
+        depth_m: np.ndarray | None,
+        previous: PreviousFrame | None,
+    ) -> FrameInputs:
+        """The frame's objects: the track stage's (tracked, coasted, carried), or this frame's
+        detections with their class priors."""
+        if self.stage is not None:
+            conf = self.config.masking.conf
+            return self.stage.inputs(features, got.objects, conf, depth_m, previous, got.lag)
+        objects = Objects.empty(hw) if got.objects is None else got.objects
+        objects = replace(objects, mobility=objects.priors(self.mobility))
+        return FrameInputs(
+            keypoints=features.keypoints, objects=objects, depth_m=depth_m,
+            descriptors=features.descriptors, previous=previous, support=features.corners,
+        )  # fmt: skip
+
+    def _stillness(self, inputs: FrameInputs) -> FrameInputs:
+        """The stillness test against the frames ``still_frames`` and half as many back."""
+        earlier = compared_frames(self._history, self.config.masking.still_frames)
+        if not earlier:
+            return inputs
+        return replace(inputs, still=find_still(inputs, earlier,
+                                                inputs.objects.priors(self.mobility)))  # fmt: skip
+
+    def _remember(self, features: OrbFeatures, depth_m: np.ndarray | None) -> None:
+        """This frame as the next one's previous (with its depth where the camera is known:
+        the motion layers and the PnP residual need it)."""
+        config = self.config
+        if config.camera is None:
+            self._history.append(PreviousFrame(features))
+        else:
+            self._history.append(PreviousFrame(features, depth_m, config.camera,
+                                               depth_residual=config.epipolar_depth))  # fmt: skip
 
     def close(self) -> None:
         """Wait for a model run still in flight and stop the worker; :meth:`step` refuses
@@ -297,24 +365,6 @@ class FrameMasker:
         if np.issubdtype(depth.dtype, np.integer):
             return depth_metres(depth, self.config.depth_scale)
         return depth
-
-    def _with_keypoints(self, inputs: FrameInputs, kps: np.ndarray) -> FrameInputs:
-        """The caller's keypoints classified instead of the chain's ORB; the epipolar check
-        still runs on the chain's own features (it needs their descriptors), as the stillness
-        test did before."""
-        mode, odds = self.config.mode, self.config.masking.motion_odds
-        weighed = mode in WEIGHED_MODES and odds > 1
-        if inputs.evidence is None and (mode in EPIPOLAR_MODES or weighed):
-            mob = inputs.objects.mobility
-            if weighed:  # the evidence weighed in now (a check without result: not again)
-                mob = weighed_mobility(inputs, mob, odds)
-                evidence = MotionEvidence(None, [])
-            else:
-                mob, result, checked = epipolar_priors(inputs, mob, self.rules.mover_prior)
-                evidence = MotionEvidence(result, checked)
-            objects = replace(inputs.objects, mobility=mob)
-            inputs = replace(inputs, objects=objects, evidence=evidence)
-        return replace(inputs, keypoints=kps, descriptors=None)
 
 
 class Predicts(Protocol):

@@ -1,4 +1,5 @@
-"""One frame of the SLAM-facing reference: detections + keypoints (+ depth) → dynamic points.
+"""The masking rules of one frame: objects + their decided mobility + keypoints (+ depth) →
+dynamic points and the mask.
 
 Modes (YOLO-SLAM's and the substation paper's ablations):
 - ``box``: every keypoint inside a box of a dynamic class is dynamic;
@@ -7,40 +8,31 @@ Modes (YOLO-SLAM's and the substation paper's ablations):
   keyframes (Eq. 3), plain seg masks otherwise; then Eq. 1;
 - ``box+depth-ransac``: inside boxes of dynamic classes, YOLO-SLAM's depth-RANSAC keeps the
   largest depth-consistent set as dynamic; the rest of each box stays static;
-- ``semantic+epipolar`` / ``fusion+epipolar`` (VTD-SLAM's multi-view check): like ``seg`` /
-  ``fusion``, but every detection of a dynamic class (prior > ``dynamic_mobility``) is first
-  checked against the previous frame (``epipolar.check_motion`` on its instance mask); one the
-  check finds *static* gets mobility 0, so its points stay static (a standing person). Objects
-  with too few matched points, and every object of the first frame (no ``previous``), keep
-  their prior: undecided means dynamic. Eq. 3 then counts with the corrected priors.
+- ``semantic+epipolar`` / ``fusion+epipolar`` (VTD-SLAM's multi-view check): ``seg`` /
+  ``fusion`` with the epipolar check's verdict in the mobilities.
 
-Objects the stillness test found still (``FrameInputs.still``; the chain runs
-:mod:`slimseg.dynamic.stillness` with ``still_frames`` on) get mobility 0 before any mode
-runs: a person standing still is static structure.
-
-With the track stage (:mod:`slimseg.dynamic.track`), the objects' ``mobility`` column carries
-each one's mobility (its track's moving probability, decayed per missed frame) instead of the
-class prior, ``misses`` > 0 marks the coasted masks (Eq. 4 leaves them as they are: a
-prediction turned into its box would only grow the error), and the epipolar check has
-already run (``FrameInputs.evidence``): its outcome is in the mobilities, not applied again.
+Each object's mobility comes decided (:func:`slimseg.dynamic.mobility.decide_mobility`:
+prior or track, stillness, the check's evidence); :func:`apply_rules` only applies it: the
+regions, the depth cut with its motion layers, the dilation, Eq. 3, Eq. 4 and the shortfall
+rule. With the track stage ``misses`` > 0 marks the coasted masks (Eq. 4 leaves them as they
+are: a prediction turned into its box would only grow the error).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from slimseg.dynamic.degrade import degrade
 from slimseg.dynamic.depth_cut import behind_pixels, cut_behind, reference_depths
-from slimseg.dynamic.epipolar import EpipolarResult, OrbFeatures, check_motion
-from slimseg.dynamic.frame_inputs import FrameInputs, MotionEvidence
+from slimseg.dynamic.epipolar import EpipolarResult
+from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.masking_settings import PAPERS, MaskingSettings
-from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, KEYPOINTS, MODES, WEIGHED_MODES, Mode
-from slimseg.dynamic.motion_evidence import uncertain, weigh_motion
+from slimseg.dynamic.mobility import Decision, MotionBelief, decide_mobility
+from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, KEYPOINTS, Mode, mode_of
 from slimseg.dynamic.occupancy import MotionLayers
 from slimseg.dynamic.seg_box import (
     T_O,
@@ -53,7 +45,7 @@ from slimseg.dynamic.seg_box import (
 from slimseg.dynamic.threshold import adaptive_threshold, is_dynamic_frame, keypoint_mobility
 
 
-@dataclass
+@dataclass(frozen=True)
 class FrameResult:
     """``dynamic [N]`` per keypoint, ``mask uint8 [H, W]`` (255 = dynamic region), ``m_th`` used
     (None: gave up), Eq. 3 flag, Eq. 4 decisions per detection, and counts."""
@@ -67,7 +59,7 @@ class FrameResult:
     """epipolar modes: the check's outcome for the detections listed in ``checked``"""
     checked: list[int] = field(default_factory=list)
     seconds: float = 0.0
-    """time this mode took (the shared epipolar check counts for the first mode needing it)"""
+    """time the mode's rules took (the harness adds its own decision's)"""
     dropped: list[int] = field(default_factory=list)
     """objects above Eq. 1's starting threshold left out of the mask (``eq1``: those under
     the threshold it settled on, all of them when it gave up; ``degrade``: those it gave up)"""
@@ -91,77 +83,61 @@ def orb_keypoints(rgb: np.ndarray, count: int = KEYPOINTS) -> np.ndarray:
 
 @dataclass(frozen=True)
 class FrameRules:
-    """How to classify: ``class_mobility [K]`` priors per class, the ``mode``, the ``masking``
-    settings (Eq. 1's ``min_static`` / ``m_th_start`` / ``m_th_step``, the dilation, Eq. 3's
-    ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its ``keep_score``, the depth
-    cut, ``motion_odds``; their ``conf`` acts on the detector, not here; default: the
-    ``papers`` preset, the equations as printed), and ``dynamic_mobility``: the prior above
-    which a class counts as dynamic (boxes of depth-RANSAC, epipolar candidates),
-    ``masking.m_th_start`` if None."""
+    """How to classify: ``class_mobility [K]`` priors per class, the ``mode`` and the
+    ``masking`` settings (Eq. 1's ``min_static`` / ``m_th_start`` / ``m_th_step``, the
+    dilation, Eq. 3's ``frame_ratio``, Eq. 4's ``t_o``, the shortfall ``rule`` and its
+    ``keep_score``, the depth cut, ``motion_odds``; their ``conf`` acts on the detector, not
+    here; default: the ``papers`` preset, the equations as printed)."""
 
     class_mobility: np.ndarray
     mode: Mode = Mode.FUSION
     masking: MaskingSettings = PAPERS
-    dynamic_mobility: float | None = None
 
     @property
     def mover_prior(self) -> float:
-        """The prior above which a class counts as dynamic (``dynamic_mobility``)."""
-        if self.dynamic_mobility is None:
-            return self.masking.m_th_start
-        return self.dynamic_mobility
+        """The mobility above which an object counts as dynamic (depth-RANSAC's boxes, the
+        epipolar modes' candidates): Eq. 1's starting threshold."""
+        return self.masking.m_th_start
+
+    def decide(self, inputs: FrameInputs, mode: Mode | None = None,
+               belief: MotionBelief | None = None) -> Decision:  # fmt: skip
+        """:func:`~slimseg.dynamic.mobility.decide_mobility` under these rules (``mode``:
+        another than the rules' own)."""
+        base = inputs.objects.priors(self.class_mobility)
+        return decide_mobility(inputs, mode or self.mode, base, mover_prior=self.mover_prior,
+                               motion_odds=self.masking.motion_odds, belief=belief)  # fmt: skip
 
 
 def process_frame(
     *, inputs: FrameInputs, settings: FrameRules, rng: np.random.Generator | None = None
 ) -> FrameResult:
-    """Classify the keypoints of one frame with ``settings.mode``; ``rng`` drives
-    depth-RANSAC's sampling. Epipolar modes: see the module docstring."""
-    return process_modes(inputs=inputs, settings=settings, modes=(settings.mode,), rng=rng)[
-        settings.mode
-    ]
-
-
-def process_modes(
-    *,
-    inputs: FrameInputs,
-    settings: FrameRules,
-    modes: Sequence[str],
-    rng: np.random.Generator | None = None,
-) -> dict[str, FrameResult]:
-    """:func:`process_frame` for several ``modes`` of the same frame (``settings.mode`` is
-    ignored), in the given order; the epipolar check runs once and serves both epipolar
-    modes (its time counts for the first of them). Returns ``{mode: FrameResult}``."""
-    bad = [m for m in modes if m not in MODES]
-    if bad:
-        raise ValueError(f"unknown mode {bad[0]!r}; valid: {list(MODES)}")
-    mob = inputs.objects.priors(settings.class_mobility)
-    if inputs.still is not None and inputs.still.any():  # standing still: static structure
-        mob = np.where(inputs.still, np.float32(0.0), mob).astype(mob.dtype)
-    check = weighed = None
+    """One frame judged alone in ``settings.mode``: the mobility decided
+    (:meth:`FrameRules.decide`), then the rules applied; ``rng`` drives depth-RANSAC's
+    sampling."""
+    decision = settings.decide(inputs)
     moved = MotionLayers.of(inputs, settings.masking)
-    if inputs.evidence is not None and not inputs.evidence.weighed:
-        check = mob, inputs.evidence.result, inputs.evidence.checked
-    out = {}
-    for mode in modes:
-        t0 = time.perf_counter()
-        if mode not in BOX_MODES and inputs.objects.masks is None:
-            raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
-        if mode in EPIPOLAR_MODES:
-            if check is None:
-                check = epipolar_priors(inputs, mob, settings.mover_prior)
-            priors, epi, checked = check
-            res = _one_mode(inputs, settings, EPIPOLAR_MODES[mode], priors, rng, moved)
-            res.epipolar, res.checked = epi, list(checked)
-        elif mode in WEIGHED_MODES and settings.masking.motion_odds > 1 and inputs.evidence is None:
-            if weighed is None:
-                weighed = weighed_mobility(inputs, mob, settings.masking.motion_odds)
-            res = _one_mode(inputs, settings, mode, weighed, rng, moved)
-        else:
-            res = _one_mode(inputs, settings, mode, mob, rng, moved)
-        res.seconds = time.perf_counter() - t0
-        out[mode] = res
-    return out
+    return apply_rules(inputs, decision, settings, rng=rng, moved=moved)
+
+
+def apply_rules(
+    inputs: FrameInputs,
+    decision: Decision,
+    settings: FrameRules,
+    *,
+    mode: Mode | None = None,
+    rng: np.random.Generator | None = None,
+    moved: MotionLayers | None = None,
+) -> FrameResult:
+    """The rules of ``mode`` (default ``settings.mode``) on ``inputs`` with the objects'
+    decided mobility; ``moved``: the frame's motion layers (None: none). Timed."""
+    mode = mode_of(mode or settings.mode)
+    t0 = time.perf_counter()
+    if mode not in BOX_MODES and inputs.objects.masks is None:
+        raise ValueError(f"mode {mode!r} needs instance masks (a segmentation model)")
+    res = _one_mode(inputs, settings, EPIPOLAR_MODES.get(mode, mode), decision.mobility, rng,
+                    moved)  # fmt: skip
+    epi, checked = decision.verdict if mode in EPIPOLAR_MODES else (None, [])
+    return replace(res, epipolar=epi, checked=checked, seconds=time.perf_counter() - t0)
 
 
 def _one_mode(
@@ -249,62 +225,6 @@ def eq4_thresholds(settings: FrameRules, reference: np.ndarray | None, n: int) -
         uncut = np.ones(n, bool) if reference is None else ~np.isfinite(reference)
         t_o[uncut] = min(s.t_o, T_O)
     return t_o
-
-
-def weighed_mobility(inputs: FrameInputs, mob: np.ndarray, odds: float) -> np.ndarray:
-    """``mob [M]`` with the epipolar check's decisions on the objects whose mobility is
-    uncertain (0 < p < 1) weighed in at ``odds`` (:mod:`slimseg.dynamic.motion_evidence`);
-    unchanged without a previous frame or such an object."""
-    if inputs.previous is None or inputs.objects.masks is None or not uncertain(mob).any():
-        return mob
-    ev = epipolar_evidence(inputs, np.where(uncertain(mob), mob, 0.0), 0.0)
-    if ev.result is None:
-        return mob
-    return weigh_motion(mob, ev.checked, ev.result.decided, ev.result.moving, odds)
-
-
-def epipolar_priors(
-    inputs: FrameInputs, mob: np.ndarray, dynamic_mobility: float
-) -> tuple[np.ndarray, EpipolarResult | None, list[int]]:
-    """Mobility priors with the detections the epipolar check finds static set to 0."""
-    ev = epipolar_evidence(inputs, mob, dynamic_mobility)
-    if ev.result is None:
-        return mob, None, []
-    mob = mob.copy()
-    checked = np.asarray(ev.checked, int)
-    mob[checked[ev.result.decided & ~ev.result.moving]] = 0.0
-    return mob, ev.result, ev.checked
-
-
-def epipolar_evidence(
-    inputs: FrameInputs, mob: np.ndarray, dynamic_mobility: float, pairs: np.ndarray | None = None
-) -> MotionEvidence:
-    """Run the epipolar check on the objects whose mobility ``mob [M]`` exceeds
-    ``dynamic_mobility`` (``pairs``: the frames' ORB matches, when already computed)."""
-    keypoints, descriptors, previous, masks = (
-        inputs.keypoints,
-        inputs.descriptors,
-        inputs.previous,
-        inputs.objects.masks,
-    )
-    candidates = np.flatnonzero(mob > dynamic_mobility)
-    if previous is None or len(candidates) == 0:
-        return MotionEvidence(None, [])
-    if descriptors is None:
-        raise ValueError(
-            "epipolar modes need the ORB descriptors of the keypoints: pass descriptors= "
-            "(epipolar.orb_features gives keypoints and descriptors together)"
-        )
-    current = OrbFeatures(np.asarray(keypoints, np.float32).reshape(-1, 2), descriptors)
-    result = check_motion(
-        previous.features,
-        current,
-        np.asarray(masks, bool)[candidates],
-        depth_m=previous.depth_m if previous.depth_residual else None,
-        camera=previous.camera,
-        pairs=pairs,
-    )
-    return MotionEvidence(result, candidates.tolist())
 
 
 def _mask(region: np.ndarray, dilation_px: int) -> np.ndarray:

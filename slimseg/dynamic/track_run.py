@@ -1,11 +1,11 @@
 """The track stage inside a sequence loop: one frame's detections → the masking logic's inputs.
 
 :class:`TrackedSequence` owns the :class:`~slimseg.dynamic.track.Tracker` of one run and does,
-per frame, what the stage needs around it: the ORB matches to the previous frame (shared with
-the epipolar check), the camera's motion, the tracker's step and, in the epipolar modes, the
-check on the tracked objects whose outcome updates each track's moving probability. Both the
-``slimseg dynamic`` loop and the cached-detection loop of the sweeps call it, so a setting
-gives the same masks in either.
+per frame, what the stage needs around it: the ORB matches to the previous frame (passed on
+for the epipolar check), the camera's motion and the tracker's step. The check's decisions
+reach the tracks through :func:`slimseg.dynamic.mobility.decide_mobility` (the tracker is its
+:class:`~slimseg.dynamic.mobility.MotionBelief`). Both the ``slimseg dynamic`` loop and the
+cached-detection loop of the sweeps call it, so a setting gives the same masks in either.
 """
 
 from __future__ import annotations
@@ -20,14 +20,12 @@ from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, match_features
 from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.mask_patch import clip_patch, patch_from_mask, warp_patch
-from slimseg.dynamic.modes import EPIPOLAR_MODES, FPS, WEIGHED_MODES, Mode
-from slimseg.dynamic.motion_evidence import uncertain
+from slimseg.dynamic.modes import FPS
 from slimseg.dynamic.object_motion import (
     inside_boxes,
     inside_patches,
     object_shifts,
 )
-from slimseg.dynamic.pipeline import epipolar_evidence
 from slimseg.dynamic.threshold import inside
 from slimseg.dynamic.track import Tracker
 from slimseg.dynamic.track_settings import TrackSettings
@@ -74,15 +72,10 @@ class TrackedSequence:
         settings: TrackSettings,
         class_mobility: np.ndarray,
         *,
-        mode: Mode,
         mover_prior: float,
         fps: float = FPS,
-        motion_odds: float = 1.0,
     ) -> None:
         self.tracker = Tracker(settings, class_mobility, fps=fps, mover_prior=mover_prior)
-        self.mode = mode
-        self.mover_prior = mover_prior
-        self.motion_odds = motion_odds
         self.seconds = 0.0
         self.frames = 0
         self.motion_ok = 0
@@ -101,8 +94,8 @@ class TrackedSequence:
         lag: int = 0,
     ) -> FrameInputs:
         """Track one frame (``dets`` None: the model skipped it) and return the masking
-        logic's inputs: the tracked objects, their mobility updated by the epipolar check in
-        the epipolar modes. ``lag``: ``dets``
+        logic's inputs: the tracked objects (their mobility each track's, decided further by
+        :func:`~slimseg.dynamic.mobility.decide_mobility`). ``lag``: ``dets``
         were computed ``lag`` frames ago (a model on its own thread); they are moved into
         this frame by the camera motions in between first."""
         t0 = time.perf_counter()
@@ -141,24 +134,8 @@ class TrackedSequence:
         inputs = FrameInputs(
             keypoints=features.keypoints, objects=frame, depth_m=depth_m,
             descriptors=features.descriptors, previous=previous, support=features.corners,
+            matches=pairs,
         )  # fmt: skip
-        if self.mode in EPIPOLAR_MODES and frame.masks is not None:
-            ev = epipolar_evidence(inputs, frame.mobility, self.mover_prior, pairs)
-            mob = frame.mobility
-            if ev.result is not None:
-                r = ev.result
-                mob = self.tracker.observe_motion(frame, ev.checked, r.decided, r.moving)
-            inputs = replace(inputs, objects=replace(frame, mobility=mob), evidence=ev)
-        elif self.mode in WEIGHED_MODES and self.motion_odds > 1 and frame.masks is not None:
-            belief = self.tracker.beliefs(frame)  # the odds weigh what is believed, not decayed
-            ev = epipolar_evidence(inputs, np.where(uncertain(belief), belief, 0.0), 0.0, pairs)
-            mob = frame.mobility
-            if ev.result is not None:
-                r = ev.result
-                mob = self.tracker.weigh_motion(frame, ev.checked, r.decided, r.moving,
-                                                self.motion_odds)  # fmt: skip
-            ev = replace(ev, weighed=True)
-            inputs = replace(inputs, objects=replace(frame, mobility=mob), evidence=ev)
         self.seconds += time.perf_counter() - t0
         self.frames += 1
         return inputs

@@ -13,6 +13,7 @@ thread.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,7 +28,8 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.frame_masker import MaskedFrame
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, Mode
-from slimseg.dynamic.pipeline import FrameResult, FrameRules, process_modes
+from slimseg.dynamic.occupancy import MotionLayers
+from slimseg.dynamic.pipeline import FrameResult, FrameRules, apply_rules
 from slimseg.objects import Objects
 from slimseg.sequence.recall_loss import RecallLoss
 from slimseg.sequence.sequence_report import SequenceReport, at_keypoints, coasted_only, overlay
@@ -107,16 +109,29 @@ class TraceAnalysis:
 
     def _others(self, f: MaskedFrame) -> dict[str, FrameResult]:
         """The other modes on the frame's inputs: those it allows (instance masks for all
-        but the box modes, depth for depth-RANSAC)."""
+        but the box modes, depth for depth-RANSAC), each deciding its objects' mobility its
+        own way (without the chain's tracks: they cannot be replayed); the motion layers and
+        the epipolar verdict are computed once for all of them."""
         inputs = f.inputs
         modes = [
             m for m in self.score
             if (inputs.objects.masks is not None or m in BOX_MODES)
             and (m != Mode.BOX_DEPTH_RANSAC or inputs.depth_m is not None)
         ]  # fmt: skip
-        if not modes:
-            return {}
-        return process_modes(inputs=inputs, settings=self.rules, modes=modes, rng=self._rng)
+        moved = MotionLayers.of(inputs, self.rules.masking) if modes else None
+        verdict = None  # the epipolar check, shared by both epipolar modes
+        out = {}
+        for mode in map(Mode, modes):
+            t0 = time.perf_counter()
+            if mode in EPIPOLAR_MODES:
+                verdict = verdict or self.rules.decide(inputs, mode)
+                decision = verdict
+            else:
+                decision = self.rules.decide(inputs, mode)
+            res = apply_rules(inputs, decision, self.rules, mode=mode, rng=self._rng,
+                              moved=moved)  # fmt: skip
+            out[mode.value] = replace(res, seconds=time.perf_counter() - t0)
+        return out
 
     def _tally(self, f: MaskedFrame, results: dict[str, FrameResult]) -> None:
         """The epipolar check's decisions of frame ``f`` against ground-truth instances (a
