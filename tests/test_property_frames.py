@@ -30,6 +30,7 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.errors import SlimsegError
+from slimseg.objects import Objects
 
 EXAMPLES = int(os.environ.get("SLIMSEG_PROPERTY_EXAMPLES", "120"))  # per property
 FAST = settings(
@@ -152,7 +153,7 @@ def test_valid_frames_with_odd_depth_and_keypoints(seq: Path) -> None:
     inst = AnnotationInstances(seq)
     truth = segmenter_for(inst)
 
-    def model(frame: np.ndarray, stamp: float, conf: float):
+    def model(frame: np.ndarray, stamp: float, conf: float) -> Objects:
         return truth(frame, t0, conf)
 
     config = ChainConfig(depth_scale=TUM_DEPTH_SCALE)  # only the uint16 depth uses it
@@ -184,4 +185,5 @@ def test_valid_frames_with_odd_depth_and_keypoints(seq: Path) -> None:
     # depth kind among them
     assert examples[0] >= EXAMPLES
     assert sum(reached.values()) == examples[0], (reached, examples[0])
-    assert set(reached) == set(DEPTH_KINDS[: min(EXAMPLES, len(DEPTH_KINDS))]), reached
+    if 10 * len(DEPTH_KINDS) <= EXAMPLES:  # SLIMSEG_PROPERTY_EXAMPLES may ask for fewer
+        assert set(reached) == set(DEPTH_KINDS), reached
