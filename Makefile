@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint format reference bench clean
+.PHONY: help demo test test-fast lint format reference bench clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -13,11 +13,20 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[train,dev,slam,ray,ros,viz]"
 	touch $(STAMP)
 
+help:  ## this list: each target with its comment
+	@awk -F ':.*## ' '/^[a-z-]+:.*## /{printf "  %-10s %s\n", $$1, $$2}' $(MAKEFILE_LIST)
+
 demo: $(STAMP)  ## the main job on the embedded default (no download)
 	$(BIN)/slimseg demo
 
-test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included)
-	$(BIN)/python -m pytest -q
+# `make test` is what CI runs: everything, the 25 slowest tests listed at the end.
+# `make test-fast` is the inner loop: lint, then every test not marked `slow` (pytest.mark.slow:
+# training, export, Ray, notebooks, ...); before a merge run `make test`.
+test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included), 25 slowest listed
+	$(BIN)/python -m pytest -q --durations=25
+
+test-fast: $(STAMP) lint  ## lint, then the tests not marked slow (-m "not slow"): the inner loop
+	$(BIN)/python -m pytest -q -m "not slow" --durations=10
 
 lint: $(STAMP)  ## ruff, and the layer order of docs/architecture.md (import-linter)
 	$(BIN)/ruff check .

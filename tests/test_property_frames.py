@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections import Counter
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -24,10 +25,12 @@ from slimseg.data.bags.image_messages import (
 )
 from slimseg.data.problems import ImageProblem
 from slimseg.data.synth.sequence import write_sequence
-from slimseg.data.tum import TumSequence
+from slimseg.data.tum import TUM_DEPTH_SCALE, TumSequence
 from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.errors import SlimsegError
+from slimseg.objects import Objects
 
 EXAMPLES = int(os.environ.get("SLIMSEG_PROPERTY_EXAMPLES", "120"))  # per property
 FAST = settings(
@@ -137,24 +140,50 @@ def test_the_per_frame_object(masker: FrameMasker, rgb, depth, stamp, keypoints)
         masker.step(rgb, depth, stamp, keypoints=keypoints)
 
 
-@FAST
-@given(
-    depth_kind=st.sampled_from(["none", "nan", "zeros", "negative", "inf", "uint16"]),
-    stamp=st.one_of(st.none(), st.floats(-1e9, 1e9)),
-    n_kp=st.integers(0, 40),
-)
-def test_valid_frames_with_odd_depth_and_keypoints(
-    seq: Path, masker: FrameMasker, depth_kind: str, stamp, n_kp: int
-) -> None:
-    """Well-formed frames whose depth has nothing usable still mask (or refuse in one line)."""
-    rgb, depth, _ = TumSequence(seq).load(0)
+DEPTH_KINDS = ("none", "nan", "zeros", "negative", "inf", "uint16")
+
+
+def test_valid_frames_with_odd_depth_and_keypoints(seq: Path) -> None:
+    """Well-formed frames whose depth has nothing usable, at any stamp, with keypoints in and
+    out of the frame, still mask. Each example gets a masker of its own (the first frame of a
+    camera stream: a shared one is fixed to whatever size another test fed it first) whose
+    model is the frame's ground truth whatever the stamp (the stamp is the chain's clock here,
+    not the key of the lookup); every example must reach the assertion, and does (counted)."""
+    rgb, depth, t0 = TumSequence(seq).load(0)
+    inst = AnnotationInstances(seq)
+    truth = segmenter_for(inst)
+
+    def model(frame: np.ndarray, stamp: float, conf: float) -> Objects:
+        return truth(frame, t0, conf)
+
+    config = ChainConfig(depth_scale=TUM_DEPTH_SCALE)  # only the uint16 depth uses it
     fill = {"nan": np.nan, "zeros": 0.0, "negative": -1.0, "inf": np.inf}
-    d = None if depth_kind == "none" else depth.copy()
-    if depth_kind in fill:
-        d[:] = fill[depth_kind]
-    if depth_kind == "uint16":
-        d = (depth * 5000).astype(np.uint16)
-    kps = np.random.default_rng(n_kp).uniform(-10, 80, (n_kp, 2)).astype(np.float32)
-    with contextlib.suppress(SlimsegError):
-        out = masker.step(rgb, d, stamp, keypoints=kps)
-        assert out.mask.shape == rgb.shape[:2]
+    examples, reached = [0], Counter()
+
+    @FAST
+    @given(
+        depth_kind=st.sampled_from(DEPTH_KINDS),
+        stamp=st.one_of(st.none(), st.floats(-1e9, 1e9)),
+        n_kp=st.integers(0, 40),
+    )
+    def frame_masks(depth_kind: str, stamp: float | None, n_kp: int) -> None:
+        examples[0] += 1
+        d = None if depth_kind == "none" else depth.copy()
+        if depth_kind in fill:
+            d[:] = fill[depth_kind]
+        if depth_kind == "uint16":
+            d = np.round(depth * TUM_DEPTH_SCALE).astype(np.uint16)
+        kps = np.random.default_rng(n_kp).uniform(-10, 80, (n_kp, 2)).astype(np.float32)
+        with FrameMasker(model, inst.mobility, config) as masker:
+            out = masker.step(rgb, d, stamp, keypoints=kps)
+        assert out.mask.shape == rgb.shape[:2] and out.mask.dtype == np.uint8
+        assert out.stamp == (0.0 if stamp is None else stamp)
+        reached[depth_kind] += 1
+
+    frame_masks()
+    # the property is not vacuous: every example Hypothesis ran got to the assertions, every
+    # depth kind among them
+    assert examples[0] >= EXAMPLES
+    assert sum(reached.values()) == examples[0], (reached, examples[0])
+    if 10 * len(DEPTH_KINDS) <= EXAMPLES:  # SLIMSEG_PROPERTY_EXAMPLES may ask for fewer
+        assert set(reached) == set(DEPTH_KINDS), reached

@@ -1,8 +1,10 @@
-"""The driver of a ray sweep (:mod:`slimseg.ablate.ray_backend`): submits the runs, follows
-their attempts on disk, prints progress, rebuilds the reports after each finished run."""
+"""``slimseg ablate --backend ray``: :func:`run_sweep_ray`, and the driver of the sweep, which
+submits the runs as the Ray tasks of :mod:`slimseg.ablate.ray_backend`, follows their attempts
+on disk, logs progress and rebuilds the reports after each finished run."""
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -14,6 +16,7 @@ from slimseg.ablate.lease import read_attempts, state_dir
 from slimseg.ablate.ray_backend import (
     RayOptions,
     check_shared,
+    import_ray,
     launch_options,
     measure_task,
     ray_session,
@@ -23,9 +26,11 @@ from slimseg.ablate.rows import read_row, read_scores
 from slimseg.ablate.sweep import Run, SweepPlan, git_sha, plan_sweep
 from slimseg.version import __version__
 
+logger = logging.getLogger(__name__)
+
 
 class RayDriver:
-    """One ray sweep from this process (see :func:`~slimseg.ablate.ray_backend.run_sweep_ray`)."""
+    """One ray sweep from this process (see :func:`run_sweep_ray`)."""
 
     def __init__(
         self,
@@ -190,3 +195,17 @@ class RayDriver:
                         self.fail(run, RuntimeError(f"not measured on {node}"))
                     return
                 self.log(f"measure: done on {node}")
+
+
+def run_sweep_ray(
+    cfg: AblationConfig,
+    out: Path,
+    opts: RayOptions,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> tuple[list[dict], list[str]]:
+    """Run the sweep ``cfg`` on a Ray cluster; returns the rows in plan order and the
+    failures (one line per failed run, empty when every run finished). Progress lines go
+    to ``log`` (default: this module's logger at INFO)."""
+    ray = import_ray()  # the install hint comes before anything is written
+    return RayDriver(ray, cfg, out, opts, progress, log or logger.info).run()

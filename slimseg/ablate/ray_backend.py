@@ -1,6 +1,6 @@
 """``slimseg ablate --backend ray``: the sweep's runs as Ray tasks across a cluster.
 
-Two phases, both driven from here:
+Two phases, both driven by :mod:`slimseg.ablate.driver`:
 
 1. *train*: one Ray task per unfinished run (``num_cpus``/``num_gpus`` per run, fractional
    GPUs allowed), all submitted at once. A task starts the run as its own process
@@ -17,12 +17,15 @@ Two phases, both driven from here:
 After each finished run the reports are rebuilt from the rows on disk in plan order, so a
 sweep cut anywhere and resumed writes the reports of one that never stopped. Ray is
 imported by this module only; nothing else of slimseg needs it.
+
+This module is the Ray side (the tasks, the session, the cluster checks); the sweep that
+uses them, and its entry :func:`~slimseg.ablate.driver.run_sweep_ray`, are
+:mod:`slimseg.ablate.driver`, which imports this module and never the other way round.
 """
 
 from __future__ import annotations
 
 import ctypes
-import logging
 import math
 import os
 import secrets
@@ -35,19 +38,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from slimseg.ablate.lease import TASK_STARTED_ENV, state_dir
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_text
 from slimseg.utils.extras import install_command
 
-if TYPE_CHECKING:
-    from slimseg.ablate.config import AblationConfig
-
 INSTALL_HINT = install_command("ray")
-
-logger = logging.getLogger(__name__)
 
 
 class RunFailed(Exception):
@@ -247,22 +245,6 @@ def check_shared(ray: Any, out: Path, cpus: float, gpus: float) -> int:
             f"(NFS, a cluster filesystem): {'; '.join(problems)}"
         )
     return len(fits)
-
-
-def run_sweep_ray(
-    cfg: AblationConfig,
-    out: Path,
-    opts: RayOptions,
-    progress: bool = False,
-    log: Callable[[str], None] | None = None,
-) -> tuple[list[dict], list[str]]:
-    """Run the sweep ``cfg`` on a Ray cluster; returns the rows in plan order and the
-    failures (one line per failed run, empty when every run finished). Progress lines go
-    to ``log`` (default: this module's logger at INFO)."""
-    ray = import_ray()  # the install hint comes before anything is written
-    from slimseg.ablate.driver import RayDriver
-
-    return RayDriver(ray, cfg, out, opts, progress, log or logger.info).run()
 
 
 def launch_options(gpus: float) -> tuple[str, str]:

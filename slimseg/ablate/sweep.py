@@ -59,8 +59,8 @@ from slimseg.eval.complexity import measure
 from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_from_spec
 from slimseg.models.specs import ModelSpec
-from slimseg.utils.atomic import write_json, write_text, write_yaml
-from slimseg.utils.outputs import add_to_manifest, claim_folder
+from slimseg.utils.atomic import add_to_manifest, write_json, write_text, write_yaml
+from slimseg.utils.outputs import claim_folder
 
 if TYPE_CHECKING:
     from lightning import Callback

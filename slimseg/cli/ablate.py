@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
 
         rows = run_sweep(cfg, out, progress=not args.quiet)
     else:
-        from slimseg.ablate.ray_backend import run_sweep_ray
+        from slimseg.ablate.driver import run_sweep_ray
 
         rows, failures = run_sweep_ray(cfg, out, ray_opts)
     minutes = (time.perf_counter() - start) / 60

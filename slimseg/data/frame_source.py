@@ -2,7 +2,9 @@
 protocol, which a TUM-layout folder (:class:`~slimseg.data.tum.TumSequence`) and a ROS
 recording (:class:`~slimseg.data.bags.sequence.BagSequence`) both implement, and
 :class:`PairedFrames`, the behaviour they share (frame count, rate, the intrinsics line, the
-index check, the depth-unit check, closing as a context manager).
+index check, the depth-unit check, closing as a context manager), and the types both carry:
+the :class:`Camera` intrinsics and the :class:`Associations` of colour and depth frames
+(built by :func:`slimseg.data.tum.associate`).
 
 Open a source with :func:`slimseg.data.sequence_source.open_sequence` inside ``with``: a bag
 holds its file open until :meth:`FrameSource.close` (a folder holds nothing, so closing it is
@@ -11,20 +13,44 @@ free).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol, Self
+from typing import Protocol, Self
 
 import numpy as np
 
 from slimseg.utils.text import printable
 
-if TYPE_CHECKING:
-    from slimseg.data.tum import Associations, Camera
-
 #: one frame: ``rgb uint8 [H, W, 3]``, ``depth_m float32 [H, W]`` (0: no depth), colour stamp s
 Frame = tuple[np.ndarray, np.ndarray, float]
 #: plausible median depth of a frame (m): outside it, the depth's units are misread
 DEPTH_RANGE_M = (0.05, 100.0)
+#: one entry of a frame list: ``(stamp s, file name or message reference)``
+Stamped = tuple[float, str]
+
+
+class Associations(list[tuple[Stamped, Stamped]]):
+    """``associate`` result: a list of ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs
+    sorted by RGB time, plus how many RGB and depth entries found no partner."""
+
+    unmatched_rgb: int = 0
+    unmatched_depth: int = 0
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole intrinsics in px; ``depth_scale``: stored depth units per metre."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    depth_scale: float
+
+    @property
+    def pinhole(self) -> tuple[float, float, float, float]:
+        """``(fx, fy, cx, cy)`` px, as ``slimseg.Masker(camera=)`` and the chain take them."""
+        return (self.fx, self.fy, self.cx, self.cy)
 
 
 class FrameSource(Protocol):

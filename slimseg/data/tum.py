@@ -36,7 +36,6 @@ from __future__ import annotations
 import difflib
 import logging
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -44,8 +43,11 @@ import numpy as np
 
 from slimseg.data.frame_source import (
     DEPTH_RANGE_M,
+    Associations,
+    Camera,
     Frame,
     PairedFrames,
+    Stamped,
     implausible_median_depth,
 )
 from slimseg.data.images import decode_file
@@ -58,8 +60,6 @@ from slimseg.utils.text import printable
 from slimseg.utils.yaml_io import MAX_YAML_BYTES, load_yaml_text
 
 log = logging.getLogger(__name__)
-
-Stamped = tuple[float, str]
 
 TUM_DEPTH_SCALE = 5000.0  # TUM and Bonn: uint16 depth / 5000 = metres; 0 = invalid
 
@@ -96,30 +96,6 @@ def calibration_for(folder: str | Path) -> str | None:
 # TUM freiburg1: the fallback for a folder whose name and files say nothing (see intrinsics)
 TUM_FR1 = {**CALIBRATIONS["tum-fr1"], "depth_scale": TUM_DEPTH_SCALE}
 MAX_DT = 0.02  # s, associate.py's default max_difference
-
-
-class Associations(list[tuple[Stamped, Stamped]]):
-    """``associate`` result: a list of ``((t_rgb, rgb_path), (t_depth, depth_path))`` pairs
-    sorted by RGB time, plus how many RGB and depth entries found no partner."""
-
-    unmatched_rgb: int = 0
-    unmatched_depth: int = 0
-
-
-@dataclass(frozen=True)
-class Camera:
-    """Pinhole intrinsics in px; ``depth_scale``: stored depth units per metre."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    depth_scale: float
-
-    @property
-    def pinhole(self) -> tuple[float, float, float, float]:
-        """``(fx, fy, cx, cy)`` px, as ``slimseg.Masker(camera=)`` and the chain take them."""
-        return (self.fx, self.fy, self.cx, self.cy)
 
 
 MAX_LIST_BYTES = 1 << 30  # rgb.txt / depth.txt / groundtruth.txt: ~40 bytes a line

@@ -26,7 +26,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.data.tum import Camera, read_trajectory
+from slimseg.data.frame_source import Camera
+from slimseg.data.tum import read_trajectory
 from slimseg.errors import SlimsegError
 from slimseg.slam.trajectory import matrix_to_tum
 from slimseg.utils.extras import install_command

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from slimseg.data.tum import Camera
+from slimseg.data.frame_source import Camera
 from slimseg.dynamic.degrade import FAST_THRESHOLD, PYRAMID_LEVELS, PYRAMID_SCALE
 from slimseg.dynamic.modes import FPS, KEYPOINTS
 from slimseg.utils.atomic import write_text

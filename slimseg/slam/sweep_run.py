@@ -39,8 +39,8 @@ from slimseg.slam.session import (
     make_predictor,
 )
 from slimseg.slam.sweep import SweepPoint, check_mode, sweep_points
-from slimseg.utils.atomic import write_text
-from slimseg.utils.outputs import add_to_manifest, claim_folder
+from slimseg.utils.atomic import add_to_manifest, write_text
+from slimseg.utils.outputs import claim_folder
 
 log = logging.getLogger(__name__)
 

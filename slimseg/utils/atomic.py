@@ -7,7 +7,8 @@ A reader never sees a half-written file, and an interrupted write leaves the pre
 ``staged_dir`` serves commands whose output is a folder (``slimseg dynamic``'s ``masks/`` and
 ``frames.csv``, ``predict``'s files, ``slam-eval``'s ``trajectories/``): the folder appears
 complete or not at all, replaces only a folder slimseg wrote (:mod:`slimseg.utils.outputs`),
-and a command that fails midway leaves it as it was.
+and a command that fails midway leaves it as it was. :func:`write_manifest` and
+:func:`add_to_manifest` write the manifest that lists a folder's entries as slimseg's.
 """
 
 from __future__ import annotations
@@ -28,14 +29,15 @@ import numpy as np
 import yaml
 
 from slimseg.errors import SlimsegError
-from slimseg.utils.manifest import entry_problems
-from slimseg.utils.outputs import (
-    claim_folder,
-    foreign_entries,
-    named_folder,
-    refuse_inputs,
-    write_manifest,
+from slimseg.utils.manifest import (
+    MANIFEST,
+    confined_name,
+    entry_problems,
+    manifest_text,
+    read_entries,
+    record_entries,
 )
+from slimseg.utils.outputs import claim_folder, foreign_entries, named_folder, refuse_inputs
 from slimseg.utils.text import printable
 
 
@@ -224,3 +226,25 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
     if not ok:
         raise OSError(f"could not encode {path}")
     return write_bytes(path, buf.tobytes())
+
+
+def write_manifest(
+    folder: Path, command: str, entries: Iterable[str] | None = None, announced: Iterable[str] = ()
+) -> None:
+    """Record ``entries`` (default: everything now in ``folder``) as slimseg's, each with what
+    is there now (kind, size, SHA-256: :mod:`slimseg.utils.manifest`), atomically. A name in
+    ``announced`` that does not exist yet is listed as to be written (``null``)."""
+    announced = set(announced)
+    names = [p.name for p in folder.iterdir()] if entries is None else list(entries)
+    names += sorted(announced - set(names))
+    write_text(folder / MANIFEST, manifest_text(command, record_entries(folder, names, announced)))
+
+
+def add_to_manifest(folder: Path, command: str, entries: Iterable[str]) -> None:
+    """List ``entries`` in ``folder``'s manifest as announced (``null``: a folder written to
+    as a command goes, like a resumable sweep, whose entries change between runs); earlier
+    entries keep their records."""
+    names = set(entries)
+    kept = {n: r for n, r in (read_entries(folder) or {}).items() if n not in names}
+    body = kept | dict.fromkeys(n for n in names if confined_name(n))
+    write_text(folder / MANIFEST, manifest_text(command, body))

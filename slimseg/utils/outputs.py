@@ -1,6 +1,8 @@
 """What a command may write, and where its inputs may come from: the one home of both rules.
 
-**Outputs: a command writes only what it owns.**
+**Outputs: a command writes only what it owns.** This module decides and never writes: the
+writing (files, folder outputs, the manifest itself) is :mod:`slimseg.utils.atomic`, which
+builds on these checks.
 
 * Every folder output slimseg builds (:func:`slimseg.utils.atomic.staged_dir`, ``data synth``,
   ``ablate``) holds a manifest, :data:`MANIFEST`, listing the top-level entries slimseg wrote
@@ -34,14 +36,7 @@ from collections.abc import Callable, Collection, Iterable, Mapping
 from pathlib import Path
 
 from slimseg.errors import SlimsegError
-from slimseg.utils.manifest import (
-    MANIFEST,
-    confined_name,
-    entry_problems,
-    manifest_text,
-    read_entries,
-    record_entries,
-)
+from slimseg.utils.manifest import MANIFEST, entry_problems, read_entries
 from slimseg.utils.text import printable
 
 ALLOW_OUTSIDE_ENV = "SLIMSEG_ALLOW_OUTSIDE_ROOT"  # set by `slimseg --allow-outside-root`
@@ -55,32 +50,6 @@ def read_manifest(folder: Path) -> set[str] | None:
     or ``None`` without a readable one."""
     entries = read_entries(folder)
     return None if entries is None else set(entries)
-
-
-def write_manifest(
-    folder: Path, command: str, entries: Iterable[str] | None = None, announced: Iterable[str] = ()
-) -> None:
-    """Record ``entries`` (default: everything now in ``folder``) as slimseg's, each with what
-    is there now (kind, size, SHA-256: :mod:`slimseg.utils.manifest`), atomically. A name in
-    ``announced`` that does not exist yet is listed as to be written (``null``)."""
-    from slimseg.utils.atomic import write_text  # atomic builds on this module
-
-    announced = set(announced)
-    names = [p.name for p in folder.iterdir()] if entries is None else list(entries)
-    names += sorted(announced - set(names))
-    write_text(folder / MANIFEST, manifest_text(command, record_entries(folder, names, announced)))
-
-
-def add_to_manifest(folder: Path, command: str, entries: Iterable[str]) -> None:
-    """List ``entries`` in ``folder``'s manifest as announced (``null``: a folder written to
-    as a command goes, like a resumable sweep, whose entries change between runs); earlier
-    entries keep their records."""
-    names = set(entries)
-    kept = {n: r for n, r in (read_entries(folder) or {}).items() if n not in names}
-    body = kept | dict.fromkeys(n for n in names if confined_name(n))
-    from slimseg.utils.atomic import write_text  # atomic builds on this module
-
-    write_text(folder / MANIFEST, manifest_text(command, body))
 
 
 def foreign_entries(folder: Path) -> list[str]:

@@ -24,9 +24,9 @@ from slimseg.data.synth.world_frames import (
     write_world_split,
 )
 from slimseg.errors import SlimsegError
-from slimseg.utils.atomic import write_png, write_text
+from slimseg.utils.atomic import write_manifest, write_png, write_text
 from slimseg.utils.manifest import confined_name
-from slimseg.utils.outputs import claim_folder, named_folder, read_manifest, write_manifest
+from slimseg.utils.outputs import claim_folder, named_folder, read_manifest
 
 _WRITES = ("train", "val", "sequences", *FOLDER.values(), "data.yaml")  # every entry it makes
 
