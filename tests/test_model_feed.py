@@ -174,7 +174,8 @@ def test_a_real_time_runs_kept_trace_is_analysed_as_inline(sequence: Path, tmp_p
     from slimseg.data.tum import TumSequence
     from slimseg.dynamic.frame_masker import segmenter_for
     from slimseg.dynamic.modes import MODES
-    from slimseg.dynamic.pipeline import process_frame
+    from slimseg.dynamic.occupancy import MotionLayers
+    from slimseg.dynamic.pipeline import apply_rules
     from slimseg.sequence.sequence_report import ModeScore, SequenceReport
     from slimseg.sequence.trace_analysis import TraceAnalysis
 
@@ -191,8 +192,9 @@ def test_a_real_time_runs_kept_trace_is_analysed_as_inline(sequence: Path, tmp_p
         frames = [m.step(*seq.load(i)) for i in range(len(seq))]
         rules = m.rules
     assert max(f.lag or 0 for f in frames) >= 1  # some results were late
-    for f in frames:
-        assert np.array_equal(process_frame(inputs=f.inputs, settings=rules).mask, f.mask)
+    for f in frames:  # the rules again, on the trace's inputs and the decided mobility
+        moved = MotionLayers.of(f.inputs, rules.masking)
+        assert np.array_equal(apply_rules(f.inputs, f.decision, rules, moved=moved).mask, f.mask)
     reports = []
     for deferred in (False, True):
         report = SequenceReport(scores={k: ModeScore() for k in MODES})

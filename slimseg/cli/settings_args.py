@@ -31,13 +31,6 @@ def _pair(text: str) -> tuple[str, str]:
     return key, value
 
 
-def _rate(text: str) -> ModelRate:
-    try:
-        return ModelRate.parse(text)
-    except SlimsegError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-
-
 def knob_table(knobs: tuple[Knob, ...] = KNOBS) -> str:
     """One line per knob for ``--help``: key, default of each preset, what it does."""
     lines = []
@@ -57,7 +50,7 @@ def add_settings_args(
 ) -> None:
     """``--preset`` and ``--set`` (``masking``), ``--track`` and (``rate``) ``--rate``."""
     g = p.add_argument_group("masking chain (docs/settings.md; every key in the epilog)")
-    p.set_defaults(preset=DEFAULT_PRESET, settings=[], rate=EVERY_FRAME)
+    p.set_defaults(preset=DEFAULT_PRESET, settings=[], rate=None)
     if masking:
         g.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
                        help=f"named masking settings (default {DEFAULT_PRESET})")  # fmt: skip
@@ -90,8 +83,7 @@ def add_settings_args(
     if rate:
         g.add_argument(
             "--rate",
-            type=_rate,
-            default=EVERY_FRAME,
+            default=None,
             metavar="N|budget:MS|thread",
             help="the model's rate (needs --track): every N-th frame, a mean budget of MS per "
             "frame, or its own thread (frames replayed in real time, masked with the newest "
@@ -121,4 +113,5 @@ def settings_from_args(args: argparse.Namespace) -> tuple[MaskingSettings, Track
     track: TrackSettings | None = None
     if args.track is not None or track_given:
         track = track_preset(args.track or DEFAULT_TRACK_PRESET).with_values(**track_given)
-    return masking, TrackPlan(track, args.rate)
+    rate = EVERY_FRAME if args.rate is None else ModelRate.parse(args.rate)
+    return masking, TrackPlan(track, rate)

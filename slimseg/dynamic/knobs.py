@@ -151,6 +151,8 @@ KNOBS: tuple[Knob, ...] = (
     # slimseg.dynamic.track_settings
     _t("high", float, 0.0, 1.0, 0.25, "first-pass (BYTE) score threshold"),
     _t("low", float, 0.0, 1.0, 0.05, "second-pass score threshold, for confirmed tracks"),
+    _t("new", float, 0.0, 1.0, 0.25, "score that opens a strong track (one that can coast); "
+       "0.1 wins back walkers the model scores low with --rate N (docs/tracking.md §5.3)"),
     _t("max_coast", int, 0, 1000, 3, "frames a lost track's mask is emitted (0: never)"),
     _t("coast_decay", float, 0.0, 1.0, 0.7, "mobility factor per missed frame"),
     _t("coast_dilate_px", int, 0, 100, 2, "px of dilation per missed frame"),

@@ -70,7 +70,6 @@ from slimseg.dynamic.track_settings import (
     MAX_OUTSIDE,
     MIN_DEPTH_SHARE,
     MIN_HITS,
-    NEW_SCORE,
     P_RELAX_S,
     TrackSettings,
 )
@@ -210,7 +209,7 @@ class Tracker:
                     moved.add(d)
             if t is not None:
                 self._observe(t, patches[d], boxes[d], depth_m, scores[d])
-            elif (emitted[d] or scores[d] >= NEW_SCORE) and movers[d]:
+            elif (emitted[d] or scores[d] >= s.new) and movers[d]:
                 t = self._open(classes[d], scores[d], patches[d], boxes[d], depth_m)
             if t is None and scores[d] <= emit_conf:
                 continue  # below the masking threshold and no track backs it
@@ -253,7 +252,7 @@ class Tracker:
         t.patch, t.transform, t.predicted, t.predicted_at = patch, np.eye(3), None, -1
         t.hits += 1
         t.misses = t.since_seen = 0
-        t.strong = t.strong or score >= NEW_SCORE
+        t.strong = t.strong or score >= self.s.new
         t.confirmed = t.confirmed or (t.strong and t.hits >= MIN_HITS)
         t.depth_frame = depth_m  # its median is taken only if the track coasts
         self.parts["update"] += time.perf_counter() - t0
@@ -262,7 +261,7 @@ class Tracker:
         t0 = time.perf_counter()
         prior = float(self.priors[cls])
         t = Track(self._next_id, int(cls), prior, prior, BoxKalman(box), patch)
-        t.strong = score >= NEW_SCORE
+        t.strong = score >= self.s.new
         t.confirmed = t.strong and (score >= CONFIRM_SCORE or MIN_HITS <= 1)
         t.depth_frame = depth_m
         self._next_id += 1

@@ -21,8 +21,6 @@ from slimseg.dynamic.knobs import BY_KEY, KnobError, preset_values
 from slimseg.utils.value_ranges import describe_values
 
 # The stage's constants: never swept, the same in every preset (docs/tracking.md §2).
-NEW_SCORE = 0.25
-"""an unmatched detection scoring at least this opens a strong track (one that can coast)"""
 CONFIRM_SCORE = 0.5
 """a new track backed by a detection scoring at least this is confirmed at once"""
 MIN_HITS = 2
@@ -57,8 +55,8 @@ class TrackSettings:
     then those in ``[low, high)`` against the confirmed tracks still unmatched; a match needs
     a mask IoU (box IoU for box-only models) of at least :data:`IOU_HIGH` / :data:`IOU_LOW`.
     An unmatched detection that is emitted (above the masking threshold) or scores
-    ``>= NEW_SCORE`` opens a tentative track; one backed by a detection scoring ``>=
-    NEW_SCORE`` is confirmed after :data:`MIN_HITS` matches (at once when it scores ``>=
+    ``>= new`` opens a tentative track; one backed by a detection scoring ``>= new`` is
+    confirmed after :data:`MIN_HITS` matches (at once when it scores ``>=
     CONFIRM_SCORE``); a tentative track ends at its first model frame without a match.
 
     Coasting: a confirmed track without a match emits its predicted mask for up to
@@ -82,6 +80,7 @@ class TrackSettings:
 
     high: float = _COAST["high"]
     low: float = _COAST["low"]
+    new: float = _COAST["new"]
     max_coast: int = _COAST["max_coast"]
     coast_decay: float = _COAST["coast_decay"]
     coast_dilate_px: int = _COAST["coast_dilate_px"]

@@ -54,7 +54,7 @@ class SequenceReport:
     """the chosen mode's missed keypoints split by dropout vs partial cover, ghosts
     (sequences with ``annotations.json`` and ``dynamic/``)"""
     model_frames: int = 0
-    """frames the model ran on (``--segment-every``: about frames / N)"""
+    """frames the model ran on (``--rate N``: about frames / N)"""
     coasted: int = 0
     """predicted masks the track stage emitted (coasted or carried)"""
     latency_ms: list[float] = field(default_factory=list)
