@@ -10,7 +10,7 @@ against the reference). Every node takes one run at a time (one CPU each).
         [--cases local 1 2 kill]
 
 ``kill``, ``1`` and ``2`` compare with the ``local`` case's folder (run it first). Needs the
-``[ray]`` extra. Every address is 127.0.0.1 (see tests/test_ablate_ray.py for why the
+``[ray]`` extra. Every address is 127.0.0.1 (see tests/ablate/test_ablate_ray.py for why the
 environment variables below are set before Ray is imported).
 """
 

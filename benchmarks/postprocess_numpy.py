@@ -6,7 +6,7 @@ Both run on the same network outputs (one onnxruntime call per frame, done first
 thread each (``torch.set_num_threads(1)``, as ``Masker.from_onnx(threads=1)``), alternating
 frame by frame so a load change hits both alike. Prints milliseconds per frame (median and
 mean) of each at each score threshold, the torch/numpy ratio, and the mask pixels that differ
-(float32 rounding at the 0.5 threshold, ``tests/test_postprocess_numpy.py``).
+(float32 rounding at the 0.5 threshold, ``tests/deploy/test_postprocess_numpy.py``).
 
     python benchmarks/postprocess_numpy.py --model runs/demo/export/yolov8n-seg-gs-rep.onnx \\
         --sequence runs/demo/slam/sequence --conf 0.25 0.05

@@ -94,7 +94,7 @@ def example(tmp_path_factory: pytest.TempPathFactory) -> Path:
     configure = [
         "cmake", "-S", str(ROOT / "export" / "cpp"), "-B", str(build),
         "-DCMAKE_BUILD_TYPE=Release", "-DCMAKE_CXX_FLAGS_RELEASE=-O2", "-DCMAKE_UNITY_BUILD=ON",
-        "-DSLIMSEG_TESTS=OFF",  # the library's ctest suite: tests/test_cpp_package.py
+        "-DSLIMSEG_TESTS=OFF",  # the library's ctest suite: tests/deploy/test_cpp_package.py
     ]  # fmt: skip
     subprocess.run(configure, check=True, capture_output=True)
     subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True, capture_output=True)

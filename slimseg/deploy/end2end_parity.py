@@ -7,7 +7,7 @@ its NMS inside (:mod:`slimseg.deploy.end2end_postprocess`). Each of the raw path
 (score above :data:`GATE_CONF`) must find an end-to-end detection of its class with box IoU ≥
 :data:`MATCH_IOU`, ``|Δscore|`` ≤ :data:`SCORE_TOL` and mask IoU ≥ :data:`MATCH_IOU`; at
 least :data:`MATCH_FRACTION` of them must (:data:`FP16_MATCH_FRACTION` for an FP16 end-to-end
-graph against the FP32 one, ``tests/test_end2end.py``). A ``--dynamic`` export is also run at
+graph against the FP32 one, ``tests/deploy/test_end2end.py``). A ``--dynamic`` export is also run at
 batch 2. ``export/CONTRACT.md`` states the numbers; this module is their one home.
 """
 

@@ -6,7 +6,7 @@ Everything else is derived from :data:`KNOBS`: the settings' validation
 the CLI's ``--set KEY=VALUE`` and ``slam-eval --sweep KEY=v1,v2`` keys, the settings table of
 ``docs/settings.md`` and the C++ consumer's defaults and ranges
 (``export/cpp/include/slimseg/settings_generated.hpp``; both written by
-``tools/gen_settings.py``, and ``tests/test_knobs.py`` fails when either is stale). A lever
+``tools/gen_settings.py``, and ``tests/dynamic/test_knobs.py`` fails when either is stale). A lever
 imports its default from here, never the reverse.
 
 Adding a knob: one :class:`Knob` row below, its field in the settings dataclass (a test checks

@@ -1,7 +1,7 @@
 """The files generated from the knob registry (:mod:`slimseg.dynamic.knobs`): the settings
 table of ``docs/settings.md`` and the C++ consumer's defaults and ranges
 (``export/cpp/include/slimseg/settings_generated.hpp``). ``tools/gen_settings.py`` writes
-them; ``tests/test_knobs.py`` fails when either differs from what this module renders."""
+them; ``tests/dynamic/test_knobs.py`` fails when either differs from what this module renders."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The masking modes and the chain's defaults: the one home of each name and number.
 
 The C++ consumer (``export/cpp``: ``parse_mode`` in ``src/rules.cpp``) implements the
-:data:`CPP_MODES` under the same names; ``tests/test_chain_config.py`` reads its sources and
+:data:`CPP_MODES` under the same names; ``tests/dynamic/test_chain_config.py`` reads its sources and
 checks that they agree.
 """
 

@@ -4,7 +4,7 @@ Ours: ``torch.utils.flop_counter.FlopCounterMode`` on an eval-mode forward of a 
 ``imgsz × imgsz`` input (2 × multiply-adds of convolutions and matmuls). Matmuls include
 MSNET's attention products ``q @ kᵀ`` and ``attn @ v``: its attention is written with plain
 ``torch.matmul`` (no fused attention kernel), which dispatches to ``aten.bmm``, an op the
-counter counts, so no extra hook is needed (``tests/test_msnet.py`` checks the count against
+counter counts, so no extra hook is needed (``tests/models/test_msnet.py`` checks the count against
 the closed form). Softmax, LayerNorm, GELU and resizing are not counted (as activations and
 BatchNorm are not).
 Paper convention (the thop-based counter the substation paper used): the same, except that

@@ -166,7 +166,8 @@ def outputs_to_frame_detections(
     or ``None``) → dense :class:`FrameDetections` per frame by the torch path validation
     runs (:func:`~slimseg.ops.nms.non_max_suppression`, :func:`to_frame_detections`): the
     reference the runtime's numpy post-processing (``slimseg.deploy.predict_postprocess``)
-    is compared with (``tests/test_postprocess_numpy.py``, ``benchmarks/postprocess_numpy.py``)."""
+    is compared with (``tests/deploy/test_postprocess_numpy.py``,
+    ``benchmarks/postprocess_numpy.py``)."""
     from slimseg.models.registry import detection_rows
     from slimseg.ops.nms import non_max_suppression
 

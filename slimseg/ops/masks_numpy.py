@@ -17,8 +17,8 @@ on each detection's pixels:
 Steps 2 and 3 give the torch path's numbers exactly; step 1 (numpy's own product loop, no
 BLAS threads, and ``exp``) differs from torch's BLAS and vectorised ``exp`` by a rounding of
 the last bit on some pixels, so a mask pixel can differ
-only where its value lies within a few float32 steps of 0.5 (``tests/test_postprocess_numpy.py``
-measures it; docs/runtime_api.md).
+only where its value lies within a few float32 steps of 0.5
+(``tests/deploy/test_postprocess_numpy.py`` measures it; docs/runtime_api.md).
 """
 
 from __future__ import annotations

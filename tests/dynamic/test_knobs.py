@@ -17,7 +17,7 @@ from slimseg.dynamic.masking_settings import PAPERS, PRESETS, SLIMSEG, MaskingSe
 from slimseg.dynamic.track_settings import COAST, TrackSettings
 from slimseg.slam.sweep import SweepError, check_mode, parse_sweep
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_generated_files_are_current() -> None:

@@ -18,7 +18,7 @@ from conftest import have_cpp_toolchain
 
 from slimseg import __version__
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # CMake versions are numeric: export/cpp takes __version__'s leading x.y.z (0.2.0rc1 -> 0.2.0)
 VERSION = re.match(r"[0-9]+(\.[0-9]+)*", __version__).group()
 

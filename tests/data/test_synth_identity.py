@@ -20,7 +20,7 @@ float64 sin, cos, tan, exp, log and arctan2 by one ulp. These digests were pinne
 CPU (numpy 2.4, OpenCV 5.1). OpenCV's float kernels (GaussianBlur, remap, resize) have no
 AVX-512 code and run the same AVX2 code on both kinds; without AVX2 (``OPENCV_CPU_DISABLE=
 AVX2,FMA3``) 5 files change by one value. Re-pin only for an intended output change:
-``python tests/test_synth_identity.py`` rewrites the JSON.
+``python tests/data/test_synth_identity.py`` rewrites the JSON.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from slimseg.data.synth.presets import PRESETS
 from slimseg.data.synth.shapes import draw
 from slimseg.utils.outputs import MANIFEST
 
-REFERENCE = Path(__file__).parent / "reference" / "synth_digests.json"
+REFERENCE = Path(__file__).parents[1] / "reference" / "synth_digests.json"
 # Seed 1 gives default sequences with 3 and 1 walkers and a standing (static) person, and
 # preset sequences with 3 and 2 walkers.
 SEED = "1"

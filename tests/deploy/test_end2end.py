@@ -282,7 +282,7 @@ def test_build_engine_takes_end2end_files_from_tensorrt_8_6(tmp_path, version, c
     (tmp_path / "m.onnx").write_bytes(b"")
     meta = {"imgsz": [64, 64], "dynamic_shapes": False, "precision": "fp16", "end2end": {}}
     (tmp_path / "m.json").write_text(json.dumps(meta))
-    script = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+    script = Path(__file__).resolve().parents[2] / "export" / "build_engine.sh"
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
     done = subprocess.run(["bash", str(script), str(tmp_path / "m.onnx")], env=env,
                           capture_output=True, text=True)  # fmt: skip

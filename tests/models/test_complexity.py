@@ -10,7 +10,7 @@ import pytest
 from slimseg.eval.complexity import measure
 from slimseg.models.registry import build_model, list_models
 
-REFERENCE = json.loads((Path(__file__).parent / "reference" / "complexity.json").read_text())
+REFERENCE = json.loads((Path(__file__).parents[1] / "reference" / "complexity.json").read_text())
 
 # Reference YOLOv8 implementation built from its YAML (docs/counting.md).
 REFERENCE_PARAMS = {

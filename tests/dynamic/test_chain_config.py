@@ -18,7 +18,7 @@ from slimseg.dynamic.modes import CPP_MODES, MODES, Mode, mode_of
 from slimseg.errors import SlimsegError
 from slimseg.objects import SOURCE_COAST, Objects
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CPP = ROOT / "export" / "cpp"
 
 

@@ -1,4 +1,4 @@
-"""In-process checks of the multi-process fixes (tests/test_ddp.py runs them on 2 ranks):
+"""In-process checks of the multi-process fixes (tests/engine/test_ddp.py runs them on 2 ranks):
 freezing before the strategy wraps the module, and a per-rank augmentation stream."""
 
 from __future__ import annotations

@@ -57,7 +57,7 @@ def setup(tmp_path_factory) -> dict[str, Path]:
     open_class_bias(batchnorm_from(model, torch.from_numpy(batch).float() / 255))
     with torch.no_grad():
         # smaller box logits and mask terms (from when the FP32 gate had absolute limits; it
-        # now scales with magnitude: tests/test_export_parity.py covers values of ~100)
+        # now scales with magnitude: tests/deploy/test_export_parity.py covers values of ~100)
         for conv in [b[-1] for b in model.detect.box] + [model.proto.cv3.conv]:
             conv.weight.mul_(0.01)
     model = model.eval()
@@ -261,7 +261,7 @@ def test_int8_onnxruntime_target_file_val_and_predictor(setup, tmp_path: Path, c
     assert predictor.predict(frame, conf=0.3).boxes.shape[1] == 4
     assert main(["val", "--weights", str(out), "--data", str(setup["data"])]) == 0
     assert "(int8, onnxruntime target) on" in capsys.readouterr().out
-    script = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+    script = Path(__file__).resolve().parents[2] / "export" / "build_engine.sh"
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
     (bin_dir / "trtexec").write_text("#!/usr/bin/env bash\necho TensorRT v100300\n")
@@ -341,7 +341,7 @@ def test_build_engine_flags(tmp_path: Path, version: str, precision: str, flags:
     (tmp_path / "m.onnx").write_bytes(b"")
     meta = {"imgsz": [64, 64], "dynamic_shapes": False, "precision": precision}
     (tmp_path / "m.json").write_text(json.dumps(meta))
-    script = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+    script = Path(__file__).resolve().parents[2] / "export" / "build_engine.sh"
     env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
     subprocess.run(
         ["bash", str(script), str(tmp_path / "m.onnx")], check=True, env=env, capture_output=True

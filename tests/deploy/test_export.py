@@ -40,7 +40,7 @@ def test_every_variant_exports_with_parity_and_tensorrt_ops(name: str, tmp_path:
     assert not set(report.ops) & DATA_DEPENDENT_OPS
     proto = onnx.load(str(report.path))
     dims = [[d.dim_value for d in o.type.tensor_type.shape.dim] for o in proto.graph.output]
-    if name.startswith("msnet"):  # semantic logits (tests/test_msnet.py checks more)
+    if name.startswith("msnet"):  # semantic logits (tests/models/test_msnet.py checks more)
         assert report.parity["input1/logit"] <= FP32_LOGIT_TOL.atol
         assert dims == [[1, 5 + 1, 128, 160]]
         return
