@@ -57,6 +57,7 @@ class Masker(FrameMasker):
         epipolar_depth: bool = False,
         fps: float = FPS,
         depth_scale: float | None = None,
+        strict: bool = False,
         **masking: Any,
     ) -> Masker:
         """The chain for ``predictor``: ``mode`` (``fusion``, ``seg``, ``box``, ...);
@@ -64,7 +65,9 @@ class Masker(FrameMasker):
         recommended settings); ``masking``: explicit overrides (``conf=0.2``, ``t_o=0.25``,
         ...); ``track``: the track stage (True: the default preset, a preset name, or
         settings); ``rate``: a :class:`ModelRate` or its text (``"3"``, ``"budget:25"``,
-        ``"thread"``); the rest as :class:`~slimseg.dynamic.chain_config.ChainConfig`."""
+        ``"thread"``); ``strict``: refuse a setting that cannot act (no camera, a frame without
+        depth) instead of saying so once; the rest as
+        :class:`~slimseg.dynamic.chain_config.ChainConfig`."""
         settings = masking_from_metadata(predictor.metadata, preset)
         if masking:
             settings = settings.with_values(**masking)
@@ -74,6 +77,7 @@ class Masker(FrameMasker):
         config = ChainConfig(
             mode=mode, masking=settings, track=TrackPlan(stage, rate), keypoints=keypoints,
             camera=camera, epipolar_depth=epipolar_depth, fps=fps, depth_scale=depth_scale,
+            strict=strict,
         )  # fmt: skip
         return cls(predictor, config)
 

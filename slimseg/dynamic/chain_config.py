@@ -65,7 +65,8 @@ class ChainConfig:
     (:mod:`slimseg.dynamic.occupancy`); ``epipolar_depth``: the epipolar check also takes the
     previous depth (its PnP residual; needs ``camera``); ``fps``: the stream's rate (the
     stage's time constants); ``depth_scale``: units per metre of integer depth images (TUM:
-    5000; float depth is metres)."""
+    5000; float depth is metres); ``strict``: a setting that cannot act (its lever lacks the
+    camera, or a frame lacks depth) is refused (``SlimsegError``) instead of said once."""
 
     mode: Mode = Mode.FUSION
     masking: MaskingSettings = DEFAULT
@@ -75,6 +76,7 @@ class ChainConfig:
     epipolar_depth: bool = False
     fps: float = FPS
     depth_scale: float | None = None
+    strict: bool = False
 
     def __post_init__(self) -> None:
         try:

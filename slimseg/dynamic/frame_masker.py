@@ -31,7 +31,7 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
 from slimseg.dynamic.frame_inputs import FrameInputs
-from slimseg.dynamic.knobs import Rule
+from slimseg.dynamic.knobs import Rule, Value, unmet
 from slimseg.dynamic.mobility import Decision, MotionBelief
 from slimseg.dynamic.model_feed import FedDetections, Feed, ModelFeed
 from slimseg.dynamic.occupancy import MotionLayers
@@ -196,6 +196,8 @@ class FrameMasker:
         self._closed = False
         self._busy = threading.Lock()  # held by the step in progress: overlapping calls refused
         self._told_no_depth = False
+        if config.camera is None:
+            self._unmet({"depth", "history", "track"}, "no camera intrinsics (camera=)")
 
     # -- the loop's calls ---------------------------------------------------------------------
 
@@ -235,14 +237,9 @@ class FrameMasker:
         i, config = self.frames, self.config
         hw = self._check(rgb, depth, keypoints)
         depth_m = self._metres(depth)
-        if depth_m is None and config.masking.cut_behind_m > 0 and not self._told_no_depth:
+        if depth_m is None and not self._told_no_depth:
             self._told_no_depth = True
-            log.warning(
-                "no depth image: the depth cut (cut_behind_m %g) cannot act, so Eq. 4 puts a "
-                "box only in place of a seg mask covering at most %g of it (RGB-only masking, "
-                "docs/slam_defaults.md §6)", config.masking.cut_behind_m,
-                min(config.masking.t_o, T_O),
-            )  # fmt: skip
+            self._unmet({"camera", "history", "track"}, f"frame {i}: no depth image")
         stamp = i / config.fps if stamp is None else float(stamp)
         clock = _StageClock()
         with clock("model"):  # this frame's model result, if one arrived
@@ -325,6 +322,23 @@ class FrameMasker:
 
     # -- inside -------------------------------------------------------------------------------
 
+    def _unmet(self, have: set[str], why: str) -> None:
+        """Say once (log a warning), or with ``config.strict`` refuse, which settings of the
+        masking cannot act for ``why`` (their levers need what ``have`` lacks)."""
+        masking = self.config.masking
+        lacking = unmet(masking.as_dict(), have)
+        if not lacking:
+            return
+        what = ", ".join(f"{k} {_text(v)}" for k, v in masking.as_dict().items() if k in lacking)
+        text = f"{why}: {what} cannot act"
+        if "cut_behind_m" in lacking:  # the boxes nothing cuts: Eq. 4 at the papers' t_o
+            text += (f"; Eq. 4 puts a box only in place of a seg mask covering at most "
+                     f"{min(masking.t_o, T_O):g} of it (RGB-only masking, "
+                     "docs/slam_defaults.md §6)")  # fmt: skip
+        if self.config.strict:
+            raise FrameError(f"{text} (strict: give what they need, or switch them off)")
+        log.warning("%s", text)
+
     def _check(
         self, rgb: np.ndarray, depth: np.ndarray | None, keypoints: np.ndarray | None
     ) -> tuple[int, int]:
@@ -365,6 +379,10 @@ class FrameMasker:
         if np.issubdtype(depth.dtype, np.integer):
             return depth_metres(depth, self.config.depth_scale)
         return depth
+
+
+def _text(v: Value) -> str:
+    return v if isinstance(v, str) else f"{v:g}"
 
 
 class Predicts(Protocol):

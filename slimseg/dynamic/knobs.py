@@ -15,6 +15,7 @@ that the two agree), the lever that reads it, and ``python tools/gen_settings.py
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -53,8 +54,9 @@ class Knob:
     (``open_low`` / ``open_high``: that bound excluded) or its ``choices``, ``help``,
     ``acts_in`` (the modes where it changes anything), ``needs`` (what else it needs to act:
     ``depth``, ``camera``, ``history`` (earlier frames), ``track`` (the track stage)),
-    ``rule`` (the rule it acts under; None: both), ``group`` (``masking`` or ``track``) and
-    the value of each preset (``papers`` / ``slimseg``; track knobs: ``coast``)."""
+    ``rule`` (the rule it acts under; None: both), ``group`` (``masking`` or ``track``), the
+    value of each preset (``papers`` / ``slimseg``; track knobs: ``coast``) and ``off``, the
+    value that switches it off."""
 
     key: str
     kind: type
@@ -69,6 +71,8 @@ class Knob:
     open_low: bool = False
     open_high: bool = False
     choices: tuple[str, ...] = ()
+    off: Value | None = None
+    """the value that switches the lever off (None: it always acts)"""
 
     def check(self, value: object) -> None:
         """Raise :class:`KnobError` unless ``value`` is valid for this knob."""
@@ -137,16 +141,16 @@ KNOBS: tuple[Knob, ...] = (
     _m("keep_score", float, 0.0, 1.0, 0.5, 0.5, "degrade: a mover scoring this or more is "
        "never given up", acts_in=RULE_MODES, rule=Rule.DEGRADE),
     _m("cut_behind_m", float, 0.0, 100.0, 0.0, 0.5, "metres behind its object's near depth "
-       "from which mask pixels are cut (0: off)", acts_in=MASK_MODES, needs=("depth",)),
+       "from which mask pixels are cut (0: off)", acts_in=MASK_MODES, needs=("depth",), off=0.0),
     _m("motion_odds", float, 1.0, 1e6, 1.0, 10.0, "seg/fusion: odds by which the epipolar "
        "check's moving/static decision weighs on an uncertain mobility (1: no check)",
-       acts_in=WEIGHED_MODES, needs=("history",)),
+       acts_in=WEIGHED_MODES, needs=("history",), off=1.0),
     _m("motion_layer_px", int, 0, 1_000_000, 0, 100, "keep what moved in behind an object's "
        "near layer when it covers this many px (0: off)", acts_in=MASK_MODES,
-       needs=("depth", "camera", "history")),
+       needs=("depth", "camera", "history"), off=0),
     _m("still_frames", int, 0, 1000, 0, 20, "an object whose depth has not changed against "
        "the frames this many and half as many back is static (0: off)",
-       needs=("depth", "camera", "history")),
+       needs=("depth", "camera", "history"), off=0),
     # -- the track stage (TrackSettings): the knobs sweeps turn; the rest are constants of
     # slimseg.dynamic.track_settings
     _t("high", float, 0.0, 1.0, 0.25, "first-pass (BYTE) score threshold"),
@@ -192,3 +196,17 @@ def papers(key: str) -> Value:
 def shipped(key: str) -> Value:
     """The shipped (``slimseg``) preset's value of ``key`` (a lever's default when on)."""
     return BY_KEY[key].presets["slimseg"]
+
+
+def unmet(values: Mapping[str, Value], have: Iterable[str]) -> dict[str, tuple[str, ...]]:
+    """``{key: what it lacks}`` for the knobs that ``values`` switches on (not at their
+    ``off``) and whose needs (``depth``, ``camera``, ...) are not all in ``have``: levers
+    that would do nothing."""
+    got = set(have)
+    out = {}
+    for key, value in values.items():
+        k = BY_KEY[key]
+        missing = tuple(n for n in k.needs if n not in got)
+        if k.off is not None and value != k.off and missing:
+            out[key] = missing
+    return out

@@ -37,12 +37,13 @@ def docs_table() -> str:
         "`papers` (the equations as printed) and `slimseg` (shipped; chosen in "
         "[slam_defaults.md](slam_defaults.md)); the track stage's knobs act with `--track` "
         "(preset `coast`; `no-coast` sets `max_coast` 0). A rule-bound knob changes nothing "
-        "under the other rule, and the CLI says so.",
+        "under the other rule, and the CLI says so; a lever switched on whose needs a run "
+        "lacks (no camera, no depth) is said once in the log, or refused with `strict`.",
         "",
     ]
     rows = [
-        "| key | range | papers | slimseg | acts in modes | needs | rule | what |",
-        "|---|---|---|---|---|---|---|---|",
+        "| key | range | papers | slimseg | off at | acts in modes | needs | rule | what |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for k in KNOBS:
         if k.group == "track":
@@ -51,7 +52,8 @@ def docs_table() -> str:
             papers, slimseg = (_value(k.presets[p]) for p in MASKING_PRESETS)
         needs = ", ".join(k.needs) or "–"
         rule = k.rule.value if k.rule else "both"
-        rows.append(f"| `{k.key}` | {k.describe_range()} | {papers} | {slimseg} | "
+        off = "–" if k.off is None else _value(k.off)
+        rows.append(f"| `{k.key}` | {k.describe_range()} | {papers} | {slimseg} | {off} | "
                     f"{_modes(k)} | {needs} | {rule} | {k.help} |")  # fmt: skip
     return "\n".join(head + rows) + "\n"
 

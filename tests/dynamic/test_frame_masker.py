@@ -16,6 +16,7 @@ from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.epipolar import PreviousFrame, orb_features
 from slimseg.dynamic.frame_masker import FrameError, FrameMasker, segmenter_for
+from slimseg.dynamic.masking_settings import PAPERS
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.object_motion import (
     _subset_medians,
@@ -185,3 +186,35 @@ def test_subset_medians_are_numpys_medians() -> None:
         members[:, rng.integers(0, p)] = True
         expected = [np.median(values[row]) for row in members]
         assert np.allclose(_subset_medians(values, members), expected)
+
+
+def test_settings_that_cannot_act_are_said_once_or_refused(caplog) -> None:
+    """The shipped preset's motion layers and stillness need the camera, the depth cut depth:
+    without them the chain says so once (the settings by name), or refuses when strict."""
+    hw = (48, 64)
+    rgb = np.zeros((*hw, 3), np.uint8)
+
+    def nothing(img: np.ndarray, stamp: float, conf: float) -> Objects:
+        return Objects.empty(hw)
+
+    with caplog.at_level("WARNING", logger="slimseg"), FrameMasker(nothing, [1.0]) as m:
+        for _ in range(3):  # no camera
+            m.step(rgb, np.ones(hw, np.float32))
+    said = [r.getMessage() for r in caplog.records if "cannot act" in r.getMessage()]
+    assert len(said) == 1 and "no camera intrinsics" in said[0], said
+    assert "motion_layer_px 100" in said[0] and "still_frames 20" in said[0]
+    assert "cut_behind_m" not in said[0]  # the depth cut needs depth only
+    caplog.clear()
+    camera = ChainConfig(camera=(50.0, 50.0, 32.0, 24.0))
+    with caplog.at_level("WARNING", logger="slimseg"), FrameMasker(nothing, [1.0], camera) as m:
+        m.step(rgb, np.ones(hw, np.float32))  # all it needs: nothing said
+        m.step(rgb)  # a frame without depth: said once, the depth levers by name
+        m.step(rgb)
+    said = [r.getMessage() for r in caplog.records if "cannot act" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("frame 1: no depth image"), said
+    assert "cut_behind_m 0.5" in said[0] and "at most 0.25" in said[0]
+    with pytest.raises(FrameError, match="motion_layer_px 100, still_frames 20 cannot act"):
+        FrameMasker(nothing, [1.0], ChainConfig(strict=True))
+    papers = ChainConfig(masking=PAPERS, strict=True)  # no lever needs the camera: fine
+    with FrameMasker(nothing, [1.0], papers) as m:
+        m.step(rgb)
