@@ -33,7 +33,7 @@ from pathlib import Path
 
 from slimseg.data.tum import TumSequence
 from slimseg.dynamic.annotations import Dropout
-from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
+from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT
 from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.track_settings import COAST, NO_COAST
@@ -179,7 +179,11 @@ def _sequence(args: argparse.Namespace, seq_dir: Path, rungs: list[Rung]) -> lis
         out = folder / "masks" / "".join(c if c.isalnum() else "_" for c in rung.name)
         t0 = time.perf_counter()
         rep = run_sequence(
-            inst or predictor, seq, out, rung.mode, args.masking, progress=False, track=rung.track
+            inst or predictor,
+            seq,
+            out,
+            ChainConfig(mode=rung.mode, masking=args.masking, track=rung.track),
+            progress=False,
         )
         sc = rep.scores.get(rung.mode)
         loss = rep.recall_loss.summary() if rep.recall_loss else {}

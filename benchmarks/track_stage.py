@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
-from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
+from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.track_settings import COAST
 from slimseg.sequence.sequence_run import run_sequence
 from slimseg.utils.table import format_table
@@ -45,8 +45,13 @@ def main() -> None:
             got: dict[str, list[float]] = {"off": [], "on": [], "stage": []}
             for k in range(args.repeats):
                 for name, plan in (("off", TRACK_OFF), ("on", TrackPlan(COAST))):
-                    rep = run_sequence(source, args.sequence, Path(tmp) / f"{mode}{k}{name}",
-                                       mode, progress=False, track=plan)  # fmt: skip
+                    rep = run_sequence(
+                        source,
+                        args.sequence,
+                        Path(tmp) / f"{mode}{k}{name}",
+                        ChainConfig(mode=mode, track=plan),
+                        progress=False,
+                    )
                     got[name].append(rep.ms_per_frame["masking_logic"])
                     if name == "on":
                         got["stage"].append(rep.ms_per_frame["track_stage"])

@@ -28,7 +28,7 @@ from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.annotations import Dropout
-from slimseg.dynamic.chain_config import TrackPlan
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES, Mode
 from slimseg.errors import SlimsegError
@@ -210,20 +210,12 @@ def _run(
         observers.append(viz)
     # the outputs complete or not at all; the recording kept only if they are
     with kept_recording(viz), _staged_output(out, seq, bag_out, args, boxes) as stage:
-        report = run_sequence(
-            predictor,
-            seq,
-            stage,
-            args.mode,
-            masking,
-            args.keypoints,
-            progress=not args.quiet,
-            epipolar_depth=args.epipolar_depth,
-            track=track,
-            fps=args.fps,
-            observers=observers,
-            use_depth=not args.no_depth,
-        )
+        config = ChainConfig(mode=args.mode, masking=masking, track=track,
+                             keypoints=args.keypoints, camera=seq.camera.pinhole,
+                             epipolar_depth=args.epipolar_depth)  # fmt: skip
+        report = run_sequence(predictor, seq, stage, config, progress=not args.quiet,
+                              replay_fps=args.fps, observers=observers,
+                              use_depth=not args.no_depth)  # fmt: skip
         restored = _restore(args, seq, stage, restore_mask) if args.restore else None
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     where = f"bag {out} on {MASK_TOPIC}" if bag_out else out / "masks"

@@ -108,3 +108,7 @@ class ChainConfig:
     def floor(self) -> float:
         """The score threshold the model runs at: the masking one, or BYTE's ``low``."""
         return self.track.floor(self.masking.conf)
+
+
+DEFAULT_CHAIN = ChainConfig()
+"""The chain's defaults: fusion, the shipped masking preset, every frame judged alone."""

@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
-from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
+from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.epipolar import OrbFeatures, orb_features
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
@@ -159,7 +159,7 @@ def mask_with(
     digest = hashlib.sha1()
     out.mkdir(parents=True, exist_ok=True)
     frames = {f.stamp: f for f in cache.frames}
-    config = sequence_config(seq, mode, masking, track=track)
+    config = sequence_config(seq, ChainConfig(mode=mode, masking=masking, track=track))
     masker = FrameMasker(
         lambda rgb, stamp, conf: frames[stamp].above(conf), cache.mobility, config,
         extractor=lambda rgb, stamp: frames[stamp].features,

@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from collections.abc import Sequence as Sequence_
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,10 +29,9 @@ from slimseg.data.frame_source import FrameSource
 from slimseg.data.sequence_source import opens_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.annotations import AnnotationInstances
-from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
+from slimseg.dynamic.chain_config import DEFAULT_CHAIN, ChainConfig
 from slimseg.dynamic.frame_masker import FrameMasker, MaskedFrame, segmenter_for
-from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
-from slimseg.dynamic.modes import KEYPOINTS, MODES, Mode
+from slimseg.dynamic.modes import MODES, Mode
 from slimseg.sequence.sequence_report import ModeScore, SequenceReport, track_rows, write_csv
 from slimseg.sequence.trace_analysis import TraceAnalysis
 from slimseg.utils.atomic import write_png
@@ -40,20 +40,11 @@ Observer = Callable[[MaskedFrame, np.ndarray, np.ndarray], None]
 """Called per frame with its outcome, ``rgb uint8 [H, W, 3]`` and ``depth_m float32 [H, W]``."""
 
 
-def sequence_config(
-    seq: FrameSource,
-    mode: Mode | str = Mode.FUSION,
-    masking: MaskingSettings = DEFAULT,
-    keypoints: int = KEYPOINTS,
-    epipolar_depth: bool = False,
-    track: TrackPlan = TRACK_OFF,
-) -> ChainConfig:
-    """The chain's configuration for ``seq``: its frame rate and intrinsics (the depth cut's
-    motion layers, the stillness test); ``epipolar_depth``: the epipolar check's depth-aided
-    residual too."""
-    return ChainConfig(mode=mode, masking=masking, track=track, keypoints=keypoints,
-                       camera=seq.camera.pinhole, epipolar_depth=epipolar_depth,
-                       fps=seq.fps)  # fmt: skip
+def sequence_config(seq: FrameSource, config: ChainConfig = DEFAULT_CHAIN) -> ChainConfig:
+    """``config`` for ``seq``: its frame rate, and its intrinsics where ``config`` gives
+    none (the depth cut's motion layers, the stillness test, the depth-aided residual)."""
+    camera = seq.camera.pinhole if config.camera is None else config.camera
+    return replace(config, camera=camera, fps=seq.fps)
 
 
 def scored_modes(predictor: object, seq: FrameSource) -> tuple[str, ...]:
@@ -70,39 +61,33 @@ def run_sequence(
     predictor: object,
     sequence: Path | FrameSource,
     out: Path,
-    mode: Mode | str = Mode.FUSION,
-    masking: MaskingSettings = DEFAULT,
-    keypoints: int = KEYPOINTS,
+    config: ChainConfig = DEFAULT_CHAIN,
+    *,
     progress: bool = True,
-    epipolar_depth: bool = False,
-    track: TrackPlan = TRACK_OFF,
-    fps: float | None = None,
+    replay_fps: float | None = None,
     observers: Sequence_[Observer] = (),
     use_depth: bool = True,
 ) -> SequenceReport:
     """Process every associated frame of ``sequence`` with ``predictor`` (a slimseg
-    ``Predictor`` or ``AnnotationInstances``) under the ``masking`` settings (score threshold,
-    dilation, Eq. 1/3/4); write masks, ``frames.csv`` and ``overlay.png`` under ``out``.
-    ``epipolar_depth``: give the epipolar check the previous depth and the intrinsics
-    (depth-aided residual, see ``epipolar``). ``sequence``: the folder, or it opened.
-    ``track``: the track stage and the model's rate (off by default: every frame judged
-    alone); with it on, ``tracks.csv`` lists every emitted object with its track id and
-    source. With the model on its own thread the frames are replayed in real time at ``fps``
-    (None: the sequence's own timestamps; 0: as fast as the loop goes). ``observers``: called
-    with every frame's outcome, colour and depth as the run makes it (a Rerun recording, the
-    boxes of a Foxglove write-back). ``use_depth`` False: the chain sees no depth image (what
-    an RGB-only camera gives). A loop over
-    :class:`~slimseg.dynamic.frame_masker.FrameMasker` (configured by
-    :func:`sequence_config`)."""
+    ``Predictor`` or ``AnnotationInstances``) through the chain ``config`` says (mode, masking
+    settings, track stage and rate, keypoints; the sequence's frame rate and intrinsics
+    filled in by :func:`sequence_config`); write masks, ``frames.csv`` and ``overlay.png``
+    under ``out``. ``sequence``: the folder, or it opened. With the track stage on,
+    ``tracks.csv`` lists every emitted object with its track id and source. With the model on
+    its own thread the frames are replayed in real time at ``replay_fps`` (None: the
+    sequence's own timestamps; 0: as fast as the loop goes). ``observers``: called with every
+    frame's outcome, colour and depth as the run makes it (a Rerun recording, the boxes of a
+    Foxglove write-back). ``use_depth`` False: the chain sees no depth image (what an
+    RGB-only camera gives). A loop over :class:`~slimseg.dynamic.frame_masker.FrameMasker`."""
     seq = sequence  # a path was opened by @opens_sequence
     gt = predictor if isinstance(predictor, AnnotationInstances) else None
-    config = sequence_config(seq, mode, masking, keypoints, epipolar_depth, track)
+    config = sequence_config(seq, config)
     scored = (seq.root / "dynamic").is_dir()
     report = SequenceReport(scores={m: ModeScore() for m in MODES} if scored else {})
     with FrameMasker(segmenter_for(predictor), predictor.mobility, config) as m:
         live = config.track.rate.thread  # real time: the analysis runs after the run
         analysis = TraceAnalysis(seq, gt, report, m.rules, scored_modes(predictor, seq), live)
-        _loop(m, seq, out, report, analysis, progress, fps, observers, use_depth)
+        _loop(m, seq, out, report, analysis, progress, replay_fps, observers, use_depth)
     analysis.finish(out, use_depth)
     return report
 

@@ -25,7 +25,7 @@ from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
 from slimseg.data.tum import MAX_DT, mask_name, read_trajectory
 from slimseg.dynamic.annotations import Dropout
-from slimseg.dynamic.chain_config import TRACK_OFF, TrackPlan
+from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings, preset_name
 from slimseg.dynamic.modes import KEYPOINTS
 from slimseg.errors import SlimsegError
@@ -159,10 +159,9 @@ def _mode_condition(
     from slimseg.sequence.sequence_run import run_sequence
 
     folder = out / "masks" / mode.replace("+", "_")
-    rep = run_sequence(
-        predictor, plan.sequence, folder, mode, plan.masking, plan.keypoints,
-        progress=plan.progress, track=plan.track,
-    )  # fmt: skip
+    config = ChainConfig(mode=mode, masking=plan.masking, track=plan.track,
+                         keypoints=plan.keypoints)  # fmt: skip
+    rep = run_sequence(predictor, plan.sequence, folder, config, progress=plan.progress)
     ms = rep.ms_per_frame["model"] + rep.ms_per_frame["masking_logic"]
     say(f"{mode}: masks for {rep.frames} frames in {folder / 'masks'} ({ms:.1f} ms/frame)")
     source = "--gt-instances" if plan.gt_instances else "--model"

@@ -70,7 +70,13 @@ def test_the_callers_keypoints_are_classified_as_the_chains_own(
 def test_a_loop_over_the_chain_writes_what_slimseg_dynamic_writes(
     sequence: Path, tmp_path: Path
 ) -> None:
-    run_sequence(AnnotationInstances(sequence), sequence, tmp_path, "fusion", progress=False)
+    run_sequence(
+        AnnotationInstances(sequence),
+        sequence,
+        tmp_path,
+        ChainConfig(mode="fusion"),
+        progress=False,
+    )
     seq = TumSequence(sequence)
     with _masker(sequence, fps=seq.fps, camera=seq.camera.pinhole) as m:
         for i in range(len(seq)):

@@ -17,7 +17,7 @@ import pytest
 
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
-from slimseg.dynamic.chain_config import TrackPlan
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.masking_settings import DEFAULT
 from slimseg.dynamic.track_settings import COAST
 from slimseg.sequence.sequence_run import run_sequence
@@ -41,12 +41,23 @@ def test_track_stage_keeps_its_coasted_walkers_under_every_lever(
     assert instances.dropped > 0
     levers = DEFAULT  # depth cut, motion odds, motion layers, stillness, the degrading rule
     assert levers.motion_odds > 1 and levers.still_frames > 0 and levers.motion_layer_px > 0
-    off = run_sequence(instances, seq, tmp_path / "off", mode, levers, progress=False)
-    on = run_sequence(instances, seq, tmp_path / "on", mode, levers, progress=False,
-                      track=TrackPlan(COAST))  # fmt: skip
-    alone = run_sequence(instances, seq, tmp_path / "alone", mode,
-                         levers.with_values(motion_odds=1.0), progress=False,
-                         track=TrackPlan(COAST))  # fmt: skip
+    off = run_sequence(
+        instances, seq, tmp_path / "off", ChainConfig(mode=mode, masking=levers), progress=False
+    )
+    on = run_sequence(
+        instances,
+        seq,
+        tmp_path / "on",
+        ChainConfig(mode=mode, masking=levers, track=TrackPlan(COAST)),
+        progress=False,
+    )
+    alone = run_sequence(
+        instances,
+        seq,
+        tmp_path / "alone",
+        ChainConfig(mode=mode, masking=levers.with_values(motion_odds=1.0), track=TrackPlan(COAST)),
+        progress=False,
+    )
     r_off, r_on, r_alone = (r.scores[mode].recall for r in (off, on, alone))
     assert r_off < 0.9, r_off  # the dropouts cost recall without the stage
     assert r_on >= 0.9, (r_off, r_on, r_alone)  # the stage wins them back with every lever on

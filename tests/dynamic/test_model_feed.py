@@ -135,9 +135,15 @@ def sequence(tmp_path_factory) -> Path:
 
 def test_run_sequence_with_the_model_on_its_own_thread(sequence: Path, tmp_path: Path) -> None:
     inst = AnnotationInstances(sequence)
-    per = run_sequence(inst, sequence, tmp_path / "p", "seg", progress=False)
-    live = run_sequence(inst, sequence, tmp_path / "t", "seg", progress=False,
-                        track=TrackPlan(COAST, ModelRate.own_thread()), fps=60.0)  # fmt: skip
+    per = run_sequence(inst, sequence, tmp_path / "p", ChainConfig(mode="seg"), progress=False)
+    live = run_sequence(
+        inst,
+        sequence,
+        tmp_path / "t",
+        ChainConfig(mode="seg", track=TrackPlan(COAST, ModelRate.own_thread())),
+        progress=False,
+        replay_fps=60.0,
+    )
     assert live.frames == 30 and len(live.latency_ms) == 30 and live.model_lags[0] == 0
     assert len(list((tmp_path / "t" / "masks").glob("*.png"))) == 30
     # every mode is scored whatever the rate (on the trace, after the run)

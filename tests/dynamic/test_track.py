@@ -14,7 +14,7 @@ from slimseg.cli.main import main
 from slimseg.data.synth.sequence import write_sequence
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
 from slimseg.dynamic.camera_motion import CameraMotion, estimate_motion
-from slimseg.dynamic.chain_config import TrackPlan
+from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.epipolar import OrbFeatures
 from slimseg.dynamic.kalman import BoxKalman
 from slimseg.dynamic.mask_patch import (
@@ -226,8 +226,14 @@ def _digest(folder: Path) -> str:
 
 def test_off_is_the_per_frame_output(sequence: Path, tmp_path: Path) -> None:
     inst = AnnotationInstances(sequence)
-    a = run_sequence(inst, sequence, tmp_path / "a", "fusion", progress=False)
-    run_sequence(inst, sequence, tmp_path / "b", "fusion", progress=False, track=TrackPlan())
+    a = run_sequence(inst, sequence, tmp_path / "a", ChainConfig(mode="fusion"), progress=False)
+    run_sequence(
+        inst,
+        sequence,
+        tmp_path / "b",
+        ChainConfig(mode="fusion", track=TrackPlan()),
+        progress=False,
+    )
     assert _digest(tmp_path / "a") == _digest(tmp_path / "b")
     assert not (tmp_path / "b" / "tracks.csv").exists() and a.recall_loss is not None
 
@@ -235,9 +241,14 @@ def test_off_is_the_per_frame_output(sequence: Path, tmp_path: Path) -> None:
 def test_tracks_win_back_dropped_instances(sequence: Path, tmp_path: Path) -> None:
     dropped = AnnotationInstances(sequence, Dropout(0.2, 3, seed=1))
     assert dropped.dropped > 0
-    off = run_sequence(dropped, sequence, tmp_path / "off", "seg", progress=False)
-    on = run_sequence(dropped, sequence, tmp_path / "on", "seg", progress=False,
-                      track=TrackPlan(COAST))  # fmt: skip
+    off = run_sequence(dropped, sequence, tmp_path / "off", ChainConfig(mode="seg"), progress=False)
+    on = run_sequence(
+        dropped,
+        sequence,
+        tmp_path / "on",
+        ChainConfig(mode="seg", track=TrackPlan(COAST)),
+        progress=False,
+    )
     r_off, r_on = off.scores["seg"].recall, on.scores["seg"].recall
     assert r_off < 0.97 and (1 - r_on) < 0.3 * (1 - r_off), (r_off, r_on)  # >= 70 % won back
     assert on.scores["seg"].precision >= off.scores["seg"].precision - 0.02
@@ -249,9 +260,14 @@ def test_tracks_win_back_dropped_instances(sequence: Path, tmp_path: Path) -> No
 
 def test_segment_every_runs_the_model_on_every_nth_frame(sequence: Path, tmp_path: Path) -> None:
     inst = AnnotationInstances(sequence)
-    rep = run_sequence(inst, sequence, tmp_path / "x", "seg", progress=False)
-    every3 = run_sequence(inst, sequence, tmp_path / "e3", "seg", progress=False,
-                          track=TrackPlan(COAST, ModelRate.every_n(3)))  # fmt: skip
+    rep = run_sequence(inst, sequence, tmp_path / "x", ChainConfig(mode="seg"), progress=False)
+    every3 = run_sequence(
+        inst,
+        sequence,
+        tmp_path / "e3",
+        ChainConfig(mode="seg", track=TrackPlan(COAST, ModelRate.every_n(3))),
+        progress=False,
+    )
     assert every3.model_frames == 15 and rep.model_frames == 45
     assert every3.scores["seg"].recall > 0.8 * rep.scores["seg"].recall
 
@@ -272,9 +288,14 @@ def test_carried_frames_keep_what_the_model_frames_found(
     """Every emitted detection opens a track, so the frames the model skips keep the weak
     walkers (before: they opened no track and vanished, recall fell to about 1/N)."""
     weak = _WeakInstances(sequence)
-    per = run_sequence(weak, sequence, tmp_path / "p", "seg", progress=False)
-    carried = run_sequence(weak, sequence, tmp_path / f"e{every}", "seg", progress=False,
-                           track=TrackPlan(COAST, ModelRate.every_n(every)))  # fmt: skip
+    per = run_sequence(weak, sequence, tmp_path / "p", ChainConfig(mode="seg"), progress=False)
+    carried = run_sequence(
+        weak,
+        sequence,
+        tmp_path / f"e{every}",
+        ChainConfig(mode="seg", track=TrackPlan(COAST, ModelRate.every_n(every))),
+        progress=False,
+    )
     r_per, r_car = per.scores["seg"].recall, carried.scores["seg"].recall
     assert r_per > 0.9 and r_car >= kept * r_per, (r_per, r_car)
     assert carried.scores["seg"].precision >= per.scores["seg"].precision - 0.05
@@ -316,7 +337,13 @@ def test_cached_sweep_loop_gives_the_same_tracked_masks(
 
     inst = AnnotationInstances(sequence, Dropout(0.2, 3, seed=2))
     plan = TrackPlan(COAST, ModelRate.every_n(every))
-    run_sequence(inst, sequence, tmp_path / "dyn", mode, DEFAULT, progress=False, track=plan)
+    run_sequence(
+        inst,
+        sequence,
+        tmp_path / "dyn",
+        ChainConfig(mode=mode, masking=DEFAULT, track=plan),
+        progress=False,
+    )
     seq = TumSequence(sequence)
     cache = build_cache(inst, seq, plan.floor(DEFAULT.conf), progress=False)
     sm = mask_with(cache, mode, DEFAULT, tmp_path / "sweep" / "masks", plan)

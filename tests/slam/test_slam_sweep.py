@@ -250,11 +250,17 @@ def test_cached_masks_equal_a_direct_run(seq: Path, tmp_path: Path) -> None:
     """mask_with on the cache writes what slimseg dynamic writes for the same settings."""
     import cv2
 
+    from slimseg.dynamic.chain_config import ChainConfig
     from slimseg.sequence.sequence_run import run_sequence
 
     settings = PAPERS.with_values(conf=0.1, dilation_px=3, t_o=0.4)
-    direct = run_sequence(CountingPredictor(seq), seq, tmp_path / "d", "fusion", settings,
-                          progress=False)  # fmt: skip
+    direct = run_sequence(
+        CountingPredictor(seq),
+        seq,
+        tmp_path / "d",
+        ChainConfig(mode="fusion", masking=settings),
+        progress=False,
+    )
     cache = build_cache(CountingPredictor(seq), TumSequence(seq), 0.05, progress=False)
     sm = mask_with(cache, "fusion", settings, tmp_path / "c")
     for name in sorted(p.name for p in (tmp_path / "d" / "masks").iterdir()):
