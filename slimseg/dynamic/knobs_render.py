@@ -97,6 +97,10 @@ def cpp_header() -> str:
             out.append(f"inline constexpr int {_cpp_name(k.key)} = {v};")
         else:
             out.append(f"inline constexpr double {_cpp_name(k.key)} = {float(v)!r};")
+    out += ["", "// the value that switches each lever off"]
+    for k in KNOBS:
+        if k.group == "masking" and k.off is not None:
+            out.append(f"inline constexpr double kOff{_cpp_name(k.key)[1:]} = {float(k.off)!r};")
     out += [
         "",
         "// shared with the rules: the near layer's depth quantile (depth_cut.REFERENCE_QUANTILE),",

@@ -440,6 +440,13 @@ def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_
     cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
     done = subprocess.run([*cmd, "--out", str(out), "--frames", str(dumps)], capture_output=True)
     assert done.returncode == 0, done.stderr
+    # the shipped preset's multi-frame evidence is named once, not dropped without a word
+    note = "motion_odds 10, motion_layer_px 100, still_frames 20: multi-frame settings"
+    assert done.stderr.decode().count(note) == 1, done.stderr
+    strict = subprocess.run([*cmd, "--out", str(tmp_path / "s"), "--strict"], capture_output=True)
+    err = strict.stderr.decode().strip().splitlines()
+    assert strict.returncode == 2 and len(err) == 1 and note in err[0] and "--strict" in err[0]
+    assert not (tmp_path / "s").exists()
     stems = sorted(p.stem for p in (seq / "rgb").glob("*.png"))
     assert stems and sorted(p.stem for p in out.glob("*.pgm")) == stems
     for stem in stems:

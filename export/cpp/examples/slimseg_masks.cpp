@@ -2,7 +2,7 @@
 //
 //   slimseg_masks --meta MODEL.json --dumps DUMPS/ --out OUT/ [--frames FRAMES/]
 //                 [--mode fusion|seg|box] [--preset NAME] [--conf C] [--iou I] [--max-det N]
-//                 [--results]
+//                 [--results] [--strict]
 //
 // Per DUMPS/<stem>.ssraw: post-processing (boxes, scores, classes, masks or a class map) at the
 // masking score threshold (slam_masking.conf unless --conf), then the SLAM rules with the
@@ -14,6 +14,8 @@
 // dynamic, keypoint_dynamic, used_seg, m_th) for comparisons. Exit 2 with one line on bad input.
 // Dumps of an end-to-end export (metadata end2end) carry num_dets, boxes, scores, classes and
 // masks instead of output0/output1: the NMS ran in the graph (--iou does not apply).
+// Settings of the preset that this consumer does not apply (the multi-frame evidence:
+// motion_odds, motion_layer_px, still_frames) are named once on stderr; --strict refuses them.
 #include <slimseg/consumer.hpp>
 
 #include <algorithm>
@@ -89,6 +91,7 @@ struct Args {
     double conf = -1, iou = -1;
     int max_det = -1;
     bool results = false;
+    bool strict = false;
 };
 
 Args parse(int argc, char** argv) {
@@ -116,11 +119,12 @@ Args parse(int argc, char** argv) {
         else if (k == "--iou") a.iou = number(value());
         else if (k == "--max-det") a.max_det = static_cast<int>(number(value()));
         else if (k == "--results") a.results = true;
+        else if (k == "--strict") a.strict = true;
         else throw Error("unknown option " + k + " (see the comment at the top of slimseg_masks.cpp)");
     }
     if (a.meta.empty() || a.dumps.empty() || a.out.empty())
         throw Error("usage: slimseg_masks --meta MODEL.json --dumps DIR --out DIR [--frames DIR] "
-                    "[--mode fusion|seg|box] [--preset NAME] [--conf C] [--results]");
+                    "[--mode fusion|seg|box] [--preset NAME] [--conf C] [--results] [--strict]");
     return a;
 }
 
@@ -176,6 +180,14 @@ int run(const Args& a) {
     Postprocessor post(meta);
     Rules rules = Rules::from_metadata(meta, a.mode, a.preset);
     const MaskingSettings& masking = meta.masking(a.preset);
+    if (const auto idle = unapplied(rules.masking); !idle.empty()) {
+        std::string list;
+        for (const auto& s : idle) list += (list.empty() ? "" : ", ") + s;
+        const std::string what = list + ": multi-frame settings this consumer does not apply (its "
+                                 "masks are slimseg dynamic's with them off; docs/cpp_consumer.md)";
+        if (a.strict) throw Error(what + " (--strict)");
+        std::fprintf(stderr, "slimseg_masks: note: %s\n", what.c_str());
+    }
     const double conf = a.conf >= 0 ? a.conf : masking.conf;
     const double iou = a.iou >= 0 ? a.iou : meta.nms.iou;
     const int max_det = a.max_det > 0 ? a.max_det : meta.nms.max_det;

@@ -84,6 +84,9 @@ MaskingSettings masking_entry(const Json& e, const std::string& field) {
         s.dilation_reference_px = integer(*v, field + ".dilation_reference_px", 1, 1 << 20);
     s.keep_score = knob(e, field, "keep_score", s.keep_score);
     s.cut_behind_m = knob(e, field, "cut_behind_m", s.cut_behind_m);
+    s.motion_odds = knob(e, field, "motion_odds", s.motion_odds);
+    s.motion_layer_px = static_cast<int>(knob(e, field, "motion_layer_px", s.motion_layer_px));
+    s.still_frames = static_cast<int>(knob(e, field, "still_frames", s.still_frames));
     if (const Json* v = e.find("rule")) {
         s.rule = text(*v, field + ".rule");
         if (s.rule != "eq1" && s.rule != "degrade")

@@ -185,6 +185,22 @@ Rules Rules::from_metadata(const Metadata& meta, Mode mode, const std::string& p
     return r;
 }
 
+std::vector<std::string> unapplied(const MaskingSettings& s) {
+    std::vector<std::string> out;
+    auto number = [](double v) {
+        char buf[32];
+        std::snprintf(buf, sizeof buf, "%g", v);
+        return std::string(buf);
+    };
+    if (s.motion_odds != generated::kOffMotionOdds)
+        out.push_back("motion_odds " + number(s.motion_odds));
+    if (s.motion_layer_px != generated::kOffMotionLayerPx)
+        out.push_back("motion_layer_px " + std::to_string(s.motion_layer_px));
+    if (s.still_frames != generated::kOffStillFrames)
+        out.push_back("still_frames " + std::to_string(s.still_frames));
+    return out;
+}
+
 int scaled_dilation_px(const MaskingSettings& s, int h, int w) {
     return static_cast<int>(
         std::nearbyint(s.dilation_px * static_cast<double>(std::max(h, w)) /

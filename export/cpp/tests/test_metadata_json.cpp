@@ -8,6 +8,7 @@
 #include "check.hpp"
 #include "slimseg/json.hpp"
 #include "slimseg/metadata.hpp"
+#include "slimseg/rules.hpp"
 
 using namespace slimseg;
 
@@ -45,7 +46,8 @@ const char* kSegmenter = R"({
     "dynamic_classes": [0, 2], "imgsz": [384, 640], "num_masks": 32, "proto_stride": 4,
     "nms": {"conf": 0.3, "iou": 0.6, "max_det": 100, "class_aware": false},
     "slam_masking": {"conf": 0.4, "dilation_px": 5, "min_static": 80, "rule": "degrade",
-                     "presets": {"papers": {"t_o": 0.25}, "wide": {"dilation_px": 9}}}
+                     "presets": {"papers": {"t_o": 0.25},
+                                 "wide": {"dilation_px": 9, "motion_odds": 10, "still_frames": 20}}}
 })";
 
 void metadata_fields() {
@@ -69,6 +71,11 @@ void metadata_fields() {
     CHECK_EQ(m.masking("wide").dilation_px, 9);
     CHECK_EQ(m.masking("wide").min_static, 100);  // presets start from the papers preset
     CHECK_EQ(&m.masking(""), &m.slam_masking);
+    // the multi-frame evidence: read and checked, named as not applied by this consumer
+    CHECK_EQ(m.masking("wide").still_frames, 20);
+    CHECK(unapplied(m.masking("wide")) ==
+          std::vector<std::string>({"motion_odds 10", "still_frames 20"}));
+    CHECK(unapplied(m.slam_masking).empty());
     CHECK_ERROR(m.masking("nope"), "metadata slam_masking.presets: no preset 'nope' (has: papers, wide)");
 
     // a missing or malformed mobility is 1 per class; legacy keys without slam_masking
@@ -103,6 +110,10 @@ void metadata_errors() {
                 "metadata proto_stride: imgsz is not a multiple of it");
     CHECK_ERROR(Metadata::from_json("{" + base + R"(, "task": "detect", "slam_masking": {"t_o": 2}})"),
                 "metadata slam_masking.t_o: value 2.000000 outside [0.000000, 1.000000]");
+    CHECK_ERROR(Metadata::from_json("{" + base + R"(, "task": "detect", "slam_masking": {"motion_odds": 0.5}})"),
+                "metadata slam_masking.motion_odds: value 0.500000 outside [1.000000, 1000000.000000]");
+    CHECK_ERROR(Metadata::from_json("{" + base + R"(, "task": "detect", "slam_masking": {"still_frames": 2.5}})"),
+                "metadata slam_masking.still_frames: expected a whole number in 0..1000, got 2.500000");
     CHECK_ERROR(Metadata::from_json("{" + base + R"(, "task": "detect", "slam_masking": {"presets": {"x": {"rule": "all"}}}})"),
                 "metadata slam_masking.presets.x.rule: 'all' is not eq1 or degrade");
     CHECK_ERROR(Metadata::from_json("{" + base + R"(, "task": "detect", "dynamic_classes": [1]})"),

@@ -41,6 +41,12 @@ inline constexpr double kMotionOdds = 1.0;
 inline constexpr int kMotionLayerPx = 0;
 inline constexpr int kStillFrames = 0;
 
+// the value that switches each lever off
+inline constexpr double kOffCutBehindM = 0.0;
+inline constexpr double kOffMotionOdds = 1.0;
+inline constexpr double kOffMotionLayerPx = 0.0;
+inline constexpr double kOffStillFrames = 0.0;
+
 // shared with the rules: the near layer's depth quantile (depth_cut.REFERENCE_QUANTILE),
 // Eq. 4's t_o where the depth cut cannot act (seg_box.T_O), the dilation's frame width
 inline constexpr double kReferenceQuantile = 0.1;
