@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -47,6 +47,7 @@ from slimseg.data.bags.reader import is_bag
 from slimseg.data.images import read_rgb
 from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
+from slimseg.data.tum import TumSequence
 from slimseg.data.visualize import draw_class_map, draw_sample
 from slimseg.deploy.predictor import BACKENDS, Predictor, combined_mask
 from slimseg.deploy.raw_dump import SUFFIX as RAW_SUFFIX
@@ -111,6 +112,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=count(1, MAX_KEYPOINTS),
         default=KEYPOINTS,
         help="--dump-raw: ORB keypoints per frame stored with the outputs (as slimseg dynamic)",
+    )
+    p.add_argument(
+        "--dump-depth",
+        metavar="SEQUENCE",
+        default=None,
+        help="--dump-raw: also each frame's depth (metres), from the TUM-layout sequence whose "
+        "rgb/ frames --source names: the C++ consumer's depth cut then acts as slimseg "
+        "dynamic's",
     )
     add_settings_args(p, masking=False)
     add_rerun_arg(p, "--track's frames: image, class-coloured mask, boxes, keypoints, timing")
@@ -241,6 +250,7 @@ def run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     print(f"{predictor} -> {out_dir}")
     dump_dir = None if args.dump_raw is None else Path(args.dump_raw)
+    depth_of = _depth_source(args.dump_depth, dump_dir)
     if dump_dir is not None and predictor.backend != "onnxruntime":
         raise SlimsegError(f"--dump-raw needs an exported .onnx model, not {args.model}")
     inputs = _inputs(args)
@@ -267,7 +277,8 @@ def run(args: argparse.Namespace) -> int:
                 image, conf=args.conf, iou=args.iou, max_det=args.max_det, raw=raw
             )
             if dump_stage is not None and raw is not None:
-                _dump_frame(dump_stage, stem, image, raw, args.keypoints)
+                depth = None if depth_of is None else depth_of(stem)
+                _dump_frame(dump_stage, stem, image, raw, args.keypoints, depth)
             save_prediction(
                 stage,
                 stem,
@@ -293,7 +304,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _inputs(args: argparse.Namespace) -> dict[str, str | None]:
     """The paths predict reads (an output may neither be nor contain one)."""
-    return {"--source": args.source, "--model": args.model}
+    return {"--source": args.source, "--model": args.model, "--dump-depth": args.dump_depth}
 
 
 @contextmanager
@@ -308,12 +319,40 @@ def _dump_stage(dump_dir: Path | None, inputs: dict) -> Iterator[Path | None]:
         yield stage
 
 
+def _depth_source(
+    sequence: str | None, dump_dir: Path | None
+) -> Callable[[str], np.ndarray] | None:
+    """``--dump-depth``: the depth (``float32 [H, W]`` metres) of the frame whose rgb file
+    is called ``stem``, from the sequence's associations (None: no depth dumped)."""
+    if sequence is None:
+        return None
+    if dump_dir is None:
+        raise SlimsegError("--dump-depth adds each frame's depth to the raw dumps: add --dump-raw")
+    seq = TumSequence(sequence)
+    by_stem = {Path(rgb).stem: i for i, ((_, rgb), _) in enumerate(seq.frames)}
+
+    def depth_of(stem: str) -> np.ndarray:
+        if stem not in by_stem:
+            raise SlimsegError(f"--dump-depth {sequence}: no frame {stem} in its rgb.txt (give "
+                               "the sequence whose rgb/ frames --source names)")  # fmt: skip
+        return seq.load(by_stem[stem])[1]
+
+    return depth_of
+
+
 def _dump_frame(
-    dump_dir: Path, stem: str, image: np.ndarray, raw: dict[str, np.ndarray], keypoints: int
+    dump_dir: Path,
+    stem: str,
+    image: np.ndarray,
+    raw: dict[str, np.ndarray],
+    keypoints: int,
+    depth_m: np.ndarray | None = None,
 ) -> None:
-    """``<stem>.ssraw`` (input, outputs, frame size, ORB keypoints) and ``<stem>.ppm``."""
+    """``<stem>.ssraw`` (input, outputs, frame size, ORB keypoints, the depth if given) and
+    ``<stem>.ppm``."""
     kps = orb_features(image, keypoints).keypoints
-    write_raw(dump_dir / f"{stem}{RAW_SUFFIX}", frame_dump(raw, image.shape[:2], kps))
+    dump = frame_dump(raw, image.shape[:2], kps, depth_m=depth_m)
+    write_raw(dump_dir / f"{stem}{RAW_SUFFIX}", dump)
     with atomic_path(dump_dir / f"{stem}.ppm") as tmp:
         if not cv2.imwrite(str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
             raise SlimsegError(f"{dump_dir}: cannot write {stem}.ppm")

@@ -440,6 +440,25 @@ def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_
     cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
     done = subprocess.run([*cmd, "--out", str(out), "--frames", str(dumps)], capture_output=True)
     assert done.returncode == 0, done.stderr
+    _same_masks(seq, out, tmp_path / "dyn")
+    # --dump-depth: the dumps carry the sequence's depth, and the depth cut acts in C++ as in
+    # slimseg dynamic (only the multi-frame evidence off; Eq. 1's rule: the degrading rule
+    # counts its static support on the dump's keypoints in C++, on ORB-SLAM3's FAST corners in
+    # Python, docs/cpp_consumer.md)
+    argv = ["predict", "--model", model, "--source", str(seq / "rgb"), "--quiet",
+            "--dump-depth", str(seq)]  # fmt: skip
+    deep = tmp_path / "deep"
+    assert main([*argv, "--out", str(tmp_path / "pred2"), "--dump-raw", str(deep)]) == 0
+    meta = json.loads((deep / "metadata.json").read_text())
+    meta["slam_masking"]["rule"] = "eq1"
+    (deep / "metadata.json").write_text(json.dumps(meta))
+    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet", "--set",
+            "motion_odds=1", "motion_layer_px=0", "still_frames=0", "rule=eq1"]  # fmt: skip
+    assert main([*argv, "--out", str(tmp_path / "dyn2")]) == 0
+    cmd2 = [str(example), "--meta", str(deep / "metadata.json"), "--dumps", str(deep)]
+    done2 = subprocess.run([*cmd2, "--out", str(tmp_path / "cpp2")], capture_output=True)
+    assert done2.returncode == 0, done2.stderr
+    _same_masks(seq, tmp_path / "cpp2", tmp_path / "dyn2")
     # the shipped preset's multi-frame evidence is named once, not dropped without a word
     note = "motion_odds 10, motion_layer_px 100, still_frames 20: multi-frame settings"
     assert done.stderr.decode().count(note) == 1, done.stderr
@@ -447,11 +466,16 @@ def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_
     err = strict.stderr.decode().strip().splitlines()
     assert strict.returncode == 2 and len(err) == 1 and note in err[0] and "--strict" in err[0]
     assert not (tmp_path / "s").exists()
+
+
+def _same_masks(seq: Path, cpp: Path, dynamic: Path) -> None:
+    """The example's ``<stem>.pgm`` equal ``slimseg dynamic``'s ``masks/<stem>.png``, every
+    frame."""
     stems = sorted(p.stem for p in (seq / "rgb").glob("*.png"))
-    assert stems and sorted(p.stem for p in out.glob("*.pgm")) == stems
+    assert stems and sorted(p.stem for p in cpp.glob("*.pgm")) == stems
     for stem in stems:
-        ours = cv2.imread(str(out / f"{stem}.pgm"), cv2.IMREAD_UNCHANGED)
-        theirs = cv2.imread(str(tmp_path / "dyn" / "masks" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        ours = cv2.imread(str(cpp / f"{stem}.pgm"), cv2.IMREAD_UNCHANGED)
+        theirs = cv2.imread(str(dynamic / "masks" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
         np.testing.assert_array_equal(ours, theirs, err_msg=stem)
 
 
