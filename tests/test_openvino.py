@@ -1,0 +1,209 @@
+"""OpenVINO as a runtime of the project (``--backend openvino``, docs/engines.md): every export
+kind (raw FP32 / FP16 / dynamic, end-to-end FP32 / FP16 / dynamic, INT8 for both targets) runs
+through it against onnxruntime on held-out frames, within the contract's limits, at the f32
+precision the project sets; the end-to-end outputs keep their names and static shapes there;
+bf16 / f16 are only used when asked, with one log line saying how far they are from f32."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from test_end2end import IMGSZ, MAX_DET, NAMES, _end2end_of, _raw_exports, scored_model
+
+from slimseg.cli.main import main
+from slimseg.deploy.calibration import load_calibration_set
+from slimseg.deploy.end2end_parity import (
+    FP16_MATCH_FRACTION,
+    MATCH_FRACTION,
+    gate_frames,
+    match_predictions,
+)
+from slimseg.deploy.int8_quantize import quantize_onnx
+from slimseg.deploy.onnx_export import export_onnx
+from slimseg.deploy.ov_session import OpenVinoSession, precision_excess
+from slimseg.deploy.predictor import Predictor
+from slimseg.deploy.preprocess import preprocess_frame
+from slimseg.errors import SlimsegError
+
+pytest.importorskip("openvino")  # the openvino extra (make installs it, so CI runs these)
+
+# held out: the export gates use gate_frames' first four
+FRAMES = gate_frames(IMGSZ, 7)[4:]
+CONF = 0.25
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Every export kind of one scored random yolov8n-seg (tens of detections per frame,
+    many near the threshold: the rounding-sensitive case), 160 x 160."""
+    root = tmp_path_factory.mktemp("openvino")
+    model = scored_model()
+    out = _raw_exports(model, root)  # raw32, raw16 (static)
+    out["dyn"] = root / "dyn.onnx"
+    export_onnx(model, out["dyn"], IMGSZ, NAMES, [1.0, 0.1, 0.3], dynamic=True)
+    out["e2e32"] = _end2end_of(out["raw32"], root / "e2e32.onnx")
+    out["e2e16"] = _end2end_of(out["raw16"], root / "e2e16.onnx")
+    out["e2edyn"] = _end2end_of(out["dyn"], root / "e2edyn.onnx")
+    calib_dir = root / "calib"
+    calib_dir.mkdir()
+    for i, frame in enumerate(gate_frames(IMGSZ, 4)):
+        cv2.imwrite(str(calib_dir / f"{i}.png"), frame[:, :, ::-1])
+    calib = load_calibration_set(calib_dir, 4)
+    for target in ("tensorrt", "onnxruntime"):
+        path = root / f"int8_{target}.onnx"
+        quantize_onnx(out["raw32"], path, calib, IMGSZ, "yolov8", "minmax", False, None, target)
+        out[f"int8_{target}"] = path
+    return out
+
+
+def _raw(path: Path, backend: str, x: np.ndarray) -> dict[str, np.ndarray]:
+    return Predictor.from_path(path, backend=backend, threads=1).runner.raw(x)
+
+
+def _inputs(dynamic: bool) -> list[np.ndarray]:
+    xs = [preprocess_frame(f, IMGSZ)[0] for f in FRAMES]
+    if dynamic:  # batch 2, and another input size
+        xs += [np.concatenate(xs[:2]), preprocess_frame(FRAMES[0], (192, 224))[0]]
+    return xs
+
+
+@pytest.mark.parametrize("key", ["raw32", "dyn"])
+def test_fp32_raw_outputs_within_the_fp32_limits(files, key) -> None:
+    """FP32 files: every element of OpenVINO's outputs (f32, the project's setting) within the
+    export gate's FP32 limits of onnxruntime's."""
+    worst = 0.0
+    for x in _inputs(key == "dyn"):
+        ref, got = _raw(files[key], "onnxruntime", x), _raw(files[key], "openvino", x)
+        assert set(ref) == set(got) == {"output0", "output1"}
+        excess, where = precision_excess(ref, got, len(NAMES))
+        worst = max(worst, excess)
+        assert excess <= 1.0, f"{key} {list(x.shape)}: {excess:.2f}x the FP32 limits ({where})"
+    print(f"\n{key}: worst {worst:.3f}x the FP32 limits")
+
+
+def _predictions(path: Path, backend: str) -> list:
+    p = Predictor.from_path(path, backend=backend, threads=1)
+    return [p.predict(f, conf=CONF, iou=0.7, max_det=MAX_DET) for f in FRAMES]
+
+
+@pytest.mark.parametrize(
+    ("key", "fraction"),
+    [
+        ("raw32", MATCH_FRACTION),
+        ("raw16", FP16_MATCH_FRACTION),
+        ("e2e32", MATCH_FRACTION),
+        ("e2edyn", MATCH_FRACTION),
+        ("e2e16", FP16_MATCH_FRACTION),
+    ],
+)
+def test_detections_match_onnxruntime(files, key, fraction) -> None:
+    """The same file in both engines gives the same instances (class, box IoU >= 0.9,
+    |score diff| <= 0.02, mask IoU >= 0.9): the end-to-end gate's fractions, FP32 or FP16."""
+    got = match_predictions(
+        _predictions(files[key], "onnxruntime"), _predictions(files[key], "openvino")
+    )
+    print(f"\n{key}: {got}")
+    assert got["detections"] >= 20
+    assert got["fraction"] >= fraction, got
+
+
+def _int8_error(fp32: dict[str, np.ndarray], int8: dict[str, np.ndarray]) -> dict[str, float]:
+    """Mean |INT8 - FP32| of the box rows (px), the class scores and the prototypes."""
+    nc = len(NAMES)
+    parts = {"box_px": (0, 4), "score": (4, 4 + nc)}
+    err = {k: float(np.abs(int8["output0"][:, a:b] - fp32["output0"][:, a:b]).mean())
+           for k, (a, b) in parts.items()}  # fmt: skip
+    err["proto"] = float(np.abs(int8["output1"] - fp32["output1"]).mean())
+    return err
+
+
+# How much farther from FP32 OpenVINO's INT8 may be than onnxruntime's on the same file.
+# Measured on this rounding-sensitive random head (mean |INT8 - FP32| over 3 frames): the
+# onnxruntime-target file 1.0-1.1x; the tensorrt-target file (int8 activations) 3.2-3.5x,
+# the gap docs/engines.md reports (on the demo's trained model the two engines' INT8 keep
+# the same share of FP32's detections). An engine that misread the Q/DQ scales lands far
+# beyond either bound.
+INT8_GAP = {"onnxruntime": 1.5, "tensorrt": 5.0}
+
+
+@pytest.mark.parametrize("target", ["tensorrt", "onnxruntime"])
+def test_int8_in_openvino_is_near_onnxruntime_int8(files, target) -> None:
+    """INT8 Q/DQ files load in OpenVINO, and its INT8 outputs are within :data:`INT8_GAP` of
+    onnxruntime's INT8 distance to the FP32 file (the contract gates INT8 on its distance to
+    FP32; this head's instances are too rounding-sensitive to compare INT8 detections)."""
+    path = files[f"int8_{target}"]
+    errs: dict[str, list[dict[str, float]]] = {"onnxruntime": [], "openvino": []}
+    for x in _inputs(False):
+        fp32 = _raw(files["raw32"], "onnxruntime", x)
+        for engine, acc in errs.items():
+            acc.append(_int8_error(fp32, _raw(path, engine, x)))
+    mean = {e: {k: float(np.mean([d[k] for d in v])) for k in v[0]} for e, v in errs.items()}
+    print(f"\nint8 {target}, mean |INT8 - FP32|: {mean}")
+    for k, ort in mean["onnxruntime"].items():
+        assert mean["openvino"][k] <= INT8_GAP[target] * ort + 1e-3, (k, mean)
+
+
+@pytest.mark.parametrize("key", ["e2e32", "e2edyn", "e2e16"])
+def test_end2end_outputs_keep_names_and_static_shapes(files, key) -> None:
+    """Compiled in OpenVINO, each end-to-end output answers to its contract name only (what
+    ``get_any_name()`` returns too) and every static dimension is declared: ``masks`` is
+    ``[B, K, H/4, W/4]`` in a static file, ``[?, K, ?, ?]`` in a dynamic one."""
+    import openvino as ov
+
+    compiled = ov.Core().compile_model(str(files[key]), "CPU", {"INFERENCE_PRECISION_HINT": "f32"})
+    b, hw = ("?", ["?", "?"]) if key == "e2edyn" else (1, [IMGSZ[0] // 4, IMGSZ[1] // 4])
+    want = {
+        "num_dets": [b],
+        "boxes": [b, MAX_DET, 4],
+        "scores": [b, MAX_DET],
+        "classes": [b, MAX_DET],
+        "masks": [b, MAX_DET, *hw],
+    }
+    got = {}
+    for port in compiled.outputs:
+        assert port.get_names() == {port.get_any_name()}, port.get_names()
+        dims = [d.get_length() if d.is_static else "?" for d in port.get_partial_shape()]
+        got[port.get_any_name()] = dims
+    assert got == want
+    x = preprocess_frame(FRAMES[0], IMGSZ, np.float16 if key == "e2e16" else np.float32)[0]
+    masks = compiled({"images": x})[compiled.output("masks")]
+    assert list(masks.shape) == [1, MAX_DET, IMGSZ[0] // 4, IMGSZ[1] // 4]
+
+
+def test_bf16_only_when_asked_and_says_how_far(files, caplog) -> None:
+    """The default session computes in f32 whatever the CPU's default; ``openvino:bf16``
+    runs the first frames at f32 too and logs one line per frame with the distance in FP32
+    limits (a warning when it exceeds them), and an unknown precision is refused."""
+    import openvino as ov
+
+    session = OpenVinoSession(files["raw32"], threads=1)
+    hint = session._compiled.get_property("INFERENCE_PRECISION_HINT")
+    assert str(hint) in ("<Type: 'float32'>", "f32", "float32"), hint
+    caps = ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+    if "BF16" not in caps:
+        pytest.skip("this CPU has no bf16 (OpenVINO's default is f32 here anyway)")
+    with caplog.at_level(logging.INFO, logger="slimseg.deploy.ov_session"):
+        p = Predictor.from_path(files["raw32"], backend="openvino:bf16", threads=1)
+        for frame in FRAMES:
+            p.predict(frame)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2, lines  # CHECK_FRAMES, then silence
+    assert all("OpenVINO bf16 vs f32 on frame" in ln and "FP32 limits" in ln for ln in lines)
+    assert p.backend == "openvino:bf16"
+    with pytest.raises(SlimsegError, match="unknown backend 'openvino:f64'"):
+        Predictor.from_path(files["raw32"], backend="openvino:f64")
+
+
+def test_cli_predict_and_val_take_backend_openvino(files, tmp_path, capsys) -> None:
+    """``slimseg predict --backend openvino`` runs; a .pt with it is refused in one line."""
+    image = tmp_path / "f.png"
+    cv2.imwrite(str(image), FRAMES[0][:, :, ::-1])
+    args = ["predict", "--model", str(files["e2e32"]), "--source", str(image)]
+    assert main([*args, "--backend", "openvino", "--out", str(tmp_path / "out")]) == 0
+    assert main(["predict", "--model", str(tmp_path / "w.pt"), "--source", str(image),
+                 "--backend", "openvino"]) == 2  # fmt: skip
+    assert "error" in capsys.readouterr().err
