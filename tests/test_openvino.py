@@ -6,6 +6,7 @@ bf16 / f16 are only used when asked, with one log line saying how far they are f
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -15,6 +16,7 @@ import pytest
 from test_end2end import IMGSZ, MAX_DET, NAMES, _end2end_of, _raw_exports, scored_model
 
 from slimseg.cli.main import main
+from slimseg.data.synth import generate
 from slimseg.deploy.calibration import load_calibration_set
 from slimseg.deploy.end2end_parity import (
     FP16_MATCH_FRACTION,
@@ -27,6 +29,7 @@ from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ov_session import OpenVinoSession, precision_excess
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.preprocess import preprocess_frame
+from slimseg.detections import encode_rle
 from slimseg.errors import SlimsegError
 
 pytest.importorskip("openvino")  # the openvino extra (make installs it, so CI runs these)
@@ -198,12 +201,89 @@ def test_bf16_only_when_asked_and_says_how_far(files, caplog) -> None:
         Predictor.from_path(files["raw32"], backend="openvino:f64")
 
 
-def test_cli_predict_and_val_take_backend_openvino(files, tmp_path, capsys) -> None:
-    """``slimseg predict --backend openvino`` runs; a .pt with it is refused in one line."""
+def test_cli_predict_takes_backend_openvino(files, tmp_path, capsys) -> None:
+    """``slimseg predict --backend openvino`` runs an end-to-end file; a ``.pt`` with it is
+    refused in one line, exit 2."""
     image = tmp_path / "f.png"
     cv2.imwrite(str(image), FRAMES[0][:, :, ::-1])
     args = ["predict", "--model", str(files["e2e32"]), "--source", str(image)]
     assert main([*args, "--backend", "openvino", "--out", str(tmp_path / "out")]) == 0
-    assert main(["predict", "--model", str(tmp_path / "w.pt"), "--source", str(image),
-                 "--backend", "openvino"]) == 2  # fmt: skip
-    assert "error" in capsys.readouterr().err
+    (tmp_path / "w.pt").write_bytes(b"")
+    argv = ["predict", "--model", str(tmp_path / "w.pt"), "--source", str(image)]
+    assert main([*argv, "--backend", "openvino"]) == 2
+    assert "the openvino backend needs an .onnx file" in capsys.readouterr().err
+
+
+def _val_data(root: Path, model: Path) -> Path:
+    """A COCO val split of the held-out frames labelled with ``model``'s own detections."""
+    images = root / "val" / "images"
+    images.mkdir(parents=True)
+    predictor = Predictor.from_path(model, threads=1)
+    records, anns = [], []
+    for i, frame in enumerate(FRAMES):
+        cv2.imwrite(str(images / f"f{i}.png"), frame[:, :, ::-1])
+        h, w = frame.shape[:2]
+        records.append({"id": i + 1, "file_name": f"f{i}.png", "height": h, "width": w})
+        pred = predictor.predict(frame, conf=0.3, max_det=10)
+        for box, cls, rle in zip(pred.boxes, pred.classes, encode_rle(pred.masks), strict=True):
+            x1, y1, x2, y2 = (float(v) for v in box)
+            anns.append({"id": len(anns) + 1, "image_id": i + 1, "category_id": int(cls) + 1,
+                         "bbox": [x1, y1, x2 - x1, y2 - y1], "segmentation": rle,
+                         "area": float((x2 - x1) * (y2 - y1)), "iscrowd": 0})  # fmt: skip
+    cats = [{"id": k + 1, "name": n} for k, n in enumerate(NAMES)]
+    (root / "val" / "annotations.json").write_text(
+        json.dumps({"images": records, "annotations": anns, "categories": cats})
+    )
+    data = root / "data.yaml"
+    data.write_text("path: .\nval: {images: val/images, annotations: val/annotations.json}\n"
+                    f"names: {json.dumps(NAMES)}\n")  # fmt: skip
+    return data
+
+
+@pytest.mark.slow
+def test_cli_val_scores_the_same_in_openvino(files, tmp_path, capsys) -> None:
+    """``slimseg val --backend openvino`` gives onnxruntime's box and mask mAP on the same
+    file (f32: the same detections), and says which engine ran."""
+    data = _val_data(tmp_path, files["raw32"])
+    scores = {}
+    for backend in ("onnxruntime", "openvino"):
+        argv = ["val", "--weights", str(files["raw32"]), "--data", str(data), "--workers", "0"]
+        assert main([*argv, "--backend", backend, "--json"]) == 0
+        result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        scores[backend] = (result["box"]["map50_95"], result["mask"]["map50_95"])
+    print(f"\nval mAP50-95 (box, mask): {scores}")
+    assert scores["onnxruntime"][0] > 0.2  # the labels are its own detections
+    np.testing.assert_allclose(scores["openvino"], scores["onnxruntime"], atol=1e-3)
+    argv = ["val", "--weights", str(files["raw32"]), "--data", str(data), "--workers", "0"]
+    assert main([*argv, "--backend", "openvino"]) == 0
+    assert "(fp32, openvino) on" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_cli_dynamic_masks_are_the_same_in_openvino(files, tmp_path) -> None:
+    """``slimseg dynamic --backend openvino`` writes onnxruntime's masks on a synthetic
+    sequence (the whole per-frame chain, end-to-end file)."""
+    generate(tmp_path / "d", 1, 1, 64, 0, sequences=1, frames=4, seq_size=(160, 128),
+             progress=False)  # fmt: skip
+    seq = tmp_path / "d" / "sequences" / "seq_000"
+    masks = {}
+    for backend in ("onnxruntime", "openvino"):
+        out = tmp_path / backend
+        argv = [
+            "dynamic",
+            "--model",
+            str(files["e2e32"]),
+            "--sequence",
+            str(seq),
+            "--out",
+            str(out),
+        ]
+        assert main([*argv, "--backend", backend, "--threads", "1", "--quiet"]) == 0
+        masks[backend] = {p.name: cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+                          for p in sorted((out / "masks").iterdir())}  # fmt: skip
+    assert (
+        len(masks["onnxruntime"]) == 4 and masks["onnxruntime"].keys() == masks["openvino"].keys()
+    )
+    assert sum(int(m.any()) for m in masks["onnxruntime"].values()) >= 1
+    for name, mask in masks["onnxruntime"].items():
+        np.testing.assert_array_equal(masks["openvino"][name], mask, err_msg=name)

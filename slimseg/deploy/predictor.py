@@ -32,9 +32,8 @@ from typing import Any
 import numpy as np
 
 from slimseg.deploy.end2end_postprocess import end2end_limits, end2end_predictions, is_end2end
-from slimseg.deploy.metadata import build_metadata, int8_target, read_session_metadata
-from slimseg.deploy.ort_session import cpu_session
-from slimseg.deploy.ov_session import DEFAULT_PRECISION, PRECISIONS, OpenVinoSession
+from slimseg.deploy.engines import ONNX_BACKENDS, open_graph
+from slimseg.deploy.metadata import build_metadata, int8_target
 from slimseg.deploy.predict_postprocess import instance_predictions, semantic_predictions
 from slimseg.deploy.prediction import combined_mask
 from slimseg.deploy.preprocess import parse_imgsz, preprocess_frame
@@ -48,7 +47,7 @@ __all__ = ["BACKENDS", "BACKEND_CHOICES", "Prediction", "Predictor", "combined_m
 
 BACKENDS = ("auto", "onnxruntime", "openvino", "torch")
 # what --backend / backend= accepts: a backend, or openvino at a precision it is asked for
-BACKEND_CHOICES = (*BACKENDS, *(f"openvino:{p}" for p in PRECISIONS if p != DEFAULT_PRECISION))
+BACKEND_CHOICES = ("auto", *ONNX_BACKENDS, "torch")
 # What a forward pass gives: (pred, proto) of a raw graph, or an end-to-end graph's outputs by name
 Outputs = tuple[np.ndarray, np.ndarray | None] | dict[str, np.ndarray]
 TORCH_SUFFIXES = (".pt", ".ckpt")
@@ -129,7 +128,6 @@ class Predictor:
             raise SlimsegError(
                 f"unknown backend {backend!r}; choose one of {', '.join(BACKEND_CHOICES)}"
             )
-        backend, _, precision = backend.partition(":")
         if not path.is_file():
             raise SlimsegError(f"{path}: model file not found")
         suffix = path.suffix.lower()
@@ -137,7 +135,7 @@ class Predictor:
             raise SlimsegError(f"{path}: expected an .onnx, .pt or .ckpt file")
         if backend == "auto":
             backend = "onnxruntime" if suffix == ".onnx" else "torch"
-        if backend in ("onnxruntime", "openvino") and suffix != ".onnx":
+        if backend in ONNX_BACKENDS and suffix != ".onnx":
             raise SlimsegError(f"{path}: the {backend} backend needs an .onnx file")
         if backend == "torch" and suffix == ".onnx":
             raise SlimsegError(f"{path}: the torch backend needs .pt/.ckpt weights")
@@ -147,9 +145,7 @@ class Predictor:
         check_threads(threads)  # no more than the cores this process may use
         if backend == "torch":
             return cls._from_torch(path, hw, threads)
-        if backend == "openvino":
-            return cls._from_onnx(path, hw, threads, precision or DEFAULT_PRECISION)
-        return cls._from_onnx(path, hw, threads)
+        return cls._from_onnx(path, hw, threads, backend)
 
     @classmethod
     def _from_torch(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
@@ -168,21 +164,10 @@ class Predictor:
 
     @classmethod
     def _from_onnx(
-        cls,
-        path: Path,
-        hw: tuple[int, int] | None,
-        threads: int | None,
-        openvino: str | None = None,
+        cls, path: Path, hw: tuple[int, int] | None, threads: int | None, backend: str
     ) -> Predictor:
-        """onnxruntime, or OpenVINO at precision ``openvino`` (``f32``, ``bf16``, ``f16``)."""
-        if openvino is None:
-            session = cpu_session(path, threads)
-            meta = read_session_metadata(path, session)
-            backend = "onnxruntime"
-        else:
-            session = OpenVinoSession(path, threads, openvino)
-            meta = session.metadata
-            backend = "openvino" if openvino == DEFAULT_PRECISION else f"openvino:{openvino}"
+        """``backend``: one of :data:`~slimseg.deploy.engines.ONNX_BACKENDS`."""
+        session, meta, backend = open_graph(path, threads, backend)
         runner = OnnxRunner(session, str(path))
         static_hw = runner.static_hw
         default = static_hw or parse_imgsz(meta["imgsz"])
