@@ -46,6 +46,7 @@ from slimseg.deploy.calibration import load_calibration_set
 from slimseg.deploy.end2end_graph import (
     DEFAULT_END2END_CONF,
     DEFAULT_END2END_IOU,
+    DEFAULT_END2END_MAX_DET,
     End2EndSettings,
     append_end2end,
 )
@@ -59,7 +60,7 @@ from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.ov_checks import precision_excess
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.runners import OnnxRunner
-from slimseg.ops.nms_numpy import MAX_DET, PREDICT_CONF
+from slimseg.ops.nms_numpy import PREDICT_CONF
 
 KINDS = ("raw32", "raw16", "rawdyn", "e2e32", "e2e16", "e2edyn", "int8_trt", "int8_ort")
 
@@ -121,7 +122,7 @@ def make_files(model: torch.nn.Module | Path, side: int, nc: int, root: Path) ->
         export_onnx(model, files["rawdyn"], (side, side), dynamic=True)
     meta = {**_sidecar(files["raw32"]), "precision": "fp16"}
     files["raw16"] = _publish(to_fp16(onnx.load(str(files["raw32"]))), meta, root / "raw16.onnx")
-    settings = End2EndSettings(DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, MAX_DET)
+    settings = End2EndSettings(DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, DEFAULT_END2END_MAX_DET)
     for key, raw in (("e2e32", "raw32"), ("e2e16", "raw16"), ("e2edyn", "rawdyn")):
         if raw in files:
             files[key] = _end2end(files[raw], root / f"{key}.onnx", nc, settings)

@@ -43,6 +43,11 @@ PREFIX = "e2e/"
 # the graph keeps what every default consumer asks for: predict (0.25) and SLAM masking (0.1)
 DEFAULT_END2END_CONF = min(PREDICT_CONF, DEFAULT.conf)
 DEFAULT_END2END_IOU = NMS_IOU
+# K, the rows per image: the masks output is [B, K, H/s, W/s] whatever the frame holds (its
+# padding rows are written every frame: 300 rows of 160 x 160 at 640 px are 30 MB), and a SLAM
+# frame holds tens of instances (7-31 on the demo's frames at conf 0.1); 100 leaves room and
+# keeps the end-to-end path at or below the raw path's time (docs/end2end.md "Latency")
+DEFAULT_END2END_MAX_DET = 100
 
 
 @dataclass(frozen=True)
