@@ -205,7 +205,7 @@ def test_bf16_only_when_asked_and_says_how_far(files, caplog) -> None:
             p.predict(frame)
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 2, lines  # CHECK_FRAMES, then silence
-    assert all("OpenVINO bf16 vs f32 on frame" in ln and "FP32 limits" in ln for ln in lines)
+    assert all("OpenVINO (bf16) vs f32 on frame" in ln and "FP32 limits" in ln for ln in lines)
     assert p.backend == "openvino:bf16"
     with pytest.raises(SlimsegError, match="unknown backend 'openvino:f64'"):
         Predictor.from_path(files["raw32"], backend="openvino:f64")
@@ -310,11 +310,13 @@ def test_int8_kernel_check_keeps_or_replaces_the_kernels(caplog) -> None:
     meta = {"names": NAMES, "int8": {"target": "tensorrt"}}
     near = ref + np.float32(0.001)
     assert candidate_agreement(ref, near, len(NAMES))[0] == 50
-    assert check_int8_kernels("m.onnx: OpenVINO", 1, {"output0": ref}, {"output0": near}, meta)
+    assert check_int8_kernels(
+        "m.onnx: OpenVINO (f32)", 1, {"output0": ref}, {"output0": near}, meta
+    )
     far = ref.copy()
     far[0, :2] += 15  # every box shifted by 15 px
     with caplog.at_level(logging.WARNING, logger="slimseg.deploy.ov_checks"):
-        assert not check_int8_kernels("m.onnx: OpenVINO", 1, {"output0": ref},
+        assert not check_int8_kernels("m.onnx: OpenVINO (f32)", 1, {"output0": ref},
                                       {"output0": far}, meta)  # fmt: skip
     (line,) = [r.getMessage() for r in caplog.records]
     assert "0 of 50 candidate detections kept" in line and "tensorrt-target" in line

@@ -32,7 +32,7 @@ def check_precision(
 ) -> bool:
     """Log how far ``got`` (bf16 / f16) is from ``ref`` (f32) on ``frame``; True if within
     the FP32 limits (raw) or every detection matched with the same ``num_dets`` (end-to-end)."""
-    head = f"{what} vs f32 on frame {frame}: "
+    head = f"{what} vs f32 on frame {frame}: "  # what: "m.onnx: OpenVINO (bf16)"
     if "num_dets" in ref:  # rows may change order: detections matched instead
         matched, total = end2end_matches(ref, got)
         ok = matched == total and np.array_equal(ref["num_dets"], got["num_dets"])

@@ -104,14 +104,14 @@ class OpenVinoSession:
         self.int8_kernels = self.metadata.get("precision") == "int8"
         """INT8 Q/DQ run by OpenVINO's INT8 kernels (False: emulated in float, after the
         first frames showed the kernels far from the file's arithmetic on this CPU)"""
-        # the first frames also run a reference compile: f32 for a bf16 / f16 session, the
-        # Q/DQ emulated exactly (no low-precision transformations) for an INT8 file
+        # the first frames also run a reference compile: for an INT8 file its Q/DQ as written
+        # (no low-precision transformations) at f32, for a bf16 / f16 session f32
         self._reference: Any = None
-        if precision != DEFAULT_PRECISION:
+        if self.int8_kernels:
+            self._reference = self._compile(core, model, threads, DEFAULT_PRECISION, True)
+        elif precision != DEFAULT_PRECISION:
             self._reference = self._compile(core, model, threads, DEFAULT_PRECISION)
-        elif self.int8_kernels:
-            self._reference = self._compile(core, model, threads, precision, exact_qdq=True)
-        self._int8_check = self.int8_kernels and precision == DEFAULT_PRECISION
+        self._int8_check = self.int8_kernels
         self._checked = 0
 
     @staticmethod
@@ -146,14 +146,14 @@ class OpenVinoSession:
         ref_request = self._reference.create_infer_request()
         ref = self._infer(ref_request, output_names, feed)
         named = [dict(zip(output_names, o, strict=True)) for o in (ref, got)]
-        what = f"{self.path.name}: OpenVINO"
+        what = f"{self.path.name}: OpenVINO ({self.precision})"
         if self._int8_check:
             if not check_int8_kernels(what, self._checked, *named, self.metadata):
                 # from now on the Q/DQ as written: right, if slower
                 self._request, self.int8_kernels, got = ref_request, False, ref
                 self._checked = CHECK_FRAMES
         else:
-            check_precision(f"{what} {self.precision}", self._checked, *named, self.metadata)
+            check_precision(what, self._checked, *named, self.metadata)
         if self._checked >= CHECK_FRAMES:
             self._reference = None  # its memory back (or now in self._request)
         return got
