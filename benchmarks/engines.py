@@ -233,10 +233,11 @@ def main() -> None:
             "\nper-frame masking chain (slimseg.Masker.step, fusion), ratio to onnxruntime raw FP32"
         )
         chain = [("raw32", "onnxruntime"), ("int8_ort", "onnxruntime"), ("int8_trt", "onnxruntime"),
-                 ("raw32", "openvino"), ("int8_trt", "openvino"), ("e2e32", "openvino"),
+                 ("raw32", "openvino"), ("int8_trt", "openvino"), ("int8_ort", "openvino"),
+                 ("e2e32", "openvino"),
                  ("e2e32", "onnxruntime")]  # fmt: skip
         if default != "f32":
-            chain += [("raw32", f"openvino:{default}"), ("int8_trt", f"openvino:{default}")]
+            chain += [(k, f"openvino:{default}") for k in ("raw32", "int8_trt", "int8_ort")]
         maskers = {
             f"{k} {e}": Masker.from_predictor(opened[(k, e)]) for k, e in chain if (k, e) in opened
         }
