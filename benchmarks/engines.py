@@ -10,11 +10,13 @@ DNN (``cv2.dnn.readNetFromONNX``).
 Per file x engine: ``loads`` (or the first line of the error), ``match``: the fraction of
 onnxruntime's instances on the same file the engine keeps on held-out 640 x 480 frames (same
 class, box and mask IoU >= 0.9, |score diff| <= 0.02; score > 0.25), for raw files also the
-worst element in multiples of the export's FP32 limits (``limit x``); ``ratio``: the median
+worst element in multiples of the export's FP32 limits (``limit x``); ``vs FP32``: the same
+against onnxruntime on the raw FP32 file (what INT8 and FP16 keep of FP32); ``ratio``: the median
 time of the whole per-frame path (``Predictor.predict``: letterbox, network,
 post-processing, masks on the frame) divided by onnxruntime's on the raw FP32 file, the two
-timed alternately in the same rounds. Then the per-frame masking chain
-(``slimseg.Masker.step``, fusion mode) with each engine, ratios to onnxruntime FP32.
+timed alternately in the same rounds; ``net``: the same ratio of the network call alone.
+Then the per-frame masking chain (``slimseg.Masker.step``, fusion mode) with each engine,
+ratios to onnxruntime FP32.
 
     python benchmarks/engines.py [--model yolov8n-seg] [--imgsz 320] [--threads 1] [--runs 20]
     python benchmarks/engines.py --onnx ../shared/models/demo-intel/yolov8n-seg-gs-rep.onnx
@@ -60,6 +62,7 @@ from slimseg.deploy.ort_session import cpu_session
 from slimseg.deploy.ov_checks import precision_excess
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.runners import OnnxRunner
+from slimseg.detections import Prediction
 from slimseg.ops.nms_numpy import PREDICT_CONF
 
 KINDS = ("raw32", "raw16", "rawdyn", "e2e32", "e2e16", "e2edyn", "int8_trt", "int8_ort")
@@ -150,16 +153,23 @@ def open_engine(path: Path, engine: str, threads: int) -> Predictor:
     return Predictor.from_path(path, backend=engine, threads=threads)
 
 
-def timed(fns: dict[str, Any], runs: int, warmup: int = 3) -> dict[str, float]:
-    """Median ms of each callable, called round-robin (a busy machine slows all alike)."""
+def timed(
+    fns: dict[str, Any], runs: int, warmup: int = 3
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Median ms of each callable, called round-robin (a busy machine slows all alike), and
+    the median of the ``timings["inference"]`` of what it returns (a Prediction), if any."""
     samples: dict[str, list[float]] = {k: [] for k in fns}
+    network: dict[str, list[float]] = {k: [] for k in fns}
     for i in range(runs + warmup):
         for key, fn in fns.items():
             t0 = time.perf_counter()
-            fn(i)
+            out = fn(i)
             if i >= warmup:
                 samples[key].append(1000 * (time.perf_counter() - t0))
-    return {k: statistics.median(v) for k, v in samples.items()}
+                if isinstance(out, Prediction):
+                    network[key].append(out.timings["inference"])
+    medians = {k: statistics.median(v) for k, v in samples.items()}
+    return medians, {k: statistics.median(v) for k, v in network.items() if v}
 
 
 def main() -> None:
@@ -195,14 +205,15 @@ def main() -> None:
             f"default precision {default}; ratio: time / onnxruntime raw FP32's, same rounds"
         )
         base = open_engine(files["raw32"], "onnxruntime", args.threads)
-        print(f"{'file':>9} {'engine':>14} {'loads':>6} {'match':>12} {'limit x':>9} "
-              f"{'ms':>7} {'ratio':>6}")  # fmt: skip
+        print(f"{'file':>9} {'engine':>14} {'loads':>6} {'match':>7} {'vs FP32':>7} "
+              f"{'limit x':>9} {'ms':>7} {'ratio':>6} {'net':>6}")  # fmt: skip
         opened: dict[tuple[str, str], Predictor] = {}
         for kind in (k for k in KINDS if k in files):
             ref = open_engine(files[kind], "onnxruntime", args.threads)
             ref_preds = [ref.predict(f, conf=PREDICT_CONF) for f in frames]
+            fp32_preds = [base.predict(f, conf=PREDICT_CONF) for f in frames]
             row: dict[str, Predictor] = {}
-            cells: dict[str, tuple[str, str]] = {}  # engine -> (match, limit x)
+            cells: dict[str, tuple[str, str, str]] = {}  # engine -> (match, FP32 match, limit x)
             for engine in engines:
                 try:
                     row[engine] = open_engine(files[kind], engine, args.threads)
@@ -219,16 +230,19 @@ def main() -> None:
                     nc = len(ref.names)
                     excess = precision_excess(ref.runner.raw(x), row[engine].runner.raw(x), nc)
                     limit = f"{excess[0]:.3g}"
-                cells[engine] = (f"{m['matched']}/{m['detections']}", limit)
+                f = match_predictions(fp32_preds, preds)
+                cells[engine] = (f"{m['matched']}/{m['detections']}",
+                                 f"{f['matched']}/{f['detections']}", limit)  # fmt: skip
             fns = {"base": lambda i: base.predict(frames[i % len(frames)], conf=PREDICT_CONF)}
             for engine, p in row.items():
                 fns[engine] = lambda i, p=p: p.predict(frames[i % len(frames)], conf=PREDICT_CONF)
-            ms = timed(fns, args.runs)
+            ms, net = timed(fns, args.runs)
             for engine, p in row.items():
                 opened[(kind, engine)] = p
-                match, limit = cells[engine]
-                print(f"{kind:>9} {engine:>14} {'yes':>6} {match:>12} {limit:>9} "
-                      f"{ms[engine]:>7.2f} {ms[engine] / ms['base']:>6.2f}")  # fmt: skip
+                match, vs32, limit = cells[engine]
+                print(f"{kind:>9} {engine:>14} {'yes':>6} {match:>7} {vs32:>7} {limit:>9} "
+                      f"{ms[engine]:>7.2f} {ms[engine] / ms['base']:>6.2f} "
+                      f"{net[engine] / net['base']:>6.2f}")  # fmt: skip
         print(
             "\nper-frame masking chain (slimseg.Masker.step, fusion), ratio to onnxruntime raw FP32"
         )
@@ -241,8 +255,8 @@ def main() -> None:
         maskers = {
             f"{k} {e}": Masker.from_predictor(opened[(k, e)]) for k, e in chain if (k, e) in opened
         }
-        ms = timed({t: lambda i, m=m: m.step(frames[i % len(frames)]) for t, m in maskers.items()},
-                   args.runs)  # fmt: skip
+        steps = {t: lambda i, m=m: m.step(frames[i % len(frames)]) for t, m in maskers.items()}
+        ms, _ = timed(steps, args.runs)
         ref_ms = ms["raw32 onnxruntime"]
         for tag, v in ms.items():
             print(f"{tag:>24} {v:>8.2f} ms {v / ref_ms:>6.2f}")
