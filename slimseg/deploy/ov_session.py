@@ -12,6 +12,12 @@ precision the contract's parity holds at) unless ``bf16`` / ``f16`` is asked for
 :data:`CHECK_FRAMES` frames also run at f32 and one log line says by how much the outputs differ,
 in multiples of the export's FP32 limits (:mod:`slimseg.deploy.tolerances`).
 
+INT8 Q/DQ files: OpenVINO's INT8 kernels do not compute every file as written on every CPU
+(the ``tensorrt``-target file on an AVX512-VNNI CPU without AMX: docs/engines.md), so the first
+:data:`CHECK_FRAMES` frames also run the file's Q/DQ in float; kernels that lose the candidate
+detections are replaced by that float path for the session, with one log line
+(:mod:`slimseg.deploy.ov_checks`).
+
 The ``.onnx`` is read as it is (no ``ovc`` / ``save_model`` IR: both store FP16 weights by
 default). Outputs are looked up by the contract's names (``output0``, ``num_dets``, ...):
 OpenVINO may give a port several names and ``get_any_name()`` an internal one.
