@@ -321,3 +321,15 @@ def test_int8_kernel_check_keeps_or_replaces_the_kernels(caplog) -> None:
     (line,) = [r.getMessage() for r in caplog.records]
     assert "0 of 50 candidate detections kept" in line and "tensorrt-target" in line
     assert "--int8-target onnxruntime" in line
+
+
+@pytest.mark.slow
+def test_cli_bench_times_the_openvino_forms(capsys) -> None:
+    """``slimseg bench --backend openvino`` times every ONNX form in OpenVINO too, in the
+    same rounds as onnxruntime, and prints its ratios to onnxruntime FP32."""
+    argv = ["bench", "--model", "yolov8n-seg", "--imgsz", "64", "--runs", "1", "--warmup", "0"]
+    assert main([*argv, "--threads", "1", "--backend", "openvino"]) == 0
+    out = capsys.readouterr().out
+    header = next(line for line in out.splitlines() if line.lstrip().startswith("model"))
+    for form in ("ort_fp32", "ort_fp16", "ov_fp32", "ov_fp16", "ov_fp32/ort_fp32"):
+        assert form in header.split(), header
