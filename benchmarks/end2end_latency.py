@@ -13,7 +13,7 @@ so that about ``--density`` of the anchor-class scores exceed 0.5 (tens of detec
 frame, as a trained model on a busy scene; a random head scores nothing or everything).
 
     python benchmarks/end2end_latency.py [--model yolov8n-seg] [--imgsz 320 640] [--threads 1]
-        [--runs 30] [--nc 80] [--max-det 300]
+        [--runs 30] [--nc 80] [--max-det K]   (K: the export's default, 100)
 
 Prints per size: milliseconds (median) of the onnxruntime call (``run``: for ``end2end`` the
 network *and* the in-graph NMS, top-K and masks, so its ratio is above 1 by construction; the
@@ -36,13 +36,18 @@ import torch
 from torch import nn
 
 from slimseg.data.synth.scene import STREAM_VAL, render_image
-from slimseg.deploy.end2end_graph import DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, End2EndSettings
+from slimseg.deploy.end2end_graph import (
+    DEFAULT_END2END_CONF,
+    DEFAULT_END2END_IOU,
+    DEFAULT_END2END_MAX_DET,
+    End2EndSettings,
+)
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor
 from slimseg.deploy.preprocess import preprocess_frame
 from slimseg.models.batchnorm_stats import batchnorm_from
 from slimseg.models.registry import build_model
-from slimseg.ops.nms_numpy import MAX_DET, PREDICT_CONF
+from slimseg.ops.nms_numpy import PREDICT_CONF
 
 
 def scored_model(name: str, nc: int, imgsz: int, density: float) -> nn.Module:
@@ -95,7 +100,9 @@ def main() -> None:
     ap.add_argument("--density", type=float, default=0.0005)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--runs", type=int, default=30)
-    ap.add_argument("--max-det", type=int, default=MAX_DET, help="the end-to-end graph's K")
+    ap.add_argument(
+        "--max-det", type=int, default=DEFAULT_END2END_MAX_DET, help="the end-to-end graph's K"
+    )
     args = ap.parse_args()
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(args.threads)

@@ -46,6 +46,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=INT8_TARGETS,
         help="--int8: which targets' files to time (default: both)",
     )
+    p.add_argument(
+        "--backend",
+        default="onnxruntime",
+        choices=("onnxruntime", "openvino"),
+        help="openvino: each ONNX form also in OpenVINO at f32 (ov_*), in the same rounds",
+    )
     p.add_argument("--json", action="store_true")
     p.set_defaults(run=run)
 
@@ -67,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
             calib=calib,
             calib_method=args.calib_method,
             int8_targets=targets,
+            openvino=args.backend == "openvino",
         )
     machine = machine_info()
     if args.json:
@@ -74,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     forms = list(next(iter(results.values())))
     int8_forms = [INT8_FORMS[t] for t in targets] if calib is not None else []
+    int8_forms += [f for f in forms if f.startswith("ov_")]
     base = results[args.model[0]]
     rows = []
     for name, r in results.items():

@@ -140,6 +140,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"px added around the removed region (0-{MAX_DILATION_PX})",
     )
     p.add_argument("--threads", type=threads(), default=None)
+    p.add_argument(
+        "--backend", default="auto", help="auto, onnxruntime, openvino[:bf16|:f16], torch"
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(run=run)
 
@@ -188,7 +191,7 @@ def _run(
     else:
         from slimseg.deploy.predictor import Predictor
 
-        predictor = Predictor.from_path(args.model, threads=args.threads)
+        predictor = Predictor.from_path(args.model, args.backend, threads=args.threads)
     restore_mask = args.restore_mask or ("pred" if args.model else "gt")
     if args.restore and restore_mask == "gt" and not (sequence / "dynamic").is_dir():
         raise SlimsegError(

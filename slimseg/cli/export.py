@@ -8,7 +8,12 @@ from pathlib import Path
 
 from slimseg.cli.arg_types import count, image_side, number
 from slimseg.cli.commands import COMMAND_HELP
-from slimseg.deploy.end2end_graph import DEFAULT_END2END_CONF, DEFAULT_END2END_IOU, End2EndSettings
+from slimseg.deploy.end2end_graph import (
+    DEFAULT_END2END_CONF,
+    DEFAULT_END2END_IOU,
+    DEFAULT_END2END_MAX_DET,
+    End2EndSettings,
+)
 from slimseg.deploy.int8_export import DEFAULT_MAX_DROP, export_int8
 from slimseg.deploy.int8_placement import DEFAULT_INT8_TARGET, INT8_TARGETS
 from slimseg.deploy.int8_quantize import CALIB_METHODS
@@ -17,7 +22,6 @@ from slimseg.deploy.onnx_io import sidecar_path
 from slimseg.errors import SlimsegError
 from slimseg.models.checkpoint import load_weights
 from slimseg.models.registry import build_model
-from slimseg.ops.nms_numpy import MAX_DET
 from slimseg.utils.outputs import refuse_inputs
 
 MAX_EXPORT_SIDE = 4096  # a 4096 x 4096 trace already holds GBs of activations
@@ -72,7 +76,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--max-det",
         type=count(1),
         default=None,
-        help=f"--end2end: rows per image (default {MAX_DET})",
+        help=f"--end2end: rows per image (default {DEFAULT_END2END_MAX_DET})",
     )
     p.add_argument("--int8", action="store_true", help="INT8 Q/DQ, calibrated and gated")
     p.add_argument(
@@ -164,7 +168,7 @@ def _end2end_settings(args: argparse.Namespace) -> End2EndSettings | None:
         return None
     conf = DEFAULT_END2END_CONF if args.conf is None else args.conf
     iou = DEFAULT_END2END_IOU if args.iou is None else args.iou
-    return End2EndSettings(conf=conf, iou=iou, max_det=args.max_det or MAX_DET)
+    return End2EndSettings(conf=conf, iou=iou, max_det=args.max_det or DEFAULT_END2END_MAX_DET)
 
 
 def _run_int8(args, model, out: Path, imgsz, names, mobility) -> int:

@@ -49,7 +49,7 @@ from slimseg.data.problems import ImageProblem
 from slimseg.data.sample import Sample
 from slimseg.data.tum import TumSequence
 from slimseg.data.visualize import draw_class_map, draw_sample
-from slimseg.deploy.predictor import BACKENDS, Predictor, combined_mask
+from slimseg.deploy.predictor import BACKEND_CHOICES, Predictor, combined_mask
 from slimseg.deploy.raw_dump import SUFFIX as RAW_SUFFIX
 from slimseg.deploy.raw_dump import frame_dump, write_raw
 from slimseg.deploy.track_predict import track_predict
@@ -94,7 +94,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="network input H [W] (default: the model's; static ONNX graphs only run at theirs)",
     )
-    p.add_argument("--backend", default="auto", choices=BACKENDS)
+    p.add_argument("--backend", default="auto", choices=BACKEND_CHOICES)
     p.add_argument("--threads", type=threads(), default=None, help="intra-op CPU threads")
     p.add_argument("--max-det", type=count(1), default=MAX_DET, help="detections kept per frame")
     p.add_argument("--out", default="runs/predict", help="output folder")

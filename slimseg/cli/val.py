@@ -18,6 +18,7 @@ from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import DataConfig, load_data_config
 from slimseg.data.dataset import ZooDataset
+from slimseg.deploy.engines import ONNX_BACKENDS
 from slimseg.deploy.metadata import precision_label
 from slimseg.deploy.onnx_model import OnnxModel
 from slimseg.errors import SlimsegError
@@ -89,15 +90,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.add_argument("--save-json", default=None, help="also write COCO results json here")
     p.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (network and masks)")
+    p.add_argument(
+        "--backend",
+        default="onnxruntime",
+        choices=ONNX_BACKENDS,
+        help="the engine that runs an exported .onnx (openvino: f32; docs/engines.md)",
+    )
     p.set_defaults(run=run)
 
 
 def _load(args: argparse.Namespace) -> tuple[nn.Module, int]:
     """The model to score and its input size: torch weights (fused) or an exported graph."""
     if Path(args.weights).suffix.lower() != ".onnx":
+        if args.backend != "onnxruntime":
+            raise SlimsegError(
+                f"--backend {args.backend} runs an exported .onnx, not {args.weights}"
+            )
         model, info = load_weights(args.weights, fused=True)
         return model, args.imgsz or int(info.train_config.get("imgsz", 640))
-    graph = OnnxModel(args.weights)
+    graph = OnnxModel(args.weights, backend=args.backend)
     static = graph.static_hw
     if static is not None and static[0] != static[1]:
         raise SlimsegError(
@@ -179,7 +190,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result))
     else:
-        what = f" ({precision_label(model.metadata)})" if isinstance(model, OnnxModel) else ""
+        what = ""
+        if isinstance(model, OnnxModel):
+            engine = "" if model.backend == "onnxruntime" else f", {model.backend}"
+            what = f" ({precision_label(model.metadata)}{engine})"
         print(
             f"{model.spec.name}{what} on {args.data} ({args.split}, {len(base)} images, {imgsz} px)"
         )

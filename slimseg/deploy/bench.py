@@ -28,6 +28,7 @@ from slimseg.deploy.int8_placement import INT8_TARGETS, check_target
 from slimseg.deploy.int8_quantize import quantize_onnx
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.ort_session import cpu_session
+from slimseg.deploy.ov_session import OpenVinoSession
 from slimseg.detections import Detections
 from slimseg.eval.postprocess import to_frame_detections
 from slimseg.models.registry import detection_rows
@@ -76,6 +77,13 @@ def _session_call(path: Path, threads: int, x: torch.Tensor, half: bool) -> Call
     return lambda: session.run(None, feed)
 
 
+def _openvino_call(path: Path, threads: int, x: torch.Tensor, half: bool) -> Callable[[], object]:
+    session = OpenVinoSession(path, threads)
+    feed = {session.get_inputs()[0].name: x.numpy().astype(np.float16 if half else np.float32)}
+    names = [o.name for o in session.get_outputs()]
+    return lambda: session.run(names, feed)
+
+
 def bench_model(
     model: nn.Module,
     imgsz: int = 640,
@@ -86,9 +94,14 @@ def bench_model(
     calib: CalibrationSet | None = None,
     calib_method: str = "minmax",
     int8_targets: tuple[str, ...] = INT8_TARGETS,
+    openvino: bool = False,
 ) -> dict[str, float]:
     """Milliseconds per form (plus ``postprocess``) for one model; torch runs with
     ``threads`` threads and the process-wide count is restored afterwards.
+
+    ``openvino``: every ONNX form also in OpenVINO at f32 (``ov_fp32``, ``ov_fp16``,
+    ``ov_int8_trt``, ...: the same file, timed in the same rounds; its INT8 kernels as they
+    are, without the run-time check of :mod:`slimseg.deploy.ov_session`: speed only).
 
     ``calib`` (calibration frames) adds one form per ``int8_targets`` entry
     (:data:`INT8_FORMS`): the FP32 export quantized as ``slimseg export --int8
@@ -99,7 +112,9 @@ def bench_model(
     for target in int8_targets:
         check_target(target)
     with torch_threads(threads):
-        return _bench(model, imgsz, threads, runs, warmup, forms, calib, calib_method, int8_targets)
+        return _bench(
+            model, imgsz, threads, runs, warmup, forms, calib, calib_method, int8_targets, openvino
+        )
 
 
 def _bench(
@@ -112,6 +127,7 @@ def _bench(
     calib: CalibrationSet | None,
     calib_method: str,
     int8_targets: tuple[str, ...],
+    openvino: bool = False,
 ) -> dict[str, float]:
     model = model.eval()
     fused = model.fuse()
@@ -133,6 +149,8 @@ def _bench(
             fp32_path = path if not half else fp32_path
             if form in forms:
                 runs_by_form[form] = _session_call(path, threads, x, half)
+                if openvino:
+                    runs_by_form[f"ov_{form[4:]}"] = _openvino_call(path, threads, x, half)
         for target in int8_targets if calib is not None else ():
             form = INT8_FORMS[target]
             q = Path(tmp) / f"{form}.onnx"
@@ -140,6 +158,8 @@ def _bench(
             hw = (imgsz, imgsz)
             quantize_onnx(fp32_path, q, calib, hw, family, calib_method, False, target=target)
             runs_by_form[form] = _session_call(q, threads, x, False)
+            if openvino:
+                runs_by_form[f"ov_{form}"] = _openvino_call(q, threads, x, False)
         result.update(alternating_median_ms(runs_by_form, runs, warmup))
     result["postprocess"] = median_ms(lambda: _postprocess(model, out, imgsz), runs, warmup)
     return result

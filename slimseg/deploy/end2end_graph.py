@@ -43,6 +43,11 @@ PREFIX = "e2e/"
 # the graph keeps what every default consumer asks for: predict (0.25) and SLAM masking (0.1)
 DEFAULT_END2END_CONF = min(PREDICT_CONF, DEFAULT.conf)
 DEFAULT_END2END_IOU = NMS_IOU
+# K, the rows per image: the masks output is [B, K, H/s, W/s] whatever the frame holds (its
+# padding rows are written every frame: 300 rows of 160 x 160 at 640 px are 30 MB), and a SLAM
+# frame holds tens of instances (7-31 on the demo's frames at conf 0.1); 100 leaves room and
+# keeps the end-to-end path at or below the raw path's time (docs/end2end.md "Latency")
+DEFAULT_END2END_MAX_DET = 100
 
 
 @dataclass(frozen=True)
@@ -103,8 +108,25 @@ class _Builder:
     def slice(self, x: str, start: int, end: int, axis: int) -> str:
         return self.one("Slice", x, self.const([start]), self.const([end]), self.const([axis]))
 
-    def rename(self, src: str, dst: str) -> None:
-        self.graph.node.append(helper.make_node("Identity", [src], [dst], name=self.name("out")))
+    def output(self, name: str, op_type: str, *inputs: str, **attrs) -> str:
+        """The graph output ``name`` written by its own node (no ``Identity``: an engine that
+        folds an ``Identity`` gives its output the folded tensor's internal names too)."""
+        node = helper.make_node(op_type, list(inputs), [name], name=self.name(op_type), **attrs)
+        self.graph.node.append(node)
+        return name
+
+    def static_output(self, name: str, x: str, dims: list[int], always: bool = False) -> str:
+        """``x`` reshaped to ``dims`` (0: the dimension as it is, a dynamic one) as the graph
+        output ``name``: the static dimensions stated in the graph, where an engine's shape
+        inference cannot follow a data-dependent ``Pad`` (OpenVINO: ``masks [?,?,?,?]``) or
+        ``TopK`` (``[?, K]`` in dynamic files). Without a 0 in ``dims`` and unless ``always``,
+        ``x``'s producer is renamed instead: an engine drops a no-op ``Reshape`` and would give
+        the output ``x``'s internal name too."""
+        if always or 0 in dims:
+            return self.output(name, "Reshape", x, self.const(dims))
+        (producer,) = [n for n in self.graph.node if x in n.output]
+        producer.output[list(producer.output).index(x)] = name
+        return name
 
 
 def _output_type(proto: onnx.ModelProto, name: str) -> int:
@@ -179,19 +201,30 @@ def append_end2end(
     top_v = b.one("Pad", top_v, pads, b.const(-1.0, np.float32))  # [B, K]
     top_i = b.one("Pad", top_i, pads, b.const(0))
     valid = b.one("Greater", top_v, b.const(-0.5, np.float32))  # [B, K]
+    # Each output is written by a node no engine folds away, and nothing else reads it: an
+    # engine that drops a no-op node (a Cast, an Identity, a Reshape) gives the survivor both
+    # tensors' names, and OpenVINO's get_any_name() then picks the internal one. num_dets is
+    # summed in int32 (a Cast after an int64 sum is such a node), the mask rows count apart.
+    k_rows, bdim = settings.max_det, batch if isinstance(batch, int) else 0
+    valid32 = b.one("Cast", valid, to=TensorProto.INT32)
+    b.output("num_dets", "ReduceSum", valid32, b.const([1]), keepdims=0)
     count = b.one("ReduceSum", b.one("Cast", valid, to=TensorProto.INT64), b.const([1]), keepdims=0)
-    b.rename(b.one("Cast", count, to=TensorProto.INT32), "num_dets")
-    b.rename(b.one("Where", valid, top_v, b.const(0.0, np.float32)), "scores")
+    scores = b.one("Where", valid, top_v, b.const(0.0, np.float32))
+    b.static_output("scores", scores, [bdim, k_rows])
     at = b.one("Unsqueeze", top_i, b.const([2]))  # [B, K, 1]
     valid3 = b.one("Unsqueeze", valid, b.const([2]))
     picked = b.one("GatherND", boxes, at, batch_dims=1)
-    b.rename(b.one("Where", valid3, picked, b.const(0.0, np.float32)), "boxes")
+    b.static_output("boxes", b.one("Where", valid3, picked, b.const(0.0, np.float32)),
+                    [bdim, k_rows, 4])  # fmt: skip
     classes = b.one("GatherElements", b.one("Squeeze", arg, b.const([1])), top_i, axis=1)
-    classes = b.one("Where", valid, classes, b.const(-1))
-    b.rename(b.one("Cast", classes, to=TensorProto.INT32), "classes")
+    classes = b.one("Where", valid, b.one("Cast", classes, to=TensorProto.INT32),
+                    b.const(-1, np.int32))  # fmt: skip
+    b.static_output("classes", classes, [bdim, k_rows])
     names = END2END_OUTPUTS[:4]
     if nm:
-        _append_masks(b, raw, nc, nm, settings, boxes, top_i, valid, count, float_type)
+        mask_hw = _proto_hw(g)
+        _append_masks(b, raw, nc, nm, settings, boxes, top_i, valid, count, float_type, bdim,
+                      mask_hw)  # fmt: skip
         names = END2END_OUTPUTS
     _set_outputs(g, names, settings.max_det, batch, float_type)
     return proto
@@ -208,9 +241,12 @@ def _append_masks(
     valid: str,
     count: str,
     float_type: int,
+    bdim: int,
+    mask_hw: list[int],
 ) -> None:
     """``masks [B, K, Hp, Wp]``: the rows up to the batch's largest ``num_dets`` computed,
-    the rest zero padding."""
+    the rest zero padding; ``bdim`` and ``mask_hw``: the static batch and ``Hp, Wp`` (0 where
+    dynamic)."""
     dtype = np.float16 if float_type == TensorProto.FLOAT16 else np.float32
     rows = b.reduce_max(count, 0, keepdims=1)  # [1]
     top_k = b.one("Slice", top_i, b.const([0]), rows, b.const([1]))  # [B, k]
@@ -257,7 +293,14 @@ def _append_masks(
     masks = b.one("Mul", b.one("Mul", probs, inside[0]), inside[1])
     pad_rows = b.one("Sub", b.const([settings.max_det]), rows)
     pads = b.one("Concat", b.const([0, 0, 0, 0, 0]), pad_rows, b.const([0, 0]), axis=0)
-    b.rename(b.one("Pad", masks, pads, b.const(0.0, dtype)), "masks")
+    padded = b.one("Pad", masks, pads, b.const(0.0, dtype))
+    b.static_output("masks", padded, [bdim, settings.max_det, *mask_hw], always=True)
+
+
+def _proto_hw(g: onnx.GraphProto) -> list[int]:
+    """``[Hp, Wp]`` of ``output1`` as the raw graph declares them, 0 for a dynamic one."""
+    dims = [d for o in g.output if o.name == "output1" for d in o.type.tensor_type.shape.dim]
+    return [int(d.dim_value) for d in dims[2:4]] if len(dims) == 4 else [0, 0]
 
 
 def _set_outputs(

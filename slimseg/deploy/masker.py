@@ -40,7 +40,9 @@ class Masker(FrameMasker):
         **options: Any,
     ) -> Masker:
         """Load ``path`` (``.onnx``; ``.pt`` / ``.ckpt`` weights work too) on ``threads``
-        intra-op threads and build the chain; ``options``: those of :meth:`from_predictor`."""
+        intra-op threads with ``backend`` (``onnxruntime``, ``openvino`` at f32,
+        ``openvino:bf16``, ...: :meth:`Predictor.from_path`) and build the chain; ``options``:
+        those of :meth:`from_predictor`."""
         return cls.from_predictor(Predictor.from_path(path, backend, threads=threads), **options)
 
     @classmethod

@@ -5,22 +5,21 @@ with the same letterbox, NMS, mask assembly and pycocotools evaluator as the tor
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
 from slimseg.deploy.end2end_postprocess import is_end2end
-from slimseg.deploy.metadata import read_session_metadata
-from slimseg.deploy.ort_session import cpu_session
+from slimseg.deploy.engines import open_graph
 from slimseg.deploy.runners import OnnxRunner
 from slimseg.errors import SlimsegError
 from slimseg.models.specs import ModelSpec, spec_from_mapping
 
 
 class OnnxModel(nn.Module):
-    """A slimseg ONNX export (FP32, FP16 or INT8) run by onnxruntime on the CPU.
+    """A slimseg ONNX export (FP32, FP16 or INT8) run on the CPU by onnxruntime or, with
+    ``backend`` ``openvino`` (``openvino:bf16``, ...), by OpenVINO.
 
     ``forward(images float32 [B, 3, H, W])`` returns what the fused torch model returns:
     ``(pred [B, 4 + nc + nm, A], proto [B, nm, H/s, W/s])`` for segmenters, ``pred`` for
@@ -28,13 +27,14 @@ class OnnxModel(nn.Module):
     graphs are fed float16). Static-batch graphs run in chunks of their batch size.
     """
 
-    def __init__(self, path: str | Path, threads: int | None = None) -> None:
+    def __init__(
+        self, path: str | Path, threads: int | None = None, backend: str = "onnxruntime"
+    ) -> None:
         super().__init__()
         self.path = Path(path)
         if not self.path.is_file():
             raise SlimsegError(f"{self.path}: model file not found")
-        session = cpu_session(self.path, threads)
-        self.metadata: dict[str, Any] = read_session_metadata(self.path, session)
+        session, self.metadata, self.backend = open_graph(self.path, threads, backend)
         if "spec" not in self.metadata:
             raise SlimsegError(
                 f"{self.path}: its metadata has no 'spec': re-export it with slimseg export"

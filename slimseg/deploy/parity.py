@@ -21,6 +21,11 @@ import torch
 from torch import nn
 
 from slimseg.deploy.ort_session import cpu_session
+from slimseg.deploy.tolerances import (
+    FP32_LOGIT_TOL,
+    FP32_TOLERANCES,
+    Tolerance,
+)
 from slimseg.errors import SlimsegError
 from slimseg.models.base import ZooModel
 from slimseg.models.registry import detection_rows
@@ -31,30 +36,6 @@ class ExportParityError(SlimsegError):
     """The exported graph does not compute what the fused torch model computes."""
 
 
-@dataclass(frozen=True)
-class Tolerance:
-    """``|onnx - torch| <= atol + rtol · |torch|`` elementwise (:func:`numpy.allclose`)."""
-
-    atol: float
-    rtol: float
-
-    def __str__(self) -> str:
-        return f"{self.atol:g} + {self.rtol:g}·|torch|"
-
-
-# Measured (export/CONTRACT.md): realistic-magnitude graphs use at most ~20 % of these limits
-# on an AVX-512 CPU and twice its float64 deviation at most ~40 %; every zeroed conv bias or
-# swapped pair of output channels of yolov8n-seg and yolov8s-seg-gs-rep exceeds them (≥ 4.9×).
-FP32_BOX_TOL = Tolerance(atol=0.25, rtol=1e-4)  # px: cx, cy, w, h (DFL decode: absolute)
-FP32_SCORE_TOL = Tolerance(atol=2e-3, rtol=1e-4)  # class scores after sigmoid, in [0, 1]
-FP32_MASK_TOL = Tolerance(atol=1e-2, rtol=1e-4)  # raw mask coefficients and prototypes
-FP32_LOGIT_TOL = Tolerance(atol=1e-3, rtol=1e-4)  # semantic models: per-pixel class logits
-FP32_TOLERANCES = {
-    "box_px": FP32_BOX_TOL,
-    "score": FP32_SCORE_TOL,
-    "mask_terms": FP32_MASK_TOL,
-    "logit": FP32_LOGIT_TOL,
-}
 FP16_CANDIDATE_SCORE = 0.05  # anchors whose best FP32 score reaches this are checked
 FP16_MATCH_IOU = 0.9
 FP16_SCORE_TOL = 0.02

@@ -1,4 +1,5 @@
-"""Inference on single frames: one API over onnxruntime (``.onnx``) and torch (``.pt``/``.ckpt``).
+"""Inference on single frames: one API over onnxruntime or OpenVINO (``.onnx``) and torch
+(``.pt``/``.ckpt``).
 
 Both backends share every step but the forward pass, so the same weights give the same
 detections (up to float rounding) whichever file is loaded:
@@ -31,8 +32,8 @@ from typing import Any
 import numpy as np
 
 from slimseg.deploy.end2end_postprocess import end2end_limits, end2end_predictions, is_end2end
-from slimseg.deploy.metadata import build_metadata, int8_target, read_session_metadata
-from slimseg.deploy.ort_session import cpu_session
+from slimseg.deploy.engines import ONNX_BACKENDS, open_graph
+from slimseg.deploy.metadata import build_metadata, int8_target
 from slimseg.deploy.predict_postprocess import instance_predictions, semantic_predictions
 from slimseg.deploy.prediction import combined_mask
 from slimseg.deploy.preprocess import parse_imgsz, preprocess_frame
@@ -42,9 +43,11 @@ from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.threads import check_threads, torch_threads
 
-__all__ = ["BACKENDS", "Prediction", "Predictor", "combined_mask"]
+__all__ = ["BACKENDS", "BACKEND_CHOICES", "Prediction", "Predictor", "combined_mask"]
 
-BACKENDS = ("auto", "onnxruntime", "torch")
+BACKENDS = ("auto", "onnxruntime", "openvino", "torch")
+# what --backend / backend= accepts: a backend, or openvino at a precision it is asked for
+BACKEND_CHOICES = ("auto", *ONNX_BACKENDS, "torch")
 # What a forward pass gives: (pred, proto) of a raw graph, or an end-to-end graph's outputs by name
 Outputs = tuple[np.ndarray, np.ndarray | None] | dict[str, np.ndarray]
 TORCH_SUFFIXES = (".pt", ".ckpt")
@@ -108,7 +111,12 @@ class Predictor:
         imgsz: int | Sequence[int] | None = None,
         threads: int | None = None,
     ) -> Predictor:
-        """Load ``.onnx`` (onnxruntime, CPU) or ``.pt``/``.ckpt`` (torch, fused) weights.
+        """Load ``.onnx`` (onnxruntime or OpenVINO, CPU) or ``.pt``/``.ckpt`` (torch, fused).
+
+        ``backend``: ``auto`` (onnxruntime for ``.onnx``, torch otherwise), ``onnxruntime``,
+        ``torch``, or ``openvino`` (f32 arithmetic, the contract's; ``openvino:bf16`` /
+        ``openvino:f16`` compute in that precision and log how far the first frames are from
+        f32: :mod:`slimseg.deploy.ov_session`).
 
         ``imgsz``: network input ``H`` or ``(H, W)``; default: the metadata's (ONNX) or the
         training size (torch, 640 if unknown). A static ONNX graph only runs at its own size.
@@ -116,8 +124,10 @@ class Predictor:
         around each forward pass and restored after it). ``None``: the library default.
         """
         path = Path(path)
-        if backend not in BACKENDS:
-            raise SlimsegError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+        if backend not in BACKEND_CHOICES:
+            raise SlimsegError(
+                f"unknown backend {backend!r}; choose one of {', '.join(BACKEND_CHOICES)}"
+            )
         if not path.is_file():
             raise SlimsegError(f"{path}: model file not found")
         suffix = path.suffix.lower()
@@ -125,8 +135,8 @@ class Predictor:
             raise SlimsegError(f"{path}: expected an .onnx, .pt or .ckpt file")
         if backend == "auto":
             backend = "onnxruntime" if suffix == ".onnx" else "torch"
-        if backend == "onnxruntime" and suffix != ".onnx":
-            raise SlimsegError(f"{path}: the onnxruntime backend needs an .onnx file")
+        if backend in ONNX_BACKENDS and suffix != ".onnx":
+            raise SlimsegError(f"{path}: the {backend} backend needs an .onnx file")
         if backend == "torch" and suffix == ".onnx":
             raise SlimsegError(f"{path}: the torch backend needs .pt/.ckpt weights")
         hw = parse_imgsz(imgsz)
@@ -135,7 +145,7 @@ class Predictor:
         check_threads(threads)  # no more than the cores this process may use
         if backend == "torch":
             return cls._from_torch(path, hw, threads)
-        return cls._from_onnx(path, hw, threads)
+        return cls._from_onnx(path, hw, threads, backend)
 
     @classmethod
     def _from_torch(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
@@ -153,9 +163,11 @@ class Predictor:
         return cls(TorchRunner(model, threads), meta, hw, "torch", path, threads)
 
     @classmethod
-    def _from_onnx(cls, path: Path, hw: tuple[int, int] | None, threads: int | None) -> Predictor:
-        session = cpu_session(path, threads)
-        meta = read_session_metadata(path, session)
+    def _from_onnx(
+        cls, path: Path, hw: tuple[int, int] | None, threads: int | None, backend: str
+    ) -> Predictor:
+        """``backend``: one of :data:`~slimseg.deploy.engines.ONNX_BACKENDS`."""
+        session, meta, backend = open_graph(path, threads, backend)
         runner = OnnxRunner(session, str(path))
         static_hw = runner.static_hw
         default = static_hw or parse_imgsz(meta["imgsz"])
@@ -164,7 +176,7 @@ class Predictor:
                 f"{path}: the graph has a static {static_hw[0]}x{static_hw[1]} input; "
                 f"imgsz {hw[0]}x{hw[1]} needs an export with --dynamic (or drop --imgsz)"
             )
-        return cls(runner, meta, hw or default, "onnxruntime", path, threads)
+        return cls(runner, meta, hw or default, backend, path, threads)
 
     # -- inference ---------------------------------------------------------------------------
 

@@ -8,7 +8,8 @@ runs without torch (the ONNX runner imports none: the core install).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -42,7 +43,30 @@ class TorchRunner:
         return pred.float().numpy(), None if proto is None else proto.float().numpy()
 
 
-def check_single_image_input(session: Any, where: str) -> None:
+class PortInfo(Protocol):
+    """An input or output of a graph session: onnxruntime's ``NodeArg`` and
+    :class:`~slimseg.deploy.ov_session.Port` (``shape``: ints and symbols; ``type`` as
+    onnxruntime spells it, ``tensor(float)``)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def shape(self) -> Sequence[Any]: ...
+    @property
+    def type(self) -> str: ...
+
+
+class GraphSession(Protocol):
+    """What :class:`OnnxRunner` runs: an onnxruntime ``InferenceSession``
+    (:func:`~slimseg.deploy.ort_session.cpu_session`) or an
+    :class:`~slimseg.deploy.ov_session.OpenVinoSession`."""
+
+    def get_inputs(self) -> Sequence[PortInfo]: ...
+    def get_outputs(self) -> Sequence[PortInfo]: ...
+    def run(self, output_names: list[str], input_feed: dict[str, np.ndarray]) -> list: ...
+
+
+def check_single_image_input(session: GraphSession, where: str) -> None:
     """``SlimsegError`` unless the graph takes exactly one input, a float ``[B, 3, H, W]``
     image (a slimseg export): another graph would fail inside onnxruntime at the first frame."""
     inputs = session.get_inputs()
@@ -62,13 +86,13 @@ def check_single_image_input(session: Any, where: str) -> None:
 
 
 class OnnxRunner:
-    """Forward pass of an onnxruntime session (CPU provider).
+    """Forward pass of a graph session: onnxruntime (CPU provider) or OpenVINO (CPU).
 
     ``dtype``: the input's (``float16`` for FP16 exports); ``batch_size``: the graph's static
     batch, ``None`` when dynamic; ``static_hw``: the static input ``(H, W)`` or ``None``.
     """
 
-    def __init__(self, session: Any, where: str = "the ONNX model") -> None:
+    def __init__(self, session: GraphSession, where: str = "the ONNX model") -> None:
         self.session = session
         check_single_image_input(session, where)
         inp = session.get_inputs()[0]

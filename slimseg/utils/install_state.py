@@ -22,6 +22,7 @@ EXTRA_USES = {
     "slam": "slam-eval and slam (ORB-SLAM3, evo; GPL-3.0), the demo's SLAM stage",
     "viz": "--rerun FILE.rrd recordings (dynamic, predict --track, slam-eval)",
     "ray": "ablate --backend ray",
+    "openvino": "--backend openvino (predict, dynamic, val, bench; Predictor, slimseg.Masker)",
 }
 _NAME = re.compile(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)")
 _EXTRA = re.compile(r"""extra\s*==\s*['"]([^'"]+)['"]""")

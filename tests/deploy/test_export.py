@@ -17,7 +17,8 @@ from slimseg.cli.main import main
 from slimseg.deploy import onnx_export, parity
 from slimseg.deploy.metadata import from_metadata_props
 from slimseg.deploy.onnx_export import export_onnx
-from slimseg.deploy.parity import FP32_BOX_TOL, FP32_LOGIT_TOL, FP32_SCORE_TOL, ExportParityError
+from slimseg.deploy.parity import ExportParityError
+from slimseg.deploy.tolerances import FP32_BOX_TOL, FP32_LOGIT_TOL, FP32_SCORE_TOL
 from slimseg.deploy.trt_ops import DATA_DEPENDENT_OPS, DYNAMIC_SHAPE_OPS, TENSORRT_SUPPORTED_OPS
 from slimseg.models.registry import build_model, list_models
 

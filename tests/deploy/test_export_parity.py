@@ -16,13 +16,13 @@ from torch import nn
 
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.parity import (
-    FP32_MASK_TOL,
     ExportParityError,
     check_fp32_parity,
     check_semantic_parity,
     parity_inputs,
     verify_parity,
 )
+from slimseg.deploy.tolerances import FP32_MASK_TOL
 from slimseg.models.registry import build_model
 
 IMGSZ = (96, 96)
