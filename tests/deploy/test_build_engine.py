@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "export" / "build_engine.sh"
+SCRIPT = Path(__file__).resolve().parents[2] / "export" / "build_engine.sh"
 NO_TRT_PATH = os.pathsep.join(["/usr/bin", "/bin"])  # bash and python3, no trtexec
 
 
