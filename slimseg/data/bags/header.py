@@ -12,6 +12,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
+from slimseg.errors import SlimsegError
+
 NS_PER_S = 1_000_000_000
 DAMAGED = "a truncated or damaged recording: record it again, or repair it with its reindex tool"
 IMAGE = "sensor_msgs/msg/Image"
@@ -41,6 +43,29 @@ class Header:
         """The stamp in seconds, parsed from its decimal form (the same float a TUM list's
         ``sec.nsec`` text gives); a stamp before 1970 keeps its order (-4.97 s > -5.03 s)."""
         return float(stamp_text(self.ns))
+
+
+# the stamps each kind of recording can hold, as [first, last] ns: log times are unsigned
+# 64-bit ns (MCAP) or signed 64-bit (SQLite), ROS 1 stamps unsigned 32-bit seconds, ROS 2
+# header stamps signed 32-bit seconds; 0 (1970) is the first a log time can be
+STAMP_RANGES = {
+    "ros1": (0, (1 << 32) * NS_PER_S - 1),
+    "ros2": (0, (1 << 31) * NS_PER_S - 1),
+    "foxglove": (0, (1 << 63) - 1),
+}
+
+
+def check_stamp(ns: int, kind: str, where: str) -> None:
+    """``SlimsegError`` naming ``where`` (the output) when ``ns`` is not a stamp a ``kind``
+    recording (a key of :data:`STAMP_RANGES`) can hold as its log time and header stamp: a
+    stamp before 1970 cannot be written, only refused; it is never wrapped or clipped."""
+    lo, hi = STAMP_RANGES[kind]
+    if not lo <= ns <= hi:
+        raise SlimsegError(
+            f"{where}: stamp {stamp_text(ns)} s cannot be written to a {kind} recording (it "
+            f"holds {stamp_text(lo)} to {stamp_text(hi)} s: log times start at 1970); "
+            "re-stamp the input, or write a TUM folder instead"
+        )
 
 
 def stamp_ns(seconds: float) -> int:

@@ -131,7 +131,7 @@ class BagSequence(PairedFrames):
                 if info is None:
                     info = self._bag.decode(raw, self._bag.topics[topic], topic)
                 continue
-            h = self._bag.header(raw, topic)
+            h = self._bag.header(raw, topic, len(lists[topic]))
             prev = last.get(topic)
             if prev is not None and h.ns <= prev.ns:
                 raise SlimsegError(
