@@ -59,7 +59,7 @@ def _data_end(f: BinaryIO, size: int) -> int | None:
     summary_start = struct.unpack_from("<Q", footer, 9)[0]
     at = summary_start if summary_start else size - len(MAGIC) - _FOOTER_LEN
     at -= _DATA_END_LEN
-    if at < len(MAGIC):
+    if not len(MAGIC) <= at <= size - len(MAGIC) - _FOOTER_LEN - _DATA_END_LEN:
         return None
     f.seek(at)
     head = f.read(9)

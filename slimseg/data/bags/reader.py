@@ -69,7 +69,7 @@ class BagFile:
         self.path = Path(path)
         if not self.path.exists():
             raise SlimsegError(f"bag {self.path} does not exist")
-        check_inputs(self.path)  # regular files only, MCAP data-section CRCs: before any open
+        check_inputs(self.path)  # regular files only, every MCAP checksum: before any open
         require_rosbags(self.path)
         from rosbags.typesys import Stores, get_typestore
 
@@ -240,4 +240,5 @@ def check_inputs(path: Path) -> None:
     for f in files:
         check_regular(f, "bag" if f == path else "bag file")
         if f.suffix.lower() == ".mcap":
-            check_mcap(f)
+            with decoding(f"cannot read bag {f} ({DAMAGED})"):
+                check_mcap(f)
