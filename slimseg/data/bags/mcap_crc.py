@@ -101,7 +101,7 @@ def check_mcap(path: str | Path) -> None:
 
 
 def _refuse(path: Path, why: str) -> None:
-    raise SlimsegError(f"cannot read bag {path}: {why}: the file is damaged ({DAMAGED})")
+    raise SlimsegError(f"cannot read bag {path}: {why} ({DAMAGED})")
 
 
 def _first_record(f: BinaryIO, path: Path) -> int:
