@@ -1,0 +1,50 @@
+"""Every size bounded before it is spent, every source a regular file (issue #62, findings 4 and
+5): ``export --end2end`` refuses a ``--max-det`` / ``--imgsz`` whose masks would pass 1 GiB
+before a model is built; ``predict --source`` on a FIFO (named like a video or a list) is
+refused in one line instead of blocking forever."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from slimseg.cli.export import END2END_MASK_BYTES, check_end2end_size
+from slimseg.cli.main import main
+from slimseg.cli.predict import open_source
+from slimseg.errors import SlimsegError
+
+
+@pytest.mark.parametrize(
+    ("max_det", "imgsz"), [(1_000_000_000, ["160"]), (300, ["4096"]), (20_000, ["640", "640"])]
+)
+def test_end2end_sizes_past_the_budget_are_refused_before_building(
+    tmp_path: Path, capsys, max_det: int, imgsz: list[str]
+) -> None:
+    out = tmp_path / "e.onnx"
+    start = time.perf_counter()
+    code = main(["export", "--weights", "yolov8n-seg", "--nc", "3", "--imgsz", *imgsz,
+                 "--end2end", "--max-det", str(max_det), "--quiet", "--out", str(out)])  # fmt: skip
+    took = time.perf_counter() - start
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "GiB" in err and "--max-det" in err, err
+    assert took < 10 and not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_the_end2end_budget_is_exact() -> None:
+    cells = (640 // 4) * (640 // 4)
+    most = END2END_MASK_BYTES // (cells * 4)
+    check_end2end_size(most, [640, 640])  # at the budget: accepted
+    with pytest.raises(SlimsegError, match=f"give --max-det {most} or less"):
+        check_end2end_size(most + 1, [640])
+    check_end2end_size(300, [2048])  # the default max-det up to 2048 px
+
+
+@pytest.mark.parametrize("name", ["fifo.mp4", "fifo.txt", "fifo.png"])
+def test_a_fifo_source_is_refused_not_opened(tmp_path: Path, name: str) -> None:
+    fifo = tmp_path / name
+    os.mkfifo(fifo)
+    with pytest.raises(SlimsegError, match="FIFO"):
+        open_source(fifo)
