@@ -211,7 +211,7 @@ def _run(
         viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)
         observers.append(viz)
     # the outputs complete or not at all; the recording kept only if they are
-    with kept_recording(viz), _staged_output(out, seq, bag_out, args, boxes) as stage:
+    with kept_recording(viz) as seal_rerun, _staged_output(out, seq, bag_out, args, boxes) as stage:
         report = run_sequence(
             predictor,
             seq,
@@ -227,6 +227,7 @@ def _run(
             use_depth=not args.no_depth,
         )
         restored = _restore(args, seq, stage, restore_mask) if args.restore else None
+        seal_rerun()  # the recording finished before --out is published
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     where = f"bag {out} on {MASK_TOPIC}" if bag_out else out / "masks"
     if boxes is not None:
