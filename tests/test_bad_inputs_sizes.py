@@ -48,3 +48,40 @@ def test_a_fifo_source_is_refused_not_opened(tmp_path: Path, name: str) -> None:
     os.mkfifo(fifo)
     with pytest.raises(SlimsegError, match="FIFO"):
         open_source(fifo)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from slimseg.data.synth import generate
+
+    root = tmp_path_factory.mktemp("show") / "d"
+    generate(root, 2, 2, 64, 0, progress=False)
+    return root
+
+
+def test_data_show_never_replaces_an_image_of_the_other_split(dataset: Path, capsys) -> None:
+    image = sorted((dataset / "val").rglob("*.png"))[0]
+    before = image.read_bytes()
+    code = main(["data", "show", "--data", str(dataset / "data.yaml"), "--imgsz", "64",
+                 "--count", "1", "--out", str(image)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "lies in the dataset's val folder" in err, err
+    assert image.read_bytes() == before
+
+
+def test_data_show_refuses_a_file_name_climbing_out(dataset: Path, tmp_path: Path, capsys):
+    import json
+    import shutil
+
+    copy = tmp_path / "d"
+    shutil.copytree(dataset, copy)
+    ann = next((copy / "train").rglob("*.json"))
+    data = json.loads(ann.read_text())
+    data["images"][0]["file_name"] = "../../../outside.png"
+    ann.write_text(json.dumps(data))
+    out = tmp_path / "show.png"
+    code = main(["data", "show", "--data", str(copy / "data.yaml"), "--imgsz", "64", "--count",
+                 "1", "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "outside the images folder" in err, err
+    assert "../../../outside.png" in err and not out.exists()
