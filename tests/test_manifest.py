@@ -160,22 +160,23 @@ def test_data_show_never_writes_over_an_input_nor_reads_outside(tmp_path: Path, 
 
 
 def test_a_folder_nested_1200_deep_is_recorded_without_recursion(tmp_path: Path) -> None:
-    """Python 3.11's os.walk recursed once per level: RecursionError past ~1,000 (issue #62)."""
-    import os
-
-    from slimseg.utils.manifest import record
-
+    """Python 3.11's os.walk recursed once per level: RecursionError past ~1,000 (issue #62).
+    The tree is built and removed one level at a time (os.makedirs and shutil.rmtree, pytest's
+    clean-up of tmp_path included, recurse too), removed whatever the test's outcome."""
     deep = tmp_path / "deep"
-    level = str(deep)
-    for _ in range(1201):  # one mkdir per level (os.makedirs recurses too)
-        os.mkdir(level)
-        level = os.path.join(level, "a")
-    (deep / "a" / "f.txt").write_text("x")
-    first = record(deep)
-    assert first is not None and first.kind == "dir" and first.size == 1
-    (deep / "a" / "f.txt").write_text("y")
-    assert record(deep).sha256 != first.sha256
-    (deep / "a" / "f.txt").unlink()
-    while level != str(deep):  # removed bottom-up: shutil.rmtree (pytest's clean-up) recurses
-        level = os.path.dirname(level)
-        os.rmdir(level)
+    levels = [str(deep)]
+    for _ in range(1200):
+        levels.append(os.path.join(levels[-1], "a"))
+    try:
+        for level in levels:
+            os.mkdir(level)
+        (deep / "a" / "f.txt").write_text("x")
+        first = record(deep)
+        assert first is not None and first.kind == "dir" and first.size == 1
+        (deep / "a" / "f.txt").write_text("y")
+        assert record(deep).sha256 != first.sha256
+    finally:
+        (deep / "a" / "f.txt").unlink(missing_ok=True)
+        for level in reversed(levels):
+            if os.path.isdir(level):
+                os.rmdir(level)
