@@ -84,8 +84,8 @@ def run(args: argparse.Namespace) -> int:
     if base.report["path_outside_root"]:
         ex = ", ".join(printable(e) for e in base.report.examples["path_outside_root"][:3])
         raise SlimsegError(
-            f"{base.annotations_json}: {base.report['path_outside_root']} image entries name a "
-            f"file outside the images folder ({ex}): fix their file_name"
+            f"{base.annotations_json}: path_outside_root: {base.report['path_outside_root']} "
+            f"image entries name a file outside the images folder ({ex}): fix their file_name"
         )
     claim_file(args.out, "--out", _is_png, "PNG")  # a grid of an earlier run, not a user's file
     ds = ZooDataset(base, args.imgsz, augment, seed=args.seed)
