@@ -1,7 +1,8 @@
-"""Every size bounded before it is spent, every source a regular file (issue #62, findings 4 and
-5): ``export --end2end`` refuses a ``--max-det`` / ``--imgsz`` whose masks would pass 1 GiB
-before a model is built; ``predict --source`` on a FIFO (named like a video or a list) is
-refused in one line instead of blocking forever."""
+"""Issue #62's limits outside the recordings: every size bounded before it is spent
+(``export --end2end`` refuses a ``--max-det`` / ``--imgsz`` whose masks would pass 1 GiB before
+a model is built), every source a regular file (``predict --source`` on a FIFO named like a
+video or a list is refused instead of blocking forever), ``data show`` never replacing a file of
+the dataset nor reading outside it, and every print of the CLI escaped (an output path too)."""
 
 from __future__ import annotations
 
@@ -85,3 +86,16 @@ def test_data_show_refuses_a_file_name_climbing_out(dataset: Path, tmp_path: Pat
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "outside the images folder" in err, err
     assert "../../../outside.png" in err and not out.exists()
+
+
+def test_an_output_path_with_escape_codes_is_printed_escaped(tmp_path: Path, capfd) -> None:
+    """Any print of the CLI goes through one escaping stream: bag2tum's --out here."""
+    import hostile_recordings as hr
+
+    pytest.importorskip("mcap_protobuf")
+    bag = hr.protobuf_recording(tmp_path / "ok.mcap")
+    out = tmp_path / "o\x1b[2J\x1b[31mx"
+    assert main(["data", "bag2tum", "--bag", str(bag), "--out", str(out), "--quiet"]) == 0
+    printed = capfd.readouterr().out
+    assert "\x1b" not in printed and "o\\x1b[2J\\x1b[31mx" in printed, printed
+    assert (out / "rgb.txt").is_file()
