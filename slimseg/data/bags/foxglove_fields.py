@@ -62,12 +62,17 @@ def check_descriptor(desc: object, fields: dict | None = None, where: str = "") 
     schema's row of :data:`SCHEMAS`, by ``desc.full_name`` when None) with their kinds."""
     fields = SCHEMAS[desc.full_name] if fields is None else fields
     where = where or desc.full_name
+    from google.protobuf import descriptor_pb2
+
     by_name = {f.name: f for f in desc.fields}
+    as_proto = descriptor_pb2.DescriptorProto()  # labels read the same in every protobuf version
+    desc.CopyToProto(as_proto)
+    repeated_names = {f.name for f in as_proto.field if f.label == f.LABEL_REPEATED}
     for name, kind in fields.items():
         f = by_name.get(name)
         if f is None:
             raise ValueError(f"schema {where} has no field {name!r}")
-        repeated = f.is_repeated
+        repeated = name in repeated_names
         if isinstance(kind, list):
             if not repeated or f.type != _TYPE_MESSAGE:
                 raise ValueError(f"schema {where}: {name} is not a repeated message")
