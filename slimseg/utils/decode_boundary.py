@@ -7,12 +7,12 @@ A recording, a model's metadata or any file a user hands over is parsed by libra
 should claim. :func:`decoding` turns every one of them into one :class:`SlimsegError` line
 naming what was being read (the file, and where it has them the topic and message index), so
 the CLI prints one line and exits 2; an error that is already a ``SlimsegError`` passes as it
-is. :func:`decoded` does the same for a generator that reads lazily.
+is.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 
 from slimseg.errors import SlimsegError
@@ -41,10 +41,3 @@ def decoding(what: str) -> Iterator[None]:
         raise
     except Exception as e:  # the boundary: every decoder's every error, by design
         raise SlimsegError(f"{printable(what)}: {reason(e)}") from None
-
-
-def decoded(items: Iterable, what: str) -> Iterator:
-    """``items`` iterated inside :func:`decoding` (a lazy reader's errors surface as they
-    happen, each one line naming ``what``)."""
-    with decoding(what):
-        yield from items

@@ -8,7 +8,8 @@ calibration ``k``; a pose ``header.stamp.sec / .nanosec`` and ``pose.position /
 
 A protobuf message keeps its bytes fields as ``bytes`` and its time as
 ``google.protobuf.Timestamp`` (``seconds, nanos``); the JSON encoding holds bytes as base64
-text and time as ``{"sec", "nsec"}``. Both are read here, nowhere else.
+text and time as ``{"sec", "nsec"}``. Both are checked field by field against the schema
+(:mod:`slimseg.data.bags.foxglove_fields`) before a value is used, and shaped here.
 """
 
 from __future__ import annotations
