@@ -11,6 +11,7 @@ import json
 import math
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 import hostile_recordings as hr
 import numpy as np
@@ -119,3 +120,76 @@ def test_the_views_bytes_are_the_messages(recordings) -> None:
         raw = next(r for _, _, r in bag.messages([hr.COLOUR]))
         img = colour_from_image(bag.decode(raw, bag.topics[hr.COLOUR], hr.COLOUR))
     assert np.array_equal(img, hr.colour(0))
+
+
+def _base(schema: str) -> dict:
+    """A well-formed JSON message of ``schema`` (every field of :data:`SCHEMAS` set)."""
+    t = {"sec": 1, "nsec": 2}
+    vec, quat = {"x": 0.0, "y": 1.0, "z": 2.0}, {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+    tr = {"timestamp": t, "parent_frame_id": "w", "child_frame_id": "c", "translation": vec,
+          "rotation": quat}  # fmt: skip
+    return {
+        "foxglove.RawImage": {"timestamp": t, "frame_id": "f", "width": 2, "height": 1,
+                              "encoding": "mono8", "step": 2, "data": "AAA="},
+        "foxglove.CompressedImage": {"timestamp": t, "frame_id": "f", "format": "png",
+                                     "data": "AAA="},
+        "foxglove.CameraCalibration": {"timestamp": t, "frame_id": "f", "width": 2, "height": 1,
+                                       "distortion_model": "", "K": hr.K},
+        "foxglove.PoseInFrame": {"timestamp": t, "frame_id": "f",
+                                 "pose": {"position": vec, "orientation": quat}},
+        "foxglove.FrameTransform": tr,
+        "foxglove.FrameTransforms": {"transforms": [tr, tr]},
+    }[schema]  # fmt: skip
+
+
+def _paths(fields: dict, prefix: tuple = ()) -> list[tuple]:
+    """Every field of a :data:`SCHEMAS` row as a key path (nested messages and lists too)."""
+    out = []
+    for name, kind in fields.items():
+        out.append((*prefix, name))
+        if isinstance(kind, dict):
+            out += _paths(kind, (*prefix, name))
+        elif isinstance(kind, list):
+            out += _paths(kind[0], (*prefix, name, 0))
+    return out
+
+
+FIELD_PATHS = [(s, p) for s in sorted(SCHEMAS) for p in _paths(SCHEMAS[s])]
+
+
+@given(where=st.sampled_from(FIELD_PATHS), value=JSON_VALUES)
+@FAST
+def test_any_json_value_in_any_field_of_every_schema(where: tuple, value: object) -> None:
+    """Every field of every Foxglove schema read (nested ones included): the view is refused
+    with a ValueError naming a field, or every number in it is finite."""
+    from slimseg.data.bags.foxglove_messages import foxglove_header, foxglove_view
+
+    schema, path = where
+    msg = _base(schema)
+    parent = msg
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = value
+    try:
+        view = foxglove_view(schema, msg)
+        if "timestamp" in msg:
+            foxglove_header(msg)
+    except ValueError as e:
+        assert "\n" not in str(e) and str(e)
+        return
+    for number in _numbers(view):
+        assert math.isfinite(number)
+
+
+def _numbers(v: object) -> list[float]:
+    if isinstance(v, bool):
+        return []
+    if isinstance(v, (int, float)):
+        return [float(v)]
+    if isinstance(v, (list, tuple)):
+        return [x for item in v for x in _numbers(item)]
+    if isinstance(v, np.ndarray):
+        return []
+    if isinstance(v, SimpleNamespace):
+        return [x for item in vars(v).values() for x in _numbers(item)]
+    return []
