@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint format reference bench clean fuzz
+.PHONY: demo test lint format reference bench clean
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,9 +18,6 @@ demo: $(STAMP)  ## the main job on the embedded default (no download)
 
 test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included)
 	$(BIN)/python -m pytest -q
-
-fuzz: $(STAMP)  ## the long mutation-fuzzing run over recordings of every profile (docs/bags.md)
-	nice -n 15 $(BIN)/python tests/bag_fuzz.py --cases 100000 --seed 1000
 
 lint: $(STAMP)  ## ruff, and the layer order of docs/architecture.md (import-linter)
 	$(BIN)/ruff check .
@@ -46,3 +43,7 @@ reference: $(STAMP)  ## regenerate tests/reference/complexity.json; review the d
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache
+
+.PHONY: fuzz
+fuzz: $(STAMP)  ## the long mutation-fuzzing run over recordings of every profile (docs/bags.md)
+	nice -n 15 $(BIN)/python tests/bag_fuzz.py --cases 100000 --seed 1000
