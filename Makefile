@@ -52,3 +52,7 @@ reference: $(STAMP)  ## regenerate tests/reference/complexity.json; review the d
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache
+
+.PHONY: fuzz
+fuzz: $(STAMP)  ## the long mutation-fuzzing run over recordings of every profile (docs/bags.md)
+	nice -n 15 $(BIN)/python tests/bag_fuzz.py --cases 100000 --seed 1000

@@ -153,3 +153,17 @@ def test_realtime_benchmark_runs_every_rate_through_the_object(model: Path, sequ
     assert rows["2"]["model_frames"] == 5 and rows["lag:2"]["lag_median"] == 2
     assert rows["lag:2"]["model_frames"] == rows["lag:2-camera"]["model_frames"] >= 4
     assert rows["thread"]["thread_model_ms"] > 0 and rows["thread"]["model_ms"] >= 0
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 3), (1, 5000, 3), (5000, 1, 3), (0, 128, 3)])
+def test_a_degenerate_frame_is_masked_or_refused_in_one_line(model: Path, shape) -> None:
+    """A 1x1 frame is masked (ORB finds nothing in it); one too thin to letterbox, or empty,
+    is one SlimsegError line, never OpenCV's own error."""
+    with slimseg.Masker.from_onnx(model, threads=1) as m:
+        frame = np.zeros(shape, np.uint8)
+        if shape == (1, 1, 3):
+            assert m.step(frame).mask.shape == (1, 1)
+        else:
+            with pytest.raises(SlimsegError, match="letterbox") as e:
+                m.step(frame)
+            assert "\n" not in str(e.value)

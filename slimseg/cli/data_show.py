@@ -9,6 +9,7 @@ from pathlib import Path
 from slimseg.cli.arg_types import count, multiple_of
 from slimseg.errors import SlimsegError
 from slimseg.utils.outputs import claim_file, refuse_inputs
+from slimseg.utils.text import printable
 
 _PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -22,6 +23,20 @@ def _is_png(path: Path) -> bool:
             return f.read(len(_PNG)) == _PNG
     except OSError:
         return False
+
+
+def _refuse_dataset_folders(out: str, cfg: object) -> None:
+    """``SlimsegError`` when ``out`` lies in a folder of the dataset, of either split (its
+    images, depth or sequence folders): it could replace a file the run does not read."""
+    target = Path(out).expanduser().resolve()
+    for name in ("train", "val"):
+        split = getattr(cfg, name)
+        if split is None:
+            continue
+        for folder in (split.images, split.depth, *split.sequences):
+            if folder is not None and Path(folder).resolve() in target.parents:
+                raise SlimsegError(f"--out {out} lies in the dataset's {name} folder {folder}: "
+                                   "write it elsewhere")  # fmt: skip
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -65,6 +80,13 @@ def run(args: argparse.Namespace) -> int:
             "image": [base.image_path(i) for i in range(len(base))],
         },
     )
+    _refuse_dataset_folders(args.out, cfg)
+    if base.report["path_outside_root"]:
+        ex = ", ".join(printable(e) for e in base.report.examples["path_outside_root"][:3])
+        raise SlimsegError(
+            f"{base.annotations_json}: path_outside_root: {base.report['path_outside_root']} "
+            f"image entries name a file outside the images folder ({ex}): fix their file_name"
+        )
     claim_file(args.out, "--out", _is_png, "PNG")  # a grid of an earlier run, not a user's file
     ds = ZooDataset(base, args.imgsz, augment, seed=args.seed)
     count = min(args.count, len(ds))

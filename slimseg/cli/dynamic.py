@@ -212,7 +212,7 @@ def _run(
         viz = RerunFrames(rerun, names, "slimseg dynamic", truth if truth.is_dir() else None)
         observers.append(viz)
     # the outputs complete or not at all; the recording kept only if they are
-    with kept_recording(viz), _staged_output(out, seq, bag_out, args, boxes) as stage:
+    with kept_recording(viz) as seal_rerun, _staged_output(out, seq, bag_out, args, boxes) as stage:
         config = ChainConfig(mode=args.mode, masking=masking, track=track,
                              keypoints=args.keypoints, camera=seq.camera.pinhole,
                              epipolar_depth=args.epipolar_depth)  # fmt: skip
@@ -220,6 +220,7 @@ def _run(
                               replay_fps=args.fps, observers=observers,
                               use_depth=not args.no_depth)  # fmt: skip
         restored = _restore(args, seq, stage, restore_mask) if args.restore else None
+        seal_rerun()  # the recording finished before --out is published
     timing = ", ".join(f"{k} {v:.1f} ms" for k, v in report.ms_per_frame.items())
     where = f"bag {out} on {MASK_TOPIC}" if bag_out else out / "masks"
     if boxes is not None:

@@ -25,6 +25,23 @@ from slimseg.models.registry import build_model
 from slimseg.utils.outputs import refuse_inputs
 
 MAX_EXPORT_SIDE = 4096  # a 4096 x 4096 trace already holds GBs of activations
+END2END_MASK_BYTES = 1 << 30  # the most one image's end-to-end masks [K, H/4, W/4] may take
+
+
+def check_end2end_size(max_det: int, imgsz: list[int]) -> None:
+    """``SlimsegError`` before anything is built when the end-to-end graph's masks (``max_det``
+    rows of float32 at prototype resolution, padded rows included) would take more than
+    :data:`END2END_MASK_BYTES` for one ``imgsz`` image (H, or H W)."""
+    stride = End2EndSettings.proto_stride
+    h, w = imgsz[0], imgsz[-1]
+    need = max_det * -(-h // stride) * -(-w // stride) * 4
+    if need > END2END_MASK_BYTES:
+        most = END2END_MASK_BYTES // (-(-h // stride) * -(-w // stride) * 4)
+        raise SlimsegError(
+            f"--end2end --max-det {max_det} --imgsz {h} {w}: the masks of one image would take "
+            f"{need / 2**30:.3g} GiB (limit {END2END_MASK_BYTES / 2**30:g} GiB); give --max-det "
+            f"{most} or less, or a smaller --imgsz"
+        )
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -117,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         )
     if not args.end2end and (args.conf is not None or args.iou is not None or args.max_det):
         raise SlimsegError("--conf, --iou and --max-det only apply with --end2end")
+    if args.end2end:
+        check_end2end_size(args.max_det or MAX_DET, args.imgsz)
     if args.int8 and not args.calib:
         raise SlimsegError("--int8 needs --calib DATA.yaml or --calib FOLDER of frames")
     if not args.int8 and (args.calib or args.calib_images or args.int8_val or args.int8_target):

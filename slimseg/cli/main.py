@@ -28,7 +28,7 @@ from slimseg.cli.commands import COMMANDS
 from slimseg.errors import SlimsegError
 from slimseg.utils.extras import is_train_module, train_hint
 from slimseg.utils.outputs import ALLOW_OUTSIDE_ENV, ALLOW_OUTSIDE_FLAG
-from slimseg.utils.text import printable
+from slimseg.utils.text import printable, printable_stdout
 from slimseg.version import __version__
 
 DEBUG_ENV = "SLIMSEG_DEBUG"  # set to 1: user errors raise with their traceback (bug reports)
@@ -160,7 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         parser.error(str(exc))
     try:
-        with cli_logging(), _outside_root(args.allow_outside_root):
+        with printable_stdout(), cli_logging(), _outside_root(args.allow_outside_root):
             return int(args.run(args) or 0)
     except SlimsegError as exc:
         if debug:

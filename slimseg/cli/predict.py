@@ -60,6 +60,7 @@ from slimseg.dynamic.modes import FPS, KEYPOINTS, MAX_KEYPOINTS
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
+from slimseg.utils.input_files import check_regular
 from slimseg.utils.outputs import claim_folder, refuse_inputs, unique_stems
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
@@ -174,6 +175,7 @@ def open_source(
         if not images:
             raise SlimsegError(f"{path}: no {'/'.join(IMAGE_SUFFIXES)} images in this folder")
         return _image_frames(images), len(images), False
+    check_regular(path, "--source")  # a FIFO named .mp4 or .png would block forever
     if path.suffix.lower() in IMAGE_SUFFIXES:
         return _image_frames([path]), 1, False
     cap = cv2.VideoCapture(str(path))

@@ -4,12 +4,13 @@ the run beside its usual outputs (the ``slimseg[viz]`` extra; docs/viewers.md)."
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slimseg.errors import SlimsegError
+from slimseg.utils.text import printable
 
 if TYPE_CHECKING:
     from slimseg.sequence.rerun_frames import RerunFrames
@@ -43,14 +44,20 @@ def rerun_path(args: argparse.Namespace, out: Path, inputs: dict) -> Path | None
 
 
 @contextmanager
-def kept_recording(viz: RerunFrames | None) -> Iterator[None]:
-    """The block writes the Rerun recording ``viz`` (None: no ``--rerun``): discarded when the
-    block raises, else finished and named on one printed line."""
+def kept_recording(viz: RerunFrames | None) -> Iterator[Callable[[], None]]:
+    """The block writes the Rerun recording ``viz`` (None: no ``--rerun``) and gets a
+    ``seal()`` to call as its last step, inside any staged output, so the recording is
+    finished into its stage before that output is published. Discarded when the block
+    raises (or it cannot be finished), else renamed into place and named on one printed
+    line."""
+    seal = viz.seal if viz is not None else (lambda: None)
     try:
-        yield
+        yield seal
+        if viz is not None:
+            path = viz.finish()  # sealed already when the block called seal()
     except BaseException:
         if viz is not None:
             viz.discard()
         raise
     if viz is not None:
-        print(f"Rerun recording of {viz.frames} frames: {viz.finish()}")
+        print(f"Rerun recording of {viz.frames} frames: {printable(path)}")

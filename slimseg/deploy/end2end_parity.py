@@ -9,6 +9,13 @@ its NMS inside (:mod:`slimseg.deploy.end2end_postprocess`). Each of the raw path
 least :data:`MATCH_FRACTION` of them must (:data:`FP16_MATCH_FRACTION` for an FP16 end-to-end
 graph against the FP32 one, ``tests/deploy/test_end2end.py``). A ``--dynamic`` export is also run at
 batch 2. ``export/CONTRACT.md`` states the numbers; this module is their one home.
+
+A model that gives fewer than :data:`MIN_INSTANCES` detections there (an untrained one gives
+none, and the gate would check nothing) is also gated through a twin of its end-to-end graph
+baked at :func:`low_gate_conf`, so NMS and the mask product are compared on at least
+:data:`MIN_INSTANCES` instances (``end2end_low/...`` in the report). Not for an FP16 export:
+an untrained model's scores (about 1e-4) lie below what FP16 resolves, and the two paths rank
+them differently.
 """
 
 from __future__ import annotations
@@ -29,6 +36,9 @@ SCORE_TOL = 0.02  # |score difference| of a matched pair
 MATCH_FRACTION = 0.95  # end-to-end vs the raw path, same precision
 FP16_MATCH_FRACTION = 0.90  # FP16 end-to-end vs FP32 end-to-end
 GATE_FRAMES = 4
+MIN_INSTANCES = 50  # detections the gate compares at least (an untrained model: at a low conf)
+LOW_CONF_FLOOR = 1e-6  # the lowest score the gate looks for them at
+LOW_CONF_MARGIN = 0.999  # the low conf sits this far below the MIN_INSTANCES-th best score
 
 
 def gate_frames(imgsz: tuple[int, int], count: int = GATE_FRAMES) -> list[np.ndarray]:
@@ -86,21 +96,42 @@ def match_predictions(refs: list[Prediction], gots: list[Prediction]) -> dict[st
     return {"detections": total, "matched": matched, "fraction": fraction, "extra": extra, **worst}
 
 
+def low_gate_conf(raw_path: Path, imgsz: tuple[int, int], iou: float, max_det: int) -> float:
+    """The conf at which the raw graph at ``raw_path`` gives :data:`MIN_INSTANCES` detections on
+    the gate frames (as many as ``max_det`` allows): just below the score of the
+    ``MIN_INSTANCES``-th best, found at :data:`LOW_CONF_FLOOR`. Greedy NMS keeps the same boxes
+    above a threshold whatever lies below it, so both paths agree at this conf as at any."""
+    ref = Predictor.from_path(raw_path, threads=1)
+    scores = np.sort(np.concatenate([ref.predict(f, LOW_CONF_FLOOR, iou, max_det).scores
+                                     for f in gate_frames(imgsz)]))[::-1]  # fmt: skip
+    if len(scores) == 0:
+        return LOW_CONF_FLOOR
+    return max(float(scores[min(MIN_INSTANCES, len(scores)) - 1]) * LOW_CONF_MARGIN,
+               LOW_CONF_FLOOR)  # fmt: skip
+
+
 def verify_end2end(
-    raw_path: Path, e2e_path: Path, imgsz: tuple[int, int], dynamic: bool
+    raw_path: Path,
+    e2e_path: Path,
+    imgsz: tuple[int, int],
+    dynamic: bool,
+    conf: float | None = None,
+    tag: str = "end2end",
 ) -> dict[str, float]:
     """Gate the end-to-end graph at ``e2e_path`` on the raw graph at ``raw_path`` (module
-    docstring); returns ``{"end2end/<key>": value}`` (``end2end_batch2/...`` too when
-    ``dynamic``); :class:`ExportParityError` when fewer than :data:`MATCH_FRACTION` match."""
+    docstring) at ``conf`` (None: :data:`GATE_CONF`, or the graph's own if higher); returns
+    ``{"<tag>/<key>": value}`` (``<tag>_batch2/...`` too when ``dynamic``);
+    :class:`ExportParityError` when fewer than :data:`MATCH_FRACTION` match."""
     ref = Predictor.from_path(raw_path, threads=1)
     got = Predictor.from_path(e2e_path, threads=1)
     frames = gate_frames(imgsz)
     e2e = got.metadata["end2end"]
-    conf, iou, k = max(GATE_CONF, float(e2e["conf"])), float(e2e["iou"]), int(e2e["max_det"])
+    iou, k = float(e2e["iou"]), int(e2e["max_det"])
+    conf = max(GATE_CONF, float(e2e["conf"])) if conf is None else conf
     refs = [ref.predict(f, conf, iou, k) for f in frames]
-    runs = {"end2end": [got.predict(f, conf, iou, k) for f in frames]}
+    runs = {tag: [got.predict(f, conf, iou, k) for f in frames]}
     if dynamic:
-        runs["end2end_batch2"] = got.predict_batch(frames, conf, iou, k)
+        runs[f"{tag}_batch2"] = got.predict_batch(frames, conf, iou, k)
     results: dict[str, float] = {}
     for tag, gots in runs.items():
         stats = match_predictions(refs, gots)

@@ -8,6 +8,8 @@ each key.
 from __future__ import annotations
 
 import json
+import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,6 +25,7 @@ from slimseg.dynamic.masking_settings import (
 from slimseg.errors import SlimsegError
 from slimseg.ops.letterbox import PAD_VALUE
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
+from slimseg.utils.text import printable
 from slimseg.version import __version__
 
 if TYPE_CHECKING:  # the runtime reads metadata without torch
@@ -196,7 +199,7 @@ def from_metadata_props(props: dict[str, str]) -> dict[str, Any]:
     for key, value in props.items():
         try:
             meta[key] = json.loads(value)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, RecursionError):  # RecursionError: nested past reason
             meta[key] = value
     return meta
 
@@ -231,7 +234,44 @@ def read_onnx_metadata(path: str | Path, props: dict[str, str]) -> dict[str, Any
             f"{path}: metadata 'mobility' must hold one number in [0, 1] per class of 'names' "
             f"({len(names)}), got {str(mobility)[:80]}; re-export it with slimseg export"
         )
+    _check_entries(path, meta)
     return meta
+
+
+# the end-to-end entry's keys: (kind, low, high, whether each bound is open)
+_END2END_KEYS = {
+    "conf": (float, 0.0, 1.0, (False, True)),
+    "iou": (float, 0.0, 1.0, (True, False)),
+    "max_det": (int, 1, 1 << 20, (False, False)),
+}
+
+
+def _check_entries(path: str | Path, meta: dict[str, Any]) -> None:
+    """:class:`SlimsegError` naming ``path`` and the field unless the ``end2end`` entry (when
+    present) holds exactly ``conf`` in [0, 1), ``iou`` in (0, 1] and a whole ``max_det`` >= 1,
+    and ``int8.target`` (when present) is a plain lower-case name."""
+    fix = "re-export it with slimseg export"
+    if "end2end" in meta:
+        e2e = meta["end2end"]
+        keys = sorted(e2e) if isinstance(e2e, dict) else None
+        if keys is None or not set(_END2END_KEYS) <= set(keys):
+            shown = printable(str(keys)[:80])
+            raise SlimsegError(f"{path}: metadata 'end2end' must be an object holding "
+                               f"{', '.join(_END2END_KEYS)}; got {shown}; {fix}")  # fmt: skip
+        for key, (kind, lo, hi, (open_lo, open_hi)) in _END2END_KEYS.items():
+            v = e2e[key]
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            ok = ok and (kind is float or float(v).is_integer())
+            ok = ok and (lo < v if open_lo else lo <= v) and (v < hi if open_hi else v <= hi)
+            if not ok:
+                raise SlimsegError(f"{path}: metadata end2end.{key} is {printable(repr(v)[:40])},"
+                                   f" not a {kind.__name__} in {lo}-{hi}; {fix}")  # fmt: skip
+    entry = meta.get("int8")
+    target = entry.get("target") if isinstance(entry, dict) else None
+    if target is not None and not (isinstance(target, str) and re.fullmatch(r"[a-z0-9_]{1,32}",
+                                                                             target)):  # fmt: skip
+        raise SlimsegError(f"{path}: metadata int8.target is {printable(repr(target)[:40])}, not "
+                           f"a runtime's name; {fix}")  # fmt: skip
 
 
 def with_end2end(meta: dict[str, Any], entry: dict[str, Any]) -> dict[str, Any]:
@@ -324,4 +364,5 @@ def precision_label(meta: dict[str, Any]) -> str:
     """``fp32``, ``fp16``, or ``int8, onnxruntime target`` / ``int8, tensorrt target``."""
     target = int8_target(meta)
     precision = str(meta.get("precision", "fp32"))
-    return f"{precision}, {target} target" if target else precision
+    label = f"{precision}, {target} target" if target else precision
+    return printable(label)  # both come from the file: escaped for the terminal

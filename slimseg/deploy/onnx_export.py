@@ -11,6 +11,7 @@ instances of ``slimseg predict``'s raw path (:mod:`slimseg.deploy.end2end_parity
 
 from __future__ import annotations
 
+import copy
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -20,10 +21,17 @@ import torch
 from torch import nn
 
 from slimseg.deploy.end2end_graph import End2EndSettings, append_end2end
-from slimseg.deploy.end2end_parity import verify_end2end
+from slimseg.deploy.end2end_parity import (
+    GATE_CONF,
+    MIN_INSTANCES,
+    gate_frames,
+    low_gate_conf,
+    verify_end2end,
+)
 from slimseg.deploy.metadata import build_metadata, with_end2end
 from slimseg.deploy.onnx_io import publish, stage, staging_dir
 from slimseg.deploy.parity import verify_parity
+from slimseg.deploy.predictor import Predictor
 from slimseg.errors import SlimsegError
 from slimseg.models.base import ZooModel
 
@@ -139,6 +147,28 @@ def _toposort(graph: onnx.GraphProto) -> None:
     graph.node.extend(copies)
 
 
+def _low_conf_twin(
+    raw_path: Path, proto: onnx.ModelProto, meta: dict, settings: End2EndSettings,
+    shape: tuple, imgsz: tuple[int, int],
+) -> tuple[Path, float] | None:  # fmt: skip
+    """When the raw graph gives fewer than ``MIN_INSTANCES`` detections at the gate's conf:
+    a twin of the end-to-end graph baked at :func:`low_gate_conf`, staged beside the raw one,
+    and that conf (None otherwise)."""
+    nm, batch, anchors = shape
+    conf = max(GATE_CONF, settings.conf)
+    ref = Predictor.from_path(raw_path, threads=1)
+    found = sum(len(ref.predict(f, conf, settings.iou, settings.max_det).scores)
+                for f in gate_frames(imgsz))  # fmt: skip
+    if found >= MIN_INSTANCES:
+        return None
+    low = min(low_gate_conf(raw_path, imgsz, settings.iou, settings.max_det), settings.conf)
+    twin = replace(settings, conf=low)
+    nc = len(meta["names"])
+    graph = append_end2end(copy.deepcopy(proto), nc, nm, twin, batch, anchors)
+    return stage(graph, with_end2end(meta, twin.as_dict()), raw_path.parent,
+                 f"low-{raw_path.name}"), low  # fmt: skip
+
+
 def check_end2end_model(model: ZooModel) -> None:
     """``SlimsegError`` unless ``model`` can take the end-to-end sub-graph: a YOLOv8 detector
     or segmenter (Darknet YOLOv3 rows and MSNET class maps have no such graph yet)."""
@@ -195,10 +225,20 @@ def export_onnx(
             batch = "batch" if dynamic else 1
             end2end = replace(end2end, proto_stride=int(meta.get("proto_stride", 4)))
             anchors = None if dynamic else sum((h // s) * (w // s) for s in meta["strides"])
+            low = (
+                None
+                if half
+                else _low_conf_twin(  # FP16 cannot resolve scores near 1e-4
+                    raw_path, proto, meta, end2end, (nm, batch, anchors), imgsz
+                )
+            )
             proto = append_end2end(proto, model.num_classes, nm, end2end, batch, anchors)
             meta = with_end2end(meta, end2end.as_dict())
             candidate = stage(proto, meta, tmp_dir, out.name)
             parity.update(verify_end2end(raw_path, candidate, imgsz, dynamic))
+            if low is not None:  # few detections at the gate's conf: compare the twin too
+                twin, conf = low
+                parity.update(verify_end2end(raw_path, twin, imgsz, dynamic, conf, "end2end_low"))
         sidecar = publish(candidate, meta, out)
     ops = sorted({n.op_type for n in proto.graph.node})
     return ExportReport(out, sidecar, precision, opset, len(proto.graph.node), ops, parity)

@@ -66,6 +66,7 @@ FLOOR_PX = 1.0  # lowest epipolar threshold (px)
 K_MAD = 3.0  # threshold = median + K_MAD * sigma_MAD of the background distances
 RANSAC_PX = 1.0  # findFundamentalMat reprojection threshold
 H_RATIO = 0.9  # homography wins when it explains >= this fraction of F's background inliers
+ORB_MIN_SIDE = 2 * 31 + 1  # pixels: ORB (edge threshold 31) finds no keypoint in a smaller frame
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,10 @@ def orb_features(
     """
     gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
     m = None if mask is None else (np.asarray(mask) > 0).astype(np.uint8)
-    kps, desc = cv2.ORB_create(nfeatures=count).detectAndCompute(gray, m)
+    if min(gray.shape[:2]) < ORB_MIN_SIDE:  # no keypoint fits; OpenCV's pyramid would raise
+        kps, desc = (), None
+    else:
+        kps, desc = cv2.ORB_create(nfeatures=count).detectAndCompute(gray, m)
     pts = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
     if desc is None:
         desc = np.zeros((0, 32), np.uint8)

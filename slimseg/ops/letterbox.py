@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from slimseg.errors import SlimsegError
+
 PAD_VALUE = 114
 
 
@@ -47,10 +49,15 @@ def letterbox_params(h: int, w: int, out_h: int, out_w: int | None = None) -> Le
     """Compute the letterbox geometry for a ``h × w`` frame and an ``out_h × out_w`` input."""
     out_w = out_h if out_w is None else out_w
     if h <= 0 or w <= 0:
-        raise ValueError(f"cannot letterbox an empty frame of size {h}x{w}")
+        raise SlimsegError(f"cannot letterbox an empty frame of {w}x{h} pixels: give an image")
     scale = min(out_h / h, out_w / w)
     new_w = min(out_w, math.floor(w * scale + 0.5))
     new_h = min(out_h, math.floor(h * scale + 0.5))
+    if new_w < 1 or new_h < 1:  # a 1 x 5000 frame scaled to 640 would be 0 pixels high
+        raise SlimsegError(
+            f"a frame of {w}x{h} pixels is too thin to letterbox to {out_w}x{out_h} (it would "
+            f"be {new_w}x{new_h}): give a frame whose sides differ less"
+        )
     return LetterboxParams(
         scale, new_w, new_h, (out_w - new_w) // 2, (out_h - new_h) // 2, out_w, out_h
     )

@@ -27,7 +27,9 @@ The file is written under a temporary name beside ``FILE.rrd`` and renamed into 
 
 from __future__ import annotations
 
+import logging
 import os
+import sys
 from pathlib import Path
 
 import cv2
@@ -40,7 +42,11 @@ from slimseg.dynamic.frame_masker import MaskedFrame
 from slimseg.errors import SlimsegError
 from slimseg.sequence.mask_bag import object_labels
 from slimseg.utils.atomic import stage_name
+from slimseg.utils.decode_boundary import reason
 from slimseg.utils.outputs import claim_file
+from slimseg.utils.text import printable
+
+log = logging.getLogger(__name__)
 
 VIZ_HINT = "pip install 'slimseg[viz]'"
 RRD_MAGIC = b"RRF"  # what every .rrd begins with (RRF0, RRF2, ...)
@@ -80,28 +86,62 @@ def check_rrd_path(path: str | Path, option: str = "--rerun") -> Path:
 
 
 class RerunRecording:
-    """A ``RecordingStream`` saving to a staged name; :meth:`finish` flushes it and renames it
-    to ``path``, :meth:`discard` drops it."""
+    """A ``RecordingStream`` saving to a staged name: :meth:`seal` flushes and closes it in its
+    stage (refused in one line, the stage removed, when it cannot be finished: a full disk, a
+    read-only folder), :meth:`finish` seals it and renames it to ``path``, :meth:`discard`
+    drops it."""
 
     def __init__(self, path: Path, application: str) -> None:
+        plain_logs()
         import rerun as rr
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stage = self.path.with_name(stage_name(self.path.name))
         self.rr = rr
-        self.rec = rr.RecordingStream(application_id=application)
-        self.rec.save(str(self._stage))
+        self.sealed = False
+        try:
+            self.rec = rr.RecordingStream(application_id=application)
+            self.rec.save(str(self._stage))
+        except Exception as e:  # rerun's own errors (a RuntimeError naming the OS error)
+            self._stage.unlink(missing_ok=True)
+            raise SlimsegError(f"--rerun {printable(self.path)}: cannot write the recording: "
+                               f"{reason(e)}") from None  # fmt: skip
+
+    def seal(self) -> None:
+        """Everything logged flushed into the stage and the stream closed (once)."""
+        if self.sealed:
+            return
+        try:
+            self.rec.flush()
+            self.rec.disconnect()
+            if self._stage.stat().st_size == 0:
+                raise OSError("nothing was written")
+        except Exception as e:  # rerun's file writer failing (disk full), or no file at all
+            self._stage.unlink(missing_ok=True)
+            raise SlimsegError(f"--rerun {printable(self.path)}: the recording could not be "
+                               f"finished: {reason(e)}") from None  # fmt: skip
+        self.sealed = True
 
     def finish(self) -> Path:
-        self.rec.flush()
-        self.rec.disconnect()
+        self.seal()
         os.replace(self._stage, self.path)
         return self.path
 
     def discard(self) -> None:
-        self.rec.disconnect()
+        try:
+            self.rec.disconnect()
+        except Exception:  # the stream failed already: nothing left to close
+            log.debug("closing the Rerun stream of %s failed", self.path, exc_info=True)
         self._stage.unlink(missing_ok=True)
+
+
+def plain_logs() -> None:
+    """Keep rerun's own log lines free of colour codes when stderr is not a terminal (its
+    logger honours ``NO_COLOR`` / ``CLICOLOR``): set before rerun is first imported."""
+    if not sys.stderr.isatty():
+        os.environ.setdefault("NO_COLOR", "1")
+        os.environ.setdefault("CLICOLOR", "0")
 
 
 def annotation_context(rr: object, names: list[str]) -> object:

@@ -22,7 +22,7 @@ import hashlib
 import json
 import os
 import stat
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -89,8 +89,7 @@ def record(path: Path) -> Record | None:
     if not stat.S_ISDIR(st.st_mode):
         return None
     total = 0
-    for root, dirs, files in os.walk(path):  # os.walk does not follow symlinked folders
-        dirs.sort()
+    for root, dirs, files in _walk(path):
         rel = os.path.relpath(root, path)
         for name in sorted(files + [d for d in dirs if os.path.islink(os.path.join(root, d))]):
             inner = record(Path(root, name))
@@ -100,6 +99,31 @@ def record(path: Path) -> Record | None:
             total += inner.size
         h.update(f"{rel}/\0dir\n".encode())
     return Record("dir", total, h.hexdigest())
+
+
+def _walk(top: Path) -> Iterator[tuple[str, list[str], list[str]]]:
+    """``os.walk(top)`` top-down with each folder's subfolders sorted, without recursion (a
+    folder nested 1,200 deep ran Python 3.11's recursive ``os.walk`` out of stack); symlinked
+    folders are listed, not entered."""
+    stack = [str(top)]
+    while stack:
+        root = stack.pop()
+        try:
+            with os.scandir(root) as it:
+                entries = list(it)
+        except OSError:  # as os.walk: a folder that cannot be listed is passed over
+            continue
+        dirs, files = [], []
+        for e in entries:
+            try:
+                is_dir = e.is_dir()
+            except OSError:
+                is_dir = False
+            (dirs if is_dir else files).append(e.name)
+        dirs.sort()
+        yield root, dirs, files
+        stack.extend(os.path.join(root, d) for d in reversed(dirs)
+                     if not os.path.islink(os.path.join(root, d)))  # fmt: skip
 
 
 def read_entries(folder: Path) -> Entries | None:

@@ -171,3 +171,24 @@ def test_without_rerun_sdk_the_option_names_the_extra(env: Env, tmp_path: Path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "pip install 'slimseg[viz]'" in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("fails", ["save", "flush"])
+def test_a_recording_that_cannot_be_finished_fails_the_run_whole(
+    env: Env, tmp_path: Path, capsys, monkeypatch, fails: str
+) -> None:
+    """A read-only folder (``save`` fails) or a full disk (``flush`` fails, rerun's file
+    writer gone): one line, exit 2, ``--out`` never published, no staged ``.rrd`` left."""
+    import rerun as rr
+
+    def broken(self, *args, **kwargs) -> None:
+        raise RuntimeError("\x1b[31mFile-writer thread shut down prematurely\x1b[0m")
+
+    monkeypatch.setattr(rr.RecordingStream, fails, broken)
+    cmd = ["dynamic", "--sequence", str(env.seq), "--out", str(tmp_path / "out"), "--rerun",
+           str(tmp_path / "r.rrd"), *env.common()]  # fmt: skip
+    assert main(cmd) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--rerun" in err and "\x1b" not in err, err
+    assert ("could not be finished" if fails == "flush" else "cannot write") in err
+    assert list(tmp_path.iterdir()) == []

@@ -156,4 +156,27 @@ def test_data_show_never_writes_over_an_input_nor_reads_outside(tmp_path: Path, 
     capfd.readouterr()
     assert main([*show, "--out", str(tmp_path / "grid.png")]) == 2  # its one image was outside
     err = capfd.readouterr().err
-    assert "path_outside_root" in err and "no usable image" in err, err
+    assert "path_outside_root" in err and "outside the images folder" in err, err
+
+
+def test_a_folder_nested_1200_deep_is_recorded_without_recursion(tmp_path: Path) -> None:
+    """Python 3.11's os.walk recursed once per level: RecursionError past ~1,000 (issue #62).
+    The tree is built and removed one level at a time (os.makedirs and shutil.rmtree, pytest's
+    clean-up of tmp_path included, recurse too), removed whatever the test's outcome."""
+    deep = tmp_path / "deep"
+    levels = [str(deep)]
+    for _ in range(1200):
+        levels.append(os.path.join(levels[-1], "a"))
+    try:
+        for level in levels:
+            os.mkdir(level)
+        (deep / "a" / "f.txt").write_text("x")
+        first = record(deep)
+        assert first is not None and first.kind == "dir" and first.size == 1
+        (deep / "a" / "f.txt").write_text("y")
+        assert record(deep).sha256 != first.sha256
+    finally:
+        (deep / "a" / "f.txt").unlink(missing_ok=True)
+        for level in reversed(levels):
+            if os.path.isdir(level):
+                os.rmdir(level)

@@ -8,17 +8,18 @@ calibration ``k``; a pose ``header.stamp.sec / .nanosec`` and ``pose.position /
 
 A protobuf message keeps its bytes fields as ``bytes`` and its time as
 ``google.protobuf.Timestamp`` (``seconds, nanos``); the JSON encoding holds bytes as base64
-text and time as ``{"sec", "nsec"}``. Both are read here, nowhere else.
+text and time as ``{"sec", "nsec"}``. Both are checked field by field against the schema
+(:mod:`slimseg.data.bags.foxglove_fields`) before a value is used, and shaped here.
 """
 
 from __future__ import annotations
 
-import base64
 from types import SimpleNamespace
 
 import numpy as np
 
-from slimseg.data.bags.reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, TF, Header
+from slimseg.data.bags.foxglove_fields import SCHEMAS, read
+from slimseg.data.bags.header import CAMERA_INFO, COMPRESSED, IMAGE, NS_PER_S, POSE, TF, Header
 
 FOXGLOVE_ROLES = {
     "foxglove.RawImage": IMAGE,
@@ -28,86 +29,58 @@ FOXGLOVE_ROLES = {
     "foxglove.FrameTransform": TF,
     "foxglove.FrameTransforms": TF,
 }
-
-
-def _get(msg: object, name: str, default: object = None) -> object:
-    """Field ``name`` of a protobuf message or a JSON object."""
-    if isinstance(msg, dict):
-        return msg.get(name, default)
-    return getattr(msg, name, default)
-
-
-def _stamp_ns(msg: object) -> int:
-    t = _get(msg, "timestamp")
-    if t is None:
-        raise ValueError("message has no timestamp")
-    if isinstance(t, dict):
-        sec, nsec = int(t.get("sec", 0)), int(t.get("nsec", 0))
-    else:
-        sec, nsec = int(t.seconds), int(t.nanos)
-    if not 0 <= nsec < 1_000_000_000:
-        raise ValueError(f"timestamp nanoseconds {nsec} out of range")
-    return sec * 1_000_000_000 + nsec
+_STAMPED = {"timestamp": SCHEMAS["foxglove.RawImage"]["timestamp"], "frame_id": "string"}
 
 
 def foxglove_header(msg: object) -> Header:
-    """The stamp and ``frame_id`` of a Foxglove message (``ValueError`` without a stamp)."""
-    return Header(_stamp_ns(msg), str(_get(msg, "frame_id", "") or ""))
-
-
-def _bytes(value: object) -> np.ndarray:
-    raw = base64.b64decode(value) if isinstance(value, str) else bytes(value or b"")
-    return np.frombuffer(raw, np.uint8)
+    """The stamp and ``frame_id`` of a Foxglove image message, checked (``ValueError``)."""
+    v = read(msg, _STAMPED, "message")
+    return Header(v["timestamp"], v["frame_id"])
 
 
 def _ros_header(ns: int, frame_id: str) -> SimpleNamespace:
-    sec, nsec = divmod(ns, 1_000_000_000)
+    sec, nsec = divmod(ns, NS_PER_S)
     return SimpleNamespace(stamp=SimpleNamespace(sec=sec, nanosec=nsec), frame_id=frame_id)
 
 
-def _vec(v: object, keys: str) -> SimpleNamespace:
-    return SimpleNamespace(**{k: float(_get(v, k, 0.0) or 0.0) for k in keys})
+def _ns(values: dict) -> SimpleNamespace:
+    return SimpleNamespace(**values)
 
 
-def _transform(msg: object) -> SimpleNamespace:
+def _transform(t: dict) -> SimpleNamespace:
     return SimpleNamespace(
-        header=_ros_header(_stamp_ns(msg), str(_get(msg, "parent_frame_id", ""))),
-        child_frame_id=str(_get(msg, "child_frame_id", "")),
-        transform=SimpleNamespace(
-            translation=_vec(_get(msg, "translation"), "xyz"),
-            rotation=_vec(_get(msg, "rotation"), "xyzw"),
-        ),
+        header=_ros_header(t["timestamp"], t["parent_frame_id"]),
+        child_frame_id=t["child_frame_id"],
+        transform=SimpleNamespace(translation=_ns(t["translation"]), rotation=_ns(t["rotation"])),
     )
 
 
 def foxglove_view(schema: str, msg: object) -> object:
-    """``msg`` (of Foxglove ``schema``) in the shape of the ROS 2 message of its role (see the
-    module docstring); other schemas are returned as they are."""
+    """``msg`` (of Foxglove ``schema``) checked field by field (:func:`read`) and given the
+    shape of the ROS 2 message of its role (see the module docstring); ``ValueError`` naming a
+    field that is not what the schema declares."""
+    if schema not in SCHEMAS:
+        return msg
+    v = read(msg, SCHEMAS[schema], schema.removeprefix("foxglove."))
     if schema == "foxglove.RawImage":
         return SimpleNamespace(
-            height=int(_get(msg, "height", 0)), width=int(_get(msg, "width", 0)),
-            encoding=str(_get(msg, "encoding", "")), step=int(_get(msg, "step", 0)),
-            is_bigendian=0, data=_bytes(_get(msg, "data")),
+            height=v["height"], width=v["width"], encoding=v["encoding"], step=v["step"],
+            is_bigendian=0, data=np.frombuffer(v["data"], np.uint8),
         )  # fmt: skip
     if schema == "foxglove.CompressedImage":
-        return SimpleNamespace(format=str(_get(msg, "format", "")), data=_bytes(_get(msg, "data")))
+        return SimpleNamespace(format=v["format"], data=np.frombuffer(v["data"], np.uint8))
     if schema == "foxglove.CameraCalibration":
-        k = [float(v) for v in _get(msg, "K", None) or [0.0] * 9]
         return SimpleNamespace(
-            width=int(_get(msg, "width", 0)), height=int(_get(msg, "height", 0)),
-            distortion_model=str(_get(msg, "distortion_model", "")), k=k, K=k,
+            width=v["width"], height=v["height"], distortion_model=v["distortion_model"],
+            k=v["K"], K=v["K"],
         )  # fmt: skip
     if schema == "foxglove.PoseInFrame":
-        pose = _get(msg, "pose")
         return SimpleNamespace(
-            header=_ros_header(_stamp_ns(msg), str(_get(msg, "frame_id", ""))),
+            header=_ros_header(v["timestamp"], v["frame_id"]),
             pose=SimpleNamespace(
-                position=_vec(_get(pose, "position"), "xyz"),
-                orientation=_vec(_get(pose, "orientation"), "xyzw"),
+                position=_ns(v["pose"]["position"]), orientation=_ns(v["pose"]["orientation"])
             ),
         )
     if schema == "foxglove.FrameTransform":
-        return SimpleNamespace(transforms=[_transform(msg)])
-    if schema == "foxglove.FrameTransforms":
-        return SimpleNamespace(transforms=[_transform(t) for t in _get(msg, "transforms", [])])
-    return msg
+        return SimpleNamespace(transforms=[_transform(v)])
+    return SimpleNamespace(transforms=[_transform(t) for t in v["transforms"]])

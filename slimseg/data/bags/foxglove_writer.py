@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slimseg.data.bags.header import check_stamp
 from slimseg.data.bags.reader import INSTALL_HINT, Header
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name
@@ -42,6 +43,7 @@ class FoxgloveWriter:
 
     def __init__(self, path: str | Path, option: str = "--out", compress: bool = True) -> None:
         self.path = Path(path)
+        self._option = option
         if os.path.lexists(self.path):
             raise SlimsegError(f"{option} {self.path} exists: a bag is never overwritten")
         require_foxglove(self.path)
@@ -74,6 +76,7 @@ class FoxgloveWriter:
             shutil.rmtree(self._stage, ignore_errors=True)
 
     def _write(self, topic: str, header: Header, msg: object) -> None:
+        check_stamp(header.ns, "foxglove", f"{self._option} {self.path}")
         msg.timestamp.FromNanoseconds(header.ns)
         self._writer.write_message(topic, msg, log_time=header.ns, publish_time=header.ns)
 
@@ -121,6 +124,7 @@ class FoxgloveWriter:
         from foxglove_schemas_protobuf.Point2_pb2 import Point2
         from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 
+        check_stamp(header.ns, "foxglove", f"{self._option} {self.path}")
         msg = ImageAnnotations()
         for (x0, y0, x1, y1), label, rgba in zip(boxes.tolist(), labels, colours, strict=True):
             colour = Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])

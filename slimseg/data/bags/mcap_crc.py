@@ -23,6 +23,7 @@ import zlib
 from pathlib import Path
 from typing import BinaryIO
 
+from slimseg.data.bags.header import DAMAGED
 from slimseg.errors import SlimsegError
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -30,6 +31,7 @@ _CHUNK, _DATA_END, _FOOTER = 0x06, 0x0F, 0x02
 _FOOTER_LEN = 1 + 8 + 20  # opcode, length, body
 _DATA_END_LEN = 1 + 8 + 4
 _BLOCK = 1 << 20
+MAX_CHUNK = 1 << 30  # bytes a chunk may declare uncompressed: more is refused, not allocated
 
 
 def _crc(f: BinaryIO, start: int, size: int) -> int:
@@ -57,7 +59,7 @@ def _data_end(f: BinaryIO, size: int) -> int | None:
     summary_start = struct.unpack_from("<Q", footer, 9)[0]
     at = summary_start if summary_start else size - len(MAGIC) - _FOOTER_LEN
     at -= _DATA_END_LEN
-    if at < len(MAGIC):
+    if not len(MAGIC) <= at <= size - len(MAGIC) - _FOOTER_LEN - _DATA_END_LEN:
         return None
     f.seek(at)
     head = f.read(9)
@@ -66,9 +68,13 @@ def _data_end(f: BinaryIO, size: int) -> int | None:
     return at
 
 
-def check_data_crc(path: str | Path) -> None:
-    """``SlimsegError`` naming ``path`` when its recorded data-section CRC (non-zero) differs
-    from the bytes' own; a file without one, or not a finished MCAP, passes unchecked."""
+def check_mcap(path: str | Path) -> None:
+    """Every checksum a finished MCAP file carries, before any reader sees it: its data
+    section's CRC (where recorded), each chunk's (where recorded; the chunk decompressed with
+    a compression the spec names, to the size it declares) and its summary section's. A
+    chunk that cannot be decompressed is refused, never skipped. ``SlimsegError`` naming
+    ``path`` and what does not match; a file that is not a finished MCAP passes unchecked
+    (the reader refuses it as truncated)."""
     path = Path(path)
     with path.open("rb") as f:
         size = os.fstat(f.fileno()).st_size
@@ -78,10 +84,90 @@ def check_data_crc(path: str | Path) -> None:
         f.seek(at + 9)
         recorded = struct.unpack("<I", f.read(4))[0]
         if recorded and _crc(f, 0, at) != recorded:
-            raise SlimsegError(
-                f"cannot read bag {path}: its data-section checksum (CRC-32) does not match "
-                "its bytes: the file is damaged; copy it again from its source"
-            )
+            _refuse(path, "its data-section checksum (CRC-32) does not match its bytes")
+        pos = _first_record(f, path)
+        while pos < at:
+            f.seek(pos)
+            head = f.read(9)
+            if len(head) < 9:
+                _refuse(path, f"the record at byte {pos} is cut off")
+            op, length = struct.unpack("<BQ", head)
+            if pos + 9 + length > at:
+                _refuse(path, f"the record at byte {pos} runs past its data section")
+            if op == _CHUNK:
+                _check_chunk(f, path, pos + 9, length)
+            pos += 9 + length
+        _check_summary(f, path, size)
+
+
+def _refuse(path: Path, why: str) -> None:
+    raise SlimsegError(f"cannot read bag {path}: {why} ({DAMAGED})")
+
+
+def _first_record(f: BinaryIO, path: Path) -> int:
+    """Offset of the record after the magic and the Header record."""
+    f.seek(0)
+    head = f.read(len(MAGIC) + 9)
+    if len(head) < len(MAGIC) + 9 or head[: len(MAGIC)] != MAGIC or head[len(MAGIC)] != 0x01:
+        _refuse(path, "it does not start with an MCAP magic and header")
+    return len(MAGIC) + 9 + struct.unpack_from("<Q", head, len(MAGIC) + 1)[0]
+
+
+def _check_chunk(f: BinaryIO, path: Path, body: int, length: int) -> None:
+    f.seek(body + 16)
+    fixed = f.read(16)
+    if len(fixed) < 16:
+        _refuse(path, f"the chunk at byte {body - 9} is cut off")
+    usize, crc, clen = struct.unpack("<QII", fixed)
+    if clen > 64 or 16 + 16 + clen + 8 > length:
+        _refuse(path, f"the chunk at byte {body - 9} has a malformed compression field")
+    compression = f.read(clen).decode("ascii", "replace")
+    clen_records = struct.unpack("<Q", f.read(8))[0]
+    if 32 + clen + 8 + clen_records != length:
+        _refuse(path, f"the chunk at byte {body - 9} does not hold the bytes it declares")
+    if compression not in _DECOMPRESS:
+        _refuse(path, f"the chunk at byte {body - 9} is compressed with {compression!r}, "
+                "which MCAP does not define (zstd, lz4 or none)")  # fmt: skip
+    if usize > MAX_CHUNK:
+        _refuse(path, f"the chunk at byte {body - 9} declares {usize} bytes uncompressed, "
+                f"more than {MAX_CHUNK}")  # fmt: skip
+    data = f.read(clen_records)
+    try:
+        raw = _DECOMPRESS[compression](data, usize)
+    except Exception:  # zstd's / lz4's errors on damaged bytes, all of them
+        _refuse(path, f"the {compression} chunk at byte {body - 9} does not decompress")
+    if len(raw) != usize:
+        _refuse(path, f"the chunk at byte {body - 9} decompresses to {len(raw)} bytes, "
+                f"not the {usize} it declares")  # fmt: skip
+    if crc and zlib.crc32(raw) != crc:
+        _refuse(path, f"the chunk at byte {body - 9} does not match its checksum (CRC-32)")
+
+
+def _check_summary(f: BinaryIO, path: Path, size: int) -> None:
+    f.seek(size - len(MAGIC) - _FOOTER_LEN)
+    footer = f.read(_FOOTER_LEN)
+    summary_start, _, crc = struct.unpack_from("<QQI", footer, 9)
+    if not summary_start or not crc:
+        return
+    # the CRC covers the summary section through the footer's summary_offset_start field
+    end = size - len(MAGIC) - 4
+    if summary_start > end or _crc(f, summary_start, end - summary_start) != crc:
+        _refuse(path, "its summary section does not match its checksum (CRC-32)")
+
+
+def _zstd(data: bytes, size: int) -> bytes:
+    import zstandard
+
+    return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+
+
+def _lz4(data: bytes, size: int) -> bytes:
+    import lz4.frame
+
+    return lz4.frame.decompress(data)
+
+
+_DECOMPRESS = {"": lambda data, size: data, "zstd": _zstd, "lz4": _lz4}
 
 
 def seal(path: str | Path) -> None:

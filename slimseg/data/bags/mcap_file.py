@@ -19,8 +19,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from slimseg.data.bags.foxglove_fields import check_descriptor
 from slimseg.data.bags.foxglove_messages import FOXGLOVE_ROLES, foxglove_header, foxglove_view
-from slimseg.data.bags.reader import (
+from slimseg.data.bags.header import (
     CAMERA_INFO,
     COMPRESSED,
     DAMAGED,
@@ -62,6 +63,7 @@ class McapChannel:
     message_encoding: str
     schema_data: bytes
     role: str | None
+    count: int | None = None  # messages the summary's statistics list (None: no statistics)
 
     @property
     def kind(self) -> str:
@@ -104,8 +106,11 @@ def mcap_channels(path: Path) -> tuple[str, list[McapChannel]] | None:
                 summary = reader.get_summary()
             except Exception:  # no footer (a recording cut short): scan the records
                 summary = None
+            counts = None
             if summary is not None:
                 schemas, channels = summary.schemas, summary.channels
+                if summary.statistics is not None:
+                    counts = summary.statistics.channel_message_counts
             else:  # no summary section: the schemas and channels are among the records
                 f.seek(0)
                 schemas, channels = {}, {}
@@ -124,7 +129,8 @@ def mcap_channels(path: Path) -> tuple[str, list[McapChannel]] | None:
         s = schemas.get(c.schema_id)
         name, enc, data = (s.name, s.encoding, s.data) if s is not None else ("", "", b"")
         out.append(McapChannel(c.id, c.topic, name, enc, c.message_encoding, data,
-                               _role(name, enc, c.message_encoding)))  # fmt: skip
+                               _role(name, enc, c.message_encoding),
+                               None if counts is None else counts.get(c.id, 0)))  # fmt: skip
     return profile, sorted(out, key=lambda c: c.id)
 
 
@@ -158,7 +164,7 @@ class McapFile:
         for c in channels:
             self._by_topic.setdefault(c.topic, c)
         self._file = path.open("rb")
-        self._reader = make_reader(self._file)
+        self._reader = make_reader(self._file, validate_crcs=True)
         self._stores: dict[str, object] = {}
         self._protobuf: dict[str, type] = {}
 
@@ -221,15 +227,14 @@ class McapFile:
         if c.schema not in self._protobuf:
             self._protobuf[c.schema] = _protobuf_class(c)
         msg = self._protobuf[c.schema]()
-        try:
-            msg.ParseFromString(raw)
-        except Exception as e:  # protobuf's DecodeError (its own base class): one kind here
-            raise ValueError(f"{c.schema} message does not parse: {e}") from None
+        msg.ParseFromString(raw)  # protobuf's DecodeError: the caller's boundary names it
         return msg
 
 
 def _protobuf_class(c: McapChannel) -> type:
-    """The message class of ``c``'s schema, built from its embedded ``FileDescriptorSet``."""
+    """The message class of ``c``'s schema, built from its embedded ``FileDescriptorSet`` and
+    checked to define the fields slimseg reads with their types (``ValueError`` otherwise;
+    protobuf's own errors on a set that does not build are left to the caller's boundary)."""
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
     files = list(descriptor_pb2.FileDescriptorSet.FromString(c.schema_data).file)
@@ -241,4 +246,9 @@ def _protobuf_class(c: McapChannel) -> type:
             pool.Add(f)
             added.add(f.name)
             files.remove(f)
-    return message_factory.GetMessageClass(pool.FindMessageTypeByName(c.schema))
+    try:
+        desc = pool.FindMessageTypeByName(c.schema)
+    except KeyError:
+        raise ValueError(f"its FileDescriptorSet does not define {c.schema}") from None
+    check_descriptor(desc)
+    return message_factory.GetMessageClass(desc)

@@ -13,27 +13,32 @@ the underlying reader (a truncated or corrupt file, an unknown storage) becomes 
 from __future__ import annotations
 
 import logging
-import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
-from slimseg.data.bags.mcap_crc import check_data_crc
+from slimseg.data.bags.header import (  # noqa: F401 (the names the readers' users import)
+    CAMERA_INFO,
+    COMPRESSED,
+    DAMAGED,
+    IMAGE,
+    ODOMETRY,
+    POSE,
+    TF,
+    Header,
+    header_of,
+    stamp_ns,
+)
+from slimseg.data.bags.mcap_crc import check_mcap
 from slimseg.errors import SlimsegError
+from slimseg.utils.decode_boundary import decoding, reason
 from slimseg.utils.extras import install_command
 from slimseg.utils.input_files import check_regular
+from slimseg.utils.text import printable
 
 log = logging.getLogger(__name__)
 
 BAG_SUFFIXES = (".bag", ".mcap")
 INSTALL_HINT = install_command("ros")
-DAMAGED = "a truncated or damaged recording: record it again, or repair it with its reindex tool"
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED = "sensor_msgs/msg/CompressedImage"
-CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-POSE = "geometry_msgs/msg/PoseStamped"
-ODOMETRY = "nav_msgs/msg/Odometry"
-TF = "tf2_msgs/msg/TFMessage"
 
 
 def is_bag(path: str | Path) -> bool:
@@ -54,49 +59,6 @@ def require_rosbags(path: str | Path) -> None:
         ) from None
 
 
-@dataclass(frozen=True)
-class Header:
-    """A message's ``std_msgs/Header``: stamp (integer ns and seconds) and ``frame_id``."""
-
-    ns: int
-    frame_id: str
-
-    @property
-    def seconds(self) -> float:
-        """The stamp in seconds, parsed from its decimal form (the same float a TUM list's
-        ``sec.nsec`` text gives)."""
-        return float(f"{self.ns // 1_000_000_000}.{self.ns % 1_000_000_000:09d}")
-
-
-def stamp_ns(seconds: float) -> int:
-    """A TUM stamp (s, microseconds as written in ``rgb.txt``) as integer nanoseconds, through
-    its 6-decimal text so no float rounding creeps in."""
-    whole, _, frac = f"{seconds:.6f}".partition(".")
-    sign = -1 if whole.startswith("-") else 1
-    return int(whole) * 1_000_000_000 + sign * int(frac) * 1000
-
-
-def header_of(raw: bytes | memoryview, cdr: bool) -> Header:
-    """The leading ``Header`` of a serialized message (ROS 1: ``seq, sec, nsec, frame_id``;
-    CDR: 4-byte encapsulation, ``sec, nanosec, frame_id``). Raises ``ValueError`` when the bytes
-    are too short to hold one."""
-    buf = memoryview(raw)
-    if cdr:
-        if len(buf) < 16:
-            raise ValueError("message shorter than a header")
-        endian = "<" if buf[1] & 1 else ">"  # representation 0x0001 = CDR_LE, 0x0000 = CDR_BE
-        sec, nsec, n = struct.unpack_from(f"{endian}iII", buf, 4)
-        name = bytes(buf[16 : 16 + max(n - 1, 0)])
-    else:
-        if len(buf) < 16:
-            raise ValueError("message shorter than a header")
-        _, sec, nsec, n = struct.unpack_from("<IIII", buf, 0)
-        name = bytes(buf[16 : 16 + n])
-    if len(name) != max(n - (1 if cdr else 0), 0) or nsec >= 1_000_000_000:
-        raise ValueError("malformed header")
-    return Header(sec * 1_000_000_000 + nsec, name.decode("utf-8", "replace"))
-
-
 class BagFile:
     """An open recording (use as a context manager).
 
@@ -107,7 +69,7 @@ class BagFile:
         self.path = Path(path)
         if not self.path.exists():
             raise SlimsegError(f"bag {self.path} does not exist")
-        check_inputs(self.path)  # regular files only, MCAP data-section CRCs: before any open
+        check_inputs(self.path)  # regular files only, every MCAP checksum: before any open
         require_rosbags(self.path)
         from rosbags.typesys import Stores, get_typestore
 
@@ -119,8 +81,12 @@ class BagFile:
             self._store.register(
                 get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF)
             )
-        self._mcap = self._open_mcap() if self.path.suffix.lower() == ".mcap" else None
+        self._mcap = None
+        if self.path.suffix.lower() == ".mcap":
+            with decoding(f"cannot read bag {self.path} ({DAMAGED})"):
+                self._mcap = self._open_mcap()
         self.topics: dict[str, str] = {}
+        self.listed: dict[str, int | None] = {}  # messages per topic as the index lists them
         self.held: dict[str, str] = {}  # the types as an MCAP of any profile names them
         if self._mcap is not None:
             self._reader = self._mcap
@@ -128,16 +94,20 @@ class BagFile:
             for ch in self._mcap.channels:
                 self.topics.setdefault(ch.topic, ch.role or ch.kind)
                 self.held.setdefault(ch.topic, ch.kind)
+                known = ch.count is not None and self.listed.get(ch.topic, 0) is not None
+                # no statistics: the topic's count is not known (None), and not checked
+                self.listed[ch.topic] = self.listed.get(ch.topic, 0) + ch.count if known else None
             return
         try:
             self._reader = self._open()
         except SlimsegError:
             raise
         except Exception as e:  # the third-party parser's errors on a damaged file, all of them
-            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
+            raise SlimsegError(f"cannot read bag {self.path}: {reason(e)} ({DAMAGED})") from None
         self._connections = list(self._reader.connections)
         for c in self._connections:
             self.topics.setdefault(c.topic, c.msgtype)
+            self.listed[c.topic] = self.listed.get(c.topic, 0) + int(c.msgcount or 0)
 
     def _open_mcap(self) -> object:
         """A :class:`~slimseg.data.bags.mcap_file.McapFile` for an MCAP file rosbags does not read
@@ -204,42 +174,60 @@ class BagFile:
         self, topics: list[str], start_ns: int | None = None
     ) -> Iterator[tuple[str, int, bytes]]:
         """``(topic, log time ns, raw bytes)`` of ``topics`` in log-time order, from
-        ``start_ns`` on (None: the start). A damaged file raises ``SlimsegError``."""
+        ``start_ns`` on (None: the start). A damaged file raises ``SlimsegError``; so does a
+        whole pass that reads another number of messages on a topic than the recording's
+        index or summary lists (a chunk or row lost without a trace)."""
+        counts = dict.fromkeys(topics, 0)
         try:
-            if self._mcap is not None:
-                yield from self._mcap.messages(topics, start_ns)
-                return
-            conns = [c for c in self._connections if c.topic in topics]
-            if not conns:
-                return
+            for topic, t, raw in self._raw_messages(topics, start_ns):
+                counts[topic] += 1
+                yield topic, t, raw
+        except SlimsegError:
+            raise
+        except Exception as e:  # the third-party parser's errors on a damaged file, all of them
+            raise SlimsegError(f"cannot read bag {self.path}: {reason(e)} ({DAMAGED})") from None
+        if start_ns is None:
+            for topic, n in counts.items():
+                listed = self.listed.get(topic)
+                if listed and n != listed:  # 0 or None: nothing listed to check against
+                    raise SlimsegError(
+                        f"cannot read bag {self.path}: {n} messages on {printable(topic)} "
+                        f"read where its index lists {listed} ({DAMAGED})"
+                    )
+
+    def _raw_messages(
+        self, topics: list[str], start_ns: int | None
+    ) -> Iterator[tuple[str, int, bytes]]:
+        if self._mcap is not None:
+            yield from self._mcap.messages(topics, start_ns)
+            return
+        conns = [c for c in self._connections if c.topic in topics]
+        if conns:
             for conn, t, raw in self._reader.messages(connections=conns, start=start_ns):
                 yield conn.topic, t, raw
-        except Exception as e:  # the third-party parser's errors on a damaged file, all of them
-            raise SlimsegError(f"cannot read bag {self.path}: {_why(e)} ({DAMAGED})") from None
 
-    def decode(self, raw: bytes, msgtype: str, topic: str) -> object:
-        """The message object of ``raw`` (a ``msgtype`` message on ``topic``)."""
-        try:
+    def decode(self, raw: bytes, msgtype: str, topic: str, index: int | None = None) -> object:
+        """The message object of ``raw`` (a ``msgtype`` message on ``topic``; ``index``: its
+        place among the topic's messages, for the error), every field checked against its
+        schema; any decoder's error is one ``SlimsegError`` line naming the message."""
+        with decoding(f"bag {self.path}: {_message(index, topic)} ({msgtype}) does not decode"):
             if self._mcap is not None:
                 return self._mcap.decode(raw, topic)
             if self.cdr:
                 return self._store.deserialize_cdr(raw, msgtype)
             return self._store.deserialize_ros1(raw, msgtype)
-        except Exception as e:  # the third-party deserializer's errors, all of them
-            raise SlimsegError(
-                f"bag {self.path}: a {msgtype} message on {topic} does not decode: {_why(e)}"
-            ) from None
 
-    def header(self, raw: bytes, topic: str) -> Header:
-        """:func:`header_of` with the bag's wire format, ``SlimsegError`` naming the topic."""
-        try:
+    def header(self, raw: bytes, topic: str, index: int | None = None) -> Header:
+        """:func:`header_of` with the bag's wire format (a Foxglove message's stamp, checked),
+        ``SlimsegError`` naming the topic and ``index``."""
+        with decoding(f"bag {self.path}: {_message(index, topic)} has no valid header"):
             if self._mcap is not None:
                 return self._mcap.header(raw, topic)
             return header_of(raw, self.cdr)
-        except (ValueError, struct.error) as e:
-            raise SlimsegError(
-                f"bag {self.path}: a message on {topic} has no header: {e}"
-            ) from None
+
+
+def _message(index: int | None, topic: str) -> str:
+    return f"{'a message' if index is None else f'message {index}'} on {topic}"
 
 
 def check_inputs(path: Path) -> None:
@@ -252,10 +240,5 @@ def check_inputs(path: Path) -> None:
     for f in files:
         check_regular(f, "bag" if f == path else "bag file")
         if f.suffix.lower() == ".mcap":
-            check_data_crc(f)
-
-
-def _why(e: Exception) -> str:
-    """One line: the exception's message (or its type when it has none)."""
-    text = " ".join(" ".join(str(a) for a in e.args).split()) or type(e).__name__
-    return text[:300]
+            with decoding(f"cannot read bag {f} ({DAMAGED})"):
+                check_mcap(f)

@@ -120,6 +120,7 @@ class BagSequence(PairedFrames):
         lists: dict[str, list[tuple[float, str]]] = {rgb_t: [], depth_t: []}
         self._key: dict[str, Key] = {}  # file name → message key
         self._ordinal: dict[Key, int] = {}
+        self._place: dict[Key, int] = {}  # a message's index among its topic's messages
         self._times: list[int] = []  # log time of each colour/depth message, in bag order
         headers: dict[str, Header] = {}
         last: dict[str, Header] = {}
@@ -131,7 +132,7 @@ class BagSequence(PairedFrames):
                 if info is None:
                     info = self._bag.decode(raw, self._bag.topics[topic], topic)
                 continue
-            h = self._bag.header(raw, topic)
+            h = self._bag.header(raw, topic, len(lists[topic]))
             prev = last.get(topic)
             if prev is not None and h.ns <= prev.ns:
                 raise SlimsegError(
@@ -144,6 +145,7 @@ class BagSequence(PairedFrames):
             seen[(topic, t)] = k + 1
             key = (topic, t, k)
             self._ordinal[key] = len(self._times)
+            self._place[key] = len(lists[topic])
             self._times.append(t)
             name = ("rgb/" if topic == rgb_t else "depth/") + mask_name(h.seconds)
             if name in self._key:
@@ -244,8 +246,8 @@ class BagSequence(PairedFrames):
             return rgb.copy(), depth.copy(), t
         (t_rgb, rgb_name), (_, depth_name) = self.frames[i]
         raws = self._fetch(i, (self._key[rgb_name], self._key[depth_name]))
-        rgb = self._decode(raws[0], self.topics.rgb, t_rgb, colour=True)
-        depth = self._decode(raws[1], self.topics.depth, t_rgb, colour=False)
+        rgb = self._decode(raws[0], self.topics.rgb, t_rgb, self._key[rgb_name], colour=True)
+        depth = self._decode(raws[1], self.topics.depth, t_rgb, self._key[depth_name], False)
         if depth.shape != rgb.shape[:2]:
             raise SlimsegError(
                 f"bag {self.root}: at {t_rgb:.6f} s colour ({self.topics.rgb}) is "
@@ -259,9 +261,9 @@ class BagSequence(PairedFrames):
         self._cached = (i, (rgb, depth, t_rgb))
         return rgb.copy(), depth.copy(), t_rgb
 
-    def _decode(self, raw: bytes, topic: str, stamp: float, colour: bool) -> np.ndarray:
+    def _decode(self, raw: bytes, topic: str, stamp: float, key: Key, colour: bool) -> np.ndarray:
         msgtype = self._types[topic]
-        msg = self._bag.decode(raw, msgtype, topic)
+        msg = self._bag.decode(raw, msgtype, topic, self._place[key])
         try:
             if msgtype == COMPRESSED:
                 return colour_from_compressed(msg) if colour else depth_from_compressed(msg)

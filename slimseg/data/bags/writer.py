@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slimseg.data.bags.header import check_stamp
 from slimseg.data.bags.mcap_crc import seal
 from slimseg.data.bags.reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, Header, require_rosbags
 from slimseg.errors import SlimsegError
@@ -106,6 +107,8 @@ class BagWriter:
     def _write(
         self, topic: str, msgtype: str, header: Header, msg: object, log_ns: int | None = None
     ) -> None:
+        for ns in (header.ns, header.ns if log_ns is None else log_ns):
+            check_stamp(ns, "ros1" if self.ros1 else "ros2", f"{self._option} {self.path}")
         if topic not in self._conns:
             self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self._store)
         raw = (
