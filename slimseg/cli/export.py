@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.end2end and (args.conf is not None or args.iou is not None or args.max_det):
         raise SlimsegError("--conf, --iou and --max-det only apply with --end2end")
     if args.end2end:
-        check_end2end_size(args.max_det or MAX_DET, args.imgsz)
+        check_end2end_size(args.max_det or DEFAULT_END2END_MAX_DET, args.imgsz)
     if args.int8 and not args.calib:
         raise SlimsegError("--int8 needs --calib DATA.yaml or --calib FOLDER of frames")
     if not args.int8 and (args.calib or args.calib_images or args.int8_val or args.int8_target):
