@@ -32,8 +32,10 @@ def rerun_path(args: argparse.Namespace, out: Path, inputs: dict) -> Path | None
     ``rerun-sdk`` installed."""
     if args.rerun is None:
         return None
-    from slimseg.sequence.rerun_frames import check_rrd_path
+    from slimseg.sequence.rerun_frames import check_rrd_path, plain_logs
     from slimseg.utils.outputs import refuse_inputs
+
+    plain_logs()  # before rerun is first imported; the command's own process
 
     path = Path(args.rerun)
     refuse_inputs(path, "--rerun", inputs)

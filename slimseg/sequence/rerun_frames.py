@@ -92,7 +92,6 @@ class RerunRecording:
     drops it."""
 
     def __init__(self, path: Path, application: str) -> None:
-        plain_logs()
         import rerun as rr
 
         self.path = Path(path)
@@ -138,7 +137,9 @@ class RerunRecording:
 
 def plain_logs() -> None:
     """Keep rerun's own log lines free of colour codes when stderr is not a terminal (its
-    logger honours ``NO_COLOR`` / ``CLICOLOR``): set before rerun is first imported."""
+    logger honours ``NO_COLOR`` / ``CLICOLOR``): set before rerun is first imported. A
+    process-wide setting: the CLI calls it (:func:`slimseg.cli.rerun_args.rerun_path`), the
+    library never does."""
     if not sys.stderr.isatty():
         os.environ.setdefault("NO_COLOR", "1")
         os.environ.setdefault("CLICOLOR", "0")
