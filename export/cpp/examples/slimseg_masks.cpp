@@ -180,13 +180,13 @@ int run(const Args& a) {
     Postprocessor post(meta);
     Rules rules = Rules::from_metadata(meta, a.mode, a.preset);
     const MaskingSettings& masking = meta.masking(a.preset);
+    std::string idle_note;  // said once, after the run (an error stays the only line)
     if (const auto idle = unapplied(rules.masking); !idle.empty()) {
         std::string list;
         for (const auto& s : idle) list += (list.empty() ? "" : ", ") + s;
-        const std::string what = list + ": multi-frame settings this consumer does not apply (its "
-                                 "masks are slimseg dynamic's with them off; docs/cpp_consumer.md)";
-        if (a.strict) throw Error(what + " (--strict)");
-        std::fprintf(stderr, "slimseg_masks: note: %s\n", what.c_str());
+        idle_note = list + ": multi-frame settings this consumer does not apply (its masks are "
+                           "slimseg dynamic's with them off; docs/cpp_consumer.md)";
+        if (a.strict) throw Error(idle_note + " (--strict)");
     }
     const double conf = a.conf >= 0 ? a.conf : masking.conf;
     const double iou = a.iou >= 0 ? a.iou : meta.nms.iou;
@@ -286,6 +286,7 @@ int run(const Args& a) {
                 dumps.size(), a.out.c_str(), ms / dumps.size(), ms_post / dumps.size());
     if (!a.frames.empty()) std::printf("; letterbox vs dump: max %.2f grey levels", worst_letterbox);
     std::printf("\n");
+    if (!idle_note.empty()) std::fprintf(stderr, "slimseg_masks: note: %s\n", idle_note.c_str());
     return 0;
 }
 
