@@ -105,7 +105,7 @@ def write_foxglove(folder: Path, out: Path, compress: bool) -> None:
     colour and 16UC1 depth (mm), a ``CameraCalibration`` per colour frame; chunks
     zstd-compressed (the Foxglove SDK's default) or not."""
     from slimseg.data.bags.foxglove_writer import FoxgloveWriter
-    from slimseg.data.bags.reader import Header, stamp_ns
+    from slimseg.data.bags.header import Header, stamp_ns
     from slimseg.data.tum import TumSequence
 
     seq = TumSequence(folder)

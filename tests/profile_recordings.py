@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.data.bags.reader import stamp_ns
+from slimseg.data.bags.header import stamp_ns
 from slimseg.data.tum import TumSequence, read_trajectory
 
 RGB = "/camera/camera/color/image_raw"

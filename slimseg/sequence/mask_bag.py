@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from slimseg.data.bags.foxglove_writer import FoxgloveWriter
-from slimseg.data.bags.reader import Header, stamp_ns
+from slimseg.data.bags.header import Header, stamp_ns
 from slimseg.data.bags.sequence import BagSequence
 from slimseg.data.bags.writer import BagWriter
 from slimseg.data.frame_source import FrameSource

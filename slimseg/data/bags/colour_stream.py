@@ -9,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from slimseg.data.bags.header import COMPRESSED
 from slimseg.data.bags.image_messages import colour_from_compressed, colour_from_image
-from slimseg.data.bags.reader import COMPRESSED, BagFile
+from slimseg.data.bags.reader import BagFile
 from slimseg.data.bags.topics import choose_colour
 from slimseg.errors import SlimsegError
 

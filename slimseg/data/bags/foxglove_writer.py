@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bags.header import check_stamp
-from slimseg.data.bags.reader import INSTALL_HINT, Header
+from slimseg.data.bags.header import Header, check_stamp
+from slimseg.data.bags.reader import INSTALL_HINT
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import stage_name
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from slimseg.data.bags.reader import Header, stamp_ns
+from slimseg.data.bags.header import Header, stamp_ns
 from slimseg.data.bags.writer import BagWriter
 from slimseg.data.tum import TumSequence, read_trajectory
 from slimseg.errors import SlimsegError

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bags.reader import ODOMETRY, POSE, TF, BagFile, Header, is_bag
+from slimseg.data.bags.header import ODOMETRY, POSE, TF, Header
+from slimseg.data.bags.reader import BagFile, is_bag
 from slimseg.data.tum import read_trajectory
 from slimseg.data.value_checks import check_pose
 from slimseg.errors import SlimsegError

@@ -16,17 +16,11 @@ import logging
 from collections.abc import Iterator
 from pathlib import Path
 
-from slimseg.data.bags.header import (  # noqa: F401 (the names the readers' users import)
-    CAMERA_INFO,
-    COMPRESSED,
+from slimseg.data.bags.header import (
     DAMAGED,
-    IMAGE,
-    ODOMETRY,
-    POSE,
     TF,
     Header,
     header_of,
-    stamp_ns,
 )
 from slimseg.data.bags.mcap_crc import check_mcap
 from slimseg.errors import SlimsegError

@@ -25,13 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
+from slimseg.data.bags.header import COMPRESSED, Header
 from slimseg.data.bags.image_messages import (
     colour_from_compressed,
     colour_from_image,
     depth_from_compressed,
     depth_from_image,
 )
-from slimseg.data.bags.reader import COMPRESSED, BagFile, Header
+from slimseg.data.bags.reader import BagFile
 from slimseg.data.bags.topics import TopicChoice, choose_topics
 from slimseg.data.frame_source import DEPTH_RANGE_M, Frame, PairedFrames, implausible_median_depth
 from slimseg.data.problems import ImageProblem

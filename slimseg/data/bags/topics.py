@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from slimseg.data.bags.reader import CAMERA_INFO, COMPRESSED, IMAGE
+from slimseg.data.bags.header import CAMERA_INFO, COMPRESSED, IMAGE
 from slimseg.errors import SlimsegError
 
 IMAGE_TYPES = (IMAGE, COMPRESSED)

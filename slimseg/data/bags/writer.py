@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from slimseg.data.bags.header import check_stamp
+from slimseg.data.bags.header import CAMERA_INFO, COMPRESSED, IMAGE, POSE, Header, check_stamp
 from slimseg.data.bags.mcap_crc import seal
-from slimseg.data.bags.reader import CAMERA_INFO, COMPRESSED, IMAGE, POSE, Header, require_rosbags
+from slimseg.data.bags.reader import require_rosbags
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import publish_new, stage_name
 

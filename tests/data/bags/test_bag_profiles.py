@@ -18,8 +18,8 @@ import pytest
 from conftest import class_map_weights
 
 from slimseg.cli.main import main
+from slimseg.data.bags.header import stamp_ns
 from slimseg.data.bags.poses import read_poses
-from slimseg.data.bags.reader import stamp_ns
 from slimseg.data.bags.sequence import BagSequence
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.synth import generate

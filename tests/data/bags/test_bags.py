@@ -19,7 +19,7 @@ from test_bad_inputs_content import png_bomb
 
 from slimseg.cli.main import main
 from slimseg.data.bags.from_tum import DEPTH_TOPIC, FRAME_ID, POSE_TOPIC, RGB_TOPIC, tum_to_bag
-from slimseg.data.bags.reader import Header, stamp_ns
+from slimseg.data.bags.header import Header, stamp_ns
 from slimseg.data.bags.sequence import BagSequence
 from slimseg.data.bags.writer import BagWriter
 from slimseg.data.sequence_source import open_sequence
