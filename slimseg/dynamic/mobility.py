@@ -94,9 +94,7 @@ def decide_mobility(
     ``motion_odds``: the odds of ``seg`` / ``fusion`` (1: no check); ``belief``: the track
     stage's tracks (None: per-frame)."""
     frame = inputs.objects
-    mob = base
-    if inputs.still is not None and inputs.still.any():  # standing still: static structure
-        mob = np.where(inputs.still, np.float32(0.0), mob).astype(mob.dtype)
+    mob = _still_zero(base, inputs.still)  # standing still: static structure
     if frame.masks is None or inputs.previous is None:
         return Decision(mob)
     if mode in EPIPOLAR_MODES:
@@ -127,6 +125,7 @@ def decide_mobility(
 
 
 def _still_zero(mob: np.ndarray, still: np.ndarray | None) -> np.ndarray:
+    """``mob [M]`` with the objects found still (``still bool [M]``) at 0."""
     if still is None or not still.any():
         return mob
     return np.where(still, np.float32(0.0), mob).astype(mob.dtype)
