@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[train,dev,slam,ray,ros,viz,openvino]"
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[train,dev,slam,calibrate,ray,ros,viz,openvino]"
 	touch $(STAMP)
 
 help:  ## this list: each target with its comment

@@ -71,6 +71,12 @@ COMMANDS = (
         "dynamic-keypoint masks for a TUM RGB-D sequence (+ precision/recall with GT)",
     ),
     Command(
+        "calibrate",
+        "slimseg.cli.calibrate",
+        "choose a model's own masking settings on sequences it never saw (its 'calibrated' "
+        "preset, written into a copy of the export)",
+    ),
+    Command(
         "slam-eval",
         "slimseg.cli.slam_eval",
         "trajectory error (ATE/RPE, evo) of ORB-SLAM3 on raw vs masked RGB-D frames",

@@ -73,6 +73,11 @@ class Knob:
     choices: tuple[str, ...] = ()
     off: Value | None = None
     """the value that switches the lever off (None: it always acts)"""
+    search: tuple[float, float] | None = None
+    """the span ``slimseg calibrate`` searches (inside the range; None: not searched; a knob
+    with ``choices`` searches them all when this is ``(0, 0)``)"""
+    log: bool = False
+    """search on a log scale (a span over decades)"""
 
     def check(self, value: object) -> None:
         """Raise :class:`KnobError` unless ``value`` is valid for this knob."""
@@ -121,36 +126,39 @@ KNOBS: tuple[Knob, ...] = (
     # -- masking (MaskingSettings); papers: the equations as printed, slimseg: chosen from
     # the sweeps of docs/slam_defaults.md
     _m("conf", float, 0.0, 1.0, 0.25, 0.1, "detector score threshold for masking "
-       "(not predict's); papers: YOLO's detection-style default", open_high=True),
+       "(not predict's); papers: YOLO's detection-style default", open_high=True,
+       search=(0.02, 0.5), log=True),
     _m("dilation_px", int, 0, 200, 0, 5, "px added around every mask before keypoints are "
-       "judged (at a 640-px-wide frame; scaled with the frame)"),
+       "judged (at a 640-px-wide frame; scaled with the frame)", search=(0, 16)),
     _m("min_static", int, 0, 100_000, 100, 100, "Eq. 1: static points needed",
-       acts_in=RULE_MODES),
+       acts_in=RULE_MODES, search=(20, 400), log=True),
     _m("m_th_start", float, 0.0, 1.0, 0.25, 0.25, "Eq. 1: starting mobility threshold (and "
-       "the prior above which a class counts as a mover)"),
+       "the prior above which a class counts as a mover)", search=(0.1, 0.6)),
     _m("m_th_step", float, 0.0, 1.0, 0.1, 0.1, "Eq. 1: threshold step", acts_in=RULE_MODES,
-       rule=Rule.EQ1, open_low=True),
+       rule=Rule.EQ1, open_low=True, search=(0.05, 0.3)),
     _m("frame_ratio", float, 0.0, 1.0, 0.05, 0.05, "Eq. 3: fraction of points on mobile "
-       "objects that makes a dynamic keyframe", acts_in=FUSION_MODES),
+       "objects that makes a dynamic keyframe", acts_in=FUSION_MODES, search=(0.01, 0.2)),
     _m("t_o", float, 0.0, 1.0, 0.25, 1.0, "Eq. 4: seg-mask / box coverage above which the seg "
        "mask is kept (slimseg 1 with the depth cut: every box cut to its depth layer)",
-       acts_in=FUSION_MODES),
+       acts_in=FUSION_MODES, search=(0.25, 1.0)),
     _m("rule", str, 0, 0, Rule.EQ1.value, Rule.DEGRADE.value, "when static support runs "
        "short: eq1 (raise the threshold, then give up the frame) or degrade (give up the "
-       "least certain masks first)", acts_in=RULE_MODES, choices=tuple(r.value for r in Rule)),
+       "least certain masks first)", acts_in=RULE_MODES, choices=tuple(r.value for r in Rule),
+       search=(0, 0)),
     _m("keep_score", float, 0.0, 1.0, 0.5, 0.5, "degrade: a mover scoring this or more is "
-       "never given up", acts_in=RULE_MODES, rule=Rule.DEGRADE),
+       "never given up", acts_in=RULE_MODES, rule=Rule.DEGRADE, search=(0.2, 0.9)),
     _m("cut_behind_m", float, 0.0, 100.0, 0.0, 0.5, "metres behind its object's near depth "
-       "from which mask pixels are cut (0: off)", acts_in=MASK_MODES, needs=("depth",), off=0.0),
+       "from which mask pixels are cut (0: off)", acts_in=MASK_MODES, needs=("depth",), off=0.0,
+       search=(0.0, 1.5)),
     _m("motion_odds", float, 1.0, 1e6, 1.0, 10.0, "seg/fusion: odds by which the epipolar "
        "check's moving/static decision weighs on an uncertain mobility (1: no check)",
-       acts_in=WEIGHED_MODES, needs=("history",), off=1.0),
+       acts_in=WEIGHED_MODES, needs=("history",), off=1.0, search=(1.0, 100.0), log=True),
     _m("motion_layer_px", int, 0, 1_000_000, 0, 100, "keep what moved in behind an object's "
        "near layer when it covers this many px (0: off)", acts_in=MASK_MODES,
-       needs=("depth", "camera", "history"), off=0),
+       needs=("depth", "camera", "history"), off=0, search=(0, 600)),
     _m("still_frames", int, 0, 1000, 0, 20, "an object whose depth has not changed against "
        "the frames this many and half as many back is static (0: off)",
-       needs=("depth", "camera", "history"), off=0),
+       needs=("depth", "camera", "history"), off=0, search=(0, 40)),
     # -- the track stage (TrackSettings): the knobs sweeps turn; the rest are constants of
     # slimseg.dynamic.track_settings
     _t("high", float, 0.0, 1.0, 0.25, "first-pass (BYTE) score threshold"),

@@ -138,11 +138,12 @@ def mask_with(
     cache: DetectionCache,
     mode: Mode | str,
     masking: MaskingSettings,
-    out: Path,
+    out: Path | None,
     track: TrackPlan = TRACK_OFF,
 ) -> SettingMasks:
     """Apply ``mode`` under ``masking`` to every cached frame; write ``out/<rgb ts>.png``
-    (uint8, 255 = dynamic), exactly what ``slimseg dynamic --mode mode`` writes for these
+    (uint8, 255 = dynamic; None: score only, write nothing), exactly what ``slimseg dynamic
+    --mode mode`` writes for these
     settings: the same :class:`~slimseg.dynamic.frame_masker.FrameMasker` on the sequence's
     frames, its model and its ORB extractor answered from the cache. ``track``: the track
     stage (the cache must hold detections down to its ``low`` threshold) at a fixed rate
@@ -157,7 +158,8 @@ def mask_with(
     score = ModeScore() if have_truth and cache.frames else None
     t_logic = 0.0
     digest = hashlib.sha1()
-    out.mkdir(parents=True, exist_ok=True)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
     frames = {f.stamp: f for f in cache.frames}
     config = sequence_config(seq, ChainConfig(mode=mode, masking=masking, track=track))
     masker = FrameMasker(
@@ -169,7 +171,8 @@ def mask_with(
             rgb, depth, _ = seq.load(i)  # reading is not the logic's time
             res = masker.step(rgb, depth, f.stamp)
             t_logic += res.timing.masking / 1000
-            write_png(out / mask_name(f.stamp), res.mask)
+            if out is not None:
+                write_png(out / mask_name(f.stamp), res.mask)
             digest.update(np.ascontiguousarray(res.mask).tobytes())
             if score is not None:
                 score.add(res.dynamic, f.truth)

@@ -34,9 +34,11 @@ WORLD_PRESETS: tuple[str | None, ...] = (
     "walking_static",
     None,
 )
-#: First sequence index of each split's worlds; evaluation sequences use indices below
-#: :data:`MAX_EVAL_SEQUENCES`, so no training world is ever an evaluation sequence.
-FIRST_INDEX = {"train": 10_000, "val": 20_000}
+#: First sequence index of each split's worlds, and of the sequences ``slimseg calibrate``
+#: chooses masking settings on; evaluation sequences use indices below
+#: :data:`MAX_EVAL_SEQUENCES`, so no training world or calibration sequence is ever an
+#: evaluation sequence, and no calibration sequence a training world.
+FIRST_INDEX = {"train": 10_000, "val": 20_000, "calibrate": 30_000}
 MAX_EVAL_SEQUENCES = 10_000
 #: Folder of a split's worlds inside the dataset folder.
 FOLDER = {"train": "train_sequences", "val": "val_sequences"}

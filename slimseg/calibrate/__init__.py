@@ -1,0 +1,1 @@
+"""``slimseg calibrate``: a model's masking settings, chosen on sequences it never trained on."""

@@ -1,0 +1,118 @@
+"""The confirmation: ORB-SLAM3's ATE of the best candidates against the ground-truth masks.
+
+The keypoint objective is fast and needs no SLAM engine; what the papers judge by is a
+trajectory. The best few candidates (and the shipped preset) are tracked a few times on a
+calibration sequence, beside the sequence's ground-truth masks. ORB-SLAM3 varies from run to
+run, so a candidate whose median ATE is within the ground-truth masks' run spread counts as
+reaching them, and among those the keypoint objective decides; a candidate beyond it loses to
+one within it (:func:`choose`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from slimseg.calibrate.search import Trial
+from slimseg.data.tum import TumSequence
+from slimseg.dynamic.chain_config import TRACK_OFF
+from slimseg.dynamic.modes import Mode
+from slimseg.sequence.detection_cache import DetectionCache, mask_with
+
+log = logging.getLogger(__name__)
+
+#: Candidates confirmed with ORB-SLAM3 besides the shipped preset, and runs per condition.
+CONFIRM_CANDIDATES = 3
+CONFIRM_RUNS = 3
+
+
+@dataclass(frozen=True)
+class Ate:
+    """One condition's ORB-SLAM3 runs: scored ATEs (m), frames lost in the median run."""
+
+    label: str
+    ates: tuple[float, ...]
+    lost: int
+    frames: int
+
+    @property
+    def median(self) -> float:
+        s = sorted(self.ates)
+        return s[(len(s) - 1) // 2] if s else float("inf")
+
+    def as_dict(self) -> dict[str, object]:
+        return {
+            "median": None if not self.ates else self.median,
+            "runs": list(self.ates),
+            "lost": self.lost,
+            "frames": self.frames,
+        }
+
+
+@dataclass(frozen=True)
+class EngineSetup:
+    """The ORB-SLAM3 options :func:`slimseg.slam.session.engine_settings` reads."""
+
+    vocab: Path
+    runs: int = CONFIRM_RUNS
+    engine: str = "orbslam3"
+    features: int = 1000
+    realtime: bool = True
+    speed: float = 0.5
+    progress: bool = False
+
+
+def confirm(
+    seq: TumSequence,
+    cache: DetectionCache,
+    candidates: list[Trial],
+    setup: EngineSetup,
+    folder: Path,
+    mode: Mode | str = Mode.FUSION,
+    say: Callable[[str], None] = log.info,
+) -> tuple[Ate, dict[int, Ate]]:
+    """Track ``seq`` with its ground-truth masks and with each candidate's masks (per frame,
+    written under ``folder``); returns the ground truth's :class:`Ate` and each candidate's by
+    trial number."""
+    from slimseg.slam.condition_runs import evaluate_condition
+    from slimseg.slam.conditions import Condition
+    from slimseg.slam.session import engine_settings, ground_truth
+
+    gt = ground_truth(seq)
+    cfg = engine_settings(setup, seq, folder)
+    tracks = folder / "trajectories"
+
+    def track(cond: Condition) -> Ate:
+        res = evaluate_condition(seq, cond, gt, cfg, tracks)
+        runs = tuple(r.score.ate_rmse for r in res.scored)
+        med = res.median_run()
+        lost = med.lost if med is not None else max((r.lost for r in res.runs), default=0)
+        ate = Ate(cond.name, runs, lost, res.runs[0].frames if res.runs else 0)
+        say(f"  {cond.name}: ATE {ate.median:.4f} m (runs {', '.join(f'{a:.4f}' for a in runs)})")
+        return ate
+
+    d = 0
+    truth = track(Condition("gt", "masked", masks=seq.root / "dynamic", dilation_px=d))
+    out = {}
+    for t in candidates:
+        where = folder / "masks" / f"trial{t.number:03d}"
+        mask_with(cache, mode, t.evaluation.settings, where, TRACK_OFF)
+        out[t.number] = track(Condition(f"trial{t.number:03d}", "masked", masks=where))
+    return truth, out
+
+
+def choose(candidates: list[Trial], truth: Ate, ates: dict[int, Ate]) -> Trial:
+    """The candidate to ship: among those whose median ATE is within the ground-truth masks'
+    run spread (at most their worst run) and lose no more frames than they do, the best by the
+    keypoint objective; if none is, the one with the lowest median ATE."""
+    worst = max(truth.ates, default=float("inf"))
+    within = [
+        t
+        for t in candidates
+        if ates[t.number].median <= worst and ates[t.number].lost <= truth.lost
+    ]
+    if within:
+        return max(within, key=lambda t: t.value)
+    return min(candidates, key=lambda t: ates[t.number].median)

@@ -1,0 +1,156 @@
+"""The search over the masking knobs: Optuna's TPE sampler on the spans the knob registry
+declares (:attr:`slimseg.dynamic.knobs.Knob.search`), bounded in time, two candidates at a time.
+
+TPE models each knob's good and bad values from the trials so far, so its cost grows with the
+number of trials, not with a grid's product of knob values: adding a knob to the registry adds
+a dimension, not a factor. The shipped and the papers' presets are the first two trials, so the
+report always says what the chosen settings gain over them. Candidates are scored by
+:func:`slimseg.calibrate.objective.evaluate` in forked worker processes that inherit the
+detection caches (nothing is pickled but the settings and the scores).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import multiprocessing
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from slimseg.calibrate.objective import Evaluation, evaluate
+from slimseg.dynamic.knobs import KNOBS, Knob, Value
+from slimseg.dynamic.masking_settings import PRESETS, MaskingSettings
+from slimseg.dynamic.modes import Mode
+from slimseg.sequence.detection_cache import DetectionCache
+
+log = logging.getLogger(__name__)
+
+#: The knobs a calibration searches: every masking knob with a search span.
+SEARCHED: tuple[Knob, ...] = tuple(k for k in KNOBS if k.group == "masking" and k.search)
+#: Random trials before TPE models the results (the two presets come first).
+STARTUP_TRIALS = 8
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One candidate: its ``number`` (the order it finished in), ``origin`` (``slimseg`` or
+    ``papers``: a preset; ``search``: the sampler's), the settings' scores and the wall
+    seconds since the search began when it finished."""
+
+    number: int
+    origin: str
+    evaluation: Evaluation
+    finished_s: float
+
+    @property
+    def value(self) -> float:
+        return self.evaluation.value()
+
+
+def suggest(trial: object, k: Knob) -> Value:
+    """The value an Optuna ``trial`` proposes for knob ``k`` inside its search span."""
+    if k.choices:
+        return trial.suggest_categorical(k.key, list(k.choices))
+    low, high = k.search
+    if k.kind is int:
+        return trial.suggest_int(k.key, int(low), int(high), log=k.log)
+    return trial.suggest_float(k.key, float(low), float(high), log=k.log)
+
+
+def clipped(values: dict[str, Value]) -> dict[str, Value]:
+    """A preset's values of the searched knobs, each clipped into its span (TPE is told the
+    preset as a point of its space)."""
+    out: dict[str, Value] = {}
+    for k in SEARCHED:
+        v = values[k.key]
+        out[k.key] = v if k.choices else type(v)(min(max(v, k.search[0]), k.search[1]))
+    return out
+
+
+_WORKER: dict[str, object] = {}
+"""A worker process's detection caches and mode (set by :func:`_adopt` in each forked worker,
+or for the length of an in-process search)."""
+
+
+def _adopt(caches: dict[str, DetectionCache], mode: str) -> None:
+    _WORKER.update(caches=caches, mode=mode)
+
+
+def _score(settings: MaskingSettings) -> Evaluation:
+    return evaluate(settings, _WORKER["caches"], _WORKER["mode"])  # type: ignore[arg-type]
+
+
+def run_search(
+    caches: dict[str, DetectionCache],
+    base: MaskingSettings,
+    budget_s: float,
+    max_trials: int,
+    *,
+    mode: Mode | str = Mode.FUSION,
+    workers: int = 2,
+    seed: int = 0,
+    on_trial: Callable[[Trial, Trial], None] | None = None,
+) -> list[Trial]:
+    """Search the :data:`SEARCHED` knobs of ``base`` for at most ``max_trials`` candidates or
+    until the next would end after ``budget_s`` seconds; ``on_trial(trial, best)`` after each.
+    Returns every trial in the order they finished."""
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    sampler = optuna.samplers.TPESampler(
+        seed=seed, n_startup_trials=STARTUP_TRIALS, multivariate=True
+    )
+    study = optuna.create_study(direction="maximize", sampler=sampler)
+    for name in ("slimseg", "papers"):
+        study.enqueue_trial(clipped(PRESETS[name].as_dict()), user_attrs={"origin": name})
+    t0 = time.perf_counter()
+    trials: list[Trial] = []
+    pending: dict[object, tuple[object, MaskingSettings, str]] = {}
+
+    def finish(ot: object, settings: MaskingSettings, origin: str, ev: Evaluation) -> None:
+        study.tell(ot, ev.value())
+        t = Trial(len(trials), origin, ev, time.perf_counter() - t0)
+        trials.append(t)
+        if on_trial is not None:
+            on_trial(t, max(trials, key=lambda x: x.value))
+
+    def ask() -> tuple[object, MaskingSettings, str]:
+        ot = study.ask()
+        values = {k.key: suggest(ot, k) for k in SEARCHED}
+        origin = ot.user_attrs.get("origin", "search")
+        return ot, base.with_values(**values), origin
+
+    def room() -> bool:
+        asked = len(trials) + len(pending)
+        elapsed = time.perf_counter() - t0
+        per = elapsed / len(trials) * max(workers, 1) if trials else 0.0
+        return asked < max_trials and (asked < 2 or elapsed + per <= budget_s)
+
+    if workers <= 1:
+        _adopt(caches, str(mode))
+        try:
+            while room():
+                ot, settings, origin = ask()
+                finish(ot, settings, origin, _score(settings))
+        finally:
+            _WORKER.clear()
+        return trials
+    ctx = multiprocessing.get_context("fork")
+    with ctx.Pool(workers, initializer=_adopt, initargs=(caches, str(mode))) as pool:
+        while room() or pending:
+            while room() and len(pending) < workers:
+                ot, settings, origin = ask()
+                pending[pool.apply_async(_score, (settings,))] = (ot, settings, origin)
+            done = next((r for r in pending if r.ready()), None)
+            if done is None:
+                time.sleep(0.05)
+                continue
+            ot, settings, origin = pending.pop(done)
+            finish(ot, settings, origin, done.get())
+    return trials
+
+
+def best(trials: list[Trial]) -> Trial:
+    """The trial with the highest objective (the earliest on a tie)."""
+    return max(trials, key=lambda t: (t.value, -t.number) if not math.isnan(t.value) else -1e9)
