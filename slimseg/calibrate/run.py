@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from slimseg.calibrate.confirm import (
@@ -25,6 +25,8 @@ from slimseg.calibrate.confirm import (
 from slimseg.calibrate.objective import conf_floor
 from slimseg.calibrate.search import SEARCHED, Trial, best, run_search
 from slimseg.calibrate.sequences import (
+    CALIBRATION_FRAMES,
+    CALIBRATION_SIZE,
     CalibrationSet,
     PreloadedSequence,
     render_calibration_set,
@@ -41,21 +43,27 @@ DEFAULT_BUDGET_S = 300.0
 DEFAULT_MAX_TRIALS = 200
 #: Rendered calibration sequences by default.
 DEFAULT_SEQUENCES = 3
-#: Seconds an ORB-SLAM3 run costs beyond replaying its frames (start, vocabulary, shutdown).
+#: Seconds an ORB-SLAM3 run costs beyond replaying its frames (start, vocabulary, shutdown),
+#: and building the small vocabulary when none is given.
 RUN_OVERHEAD_S = 4.0
+VOCABULARY_S = 15.0
+#: The confirmation runs only when it fits in this share of the time left after the detections.
+CONFIRM_SHARE = 0.6
 
 
 @dataclass(frozen=True)
 class CalibrationPlan:
     """What to calibrate and how: the export ``model``, the user's ``sequences`` (empty:
-    render ``rendered`` of them), the ``mode``, the time ``budget_s``, the search's
-    ``max_trials``, ``workers`` and ``seed``, and the confirmation (``confirm_runs`` ORB-SLAM3
+    render ``rendered`` of them, ``frames`` frames of ``size`` W×H each), the ``mode``, the
+    time ``budget_s``, the search's ``max_trials``, ``workers`` and ``seed``, and the confirmation (``confirm_runs`` ORB-SLAM3
     runs per condition, 0: none; ``vocab``: ORB-SLAM3's vocabulary, None: built from the
     calibration frames)."""
 
     model: Path
     sequences: tuple[Path, ...] = ()
     rendered: int = DEFAULT_SEQUENCES
+    frames: int = CALIBRATION_FRAMES
+    size: tuple[int, int] = CALIBRATION_SIZE
     mode: str = Mode.FUSION.value
     budget_s: float = DEFAULT_BUDGET_S
     max_trials: int = DEFAULT_MAX_TRIALS
@@ -109,14 +117,21 @@ def calibrate(
             f"rendering {plan.rendered} calibration sequences (indices no training world or "
             "evaluation sequence uses)"
         )
-        cal_set = render_calibration_set(work / "sequences", plan.rendered)
+        cal_set = render_calibration_set(work / "sequences", plan.rendered, plan.frames, plan.size)
     seconds["sequences"] = time.perf_counter() - t0
     caches = _caches(plan, cal_set, say)
     seconds["detections"] = time.perf_counter() - t0 - seconds["sequences"]
     first = next(iter(caches.values()))
     reserve = confirm_estimate_s(plan, len(first.frames), first.sequence.fps)
     if plan.confirm_runs and plan.vocab is None:
-        reserve += 15.0  # the vocabulary
+        reserve += VOCABULARY_S
+    left = plan.budget_s - (time.perf_counter() - t0)
+    if plan.confirm_runs and reserve > CONFIRM_SHARE * left:
+        say(
+            f"no ORB-SLAM3 confirmation: it would take about {reserve:.0f} s of the "
+            f"{max(left, 0):.0f} s left (raise --budget)"
+        )
+        plan, reserve = replace(plan, confirm_runs=0), 0.0
     search_s = max(plan.budget_s - (time.perf_counter() - t0) - reserve, 0.0)
     say(
         f"searching {len(SEARCHED)} knobs for {search_s:.0f} s (at most {plan.max_trials} "

@@ -36,11 +36,13 @@ CALIBRATION_SIZE = (640, 480)
 
 @dataclass(frozen=True)
 class CalibrationSet:
-    """Where the calibration sequences came from: ``rendered`` (preset, index) pairs, or the
-    user's folders."""
+    """Where the calibration sequences came from: ``rendered`` (preset, index) pairs of
+    ``frames`` frames of ``size`` (W, H), or the user's folders."""
 
     folders: tuple[Path, ...]
     rendered: tuple[tuple[str, int], ...] = ()
+    frames: int = CALIBRATION_FRAMES
+    size: tuple[int, int] = CALIBRATION_SIZE
 
     def describe(self) -> dict[str, object]:
         """What the calibration was chosen on (for the metadata and the report)."""
@@ -49,14 +51,17 @@ class CalibrationSet:
                 "rendered": [
                     {"preset": p, "seed": CALIBRATION_SEED, "index": i} for p, i in self.rendered
                 ],
-                "frames": CALIBRATION_FRAMES,
-                "size": list(CALIBRATION_SIZE),
+                "frames": self.frames,
+                "size": list(self.size),
             }
         return {"sequences": [f.name for f in self.folders]}
 
 
 def render_calibration_set(
-    root: Path, count: int, frames: int = CALIBRATION_FRAMES
+    root: Path,
+    count: int,
+    frames: int = CALIBRATION_FRAMES,
+    size: tuple[int, int] = CALIBRATION_SIZE,
 ) -> CalibrationSet:
     """Render ``count`` calibration sequences (presets cycled) under ``root / <preset>``."""
     if count < 1:
@@ -66,11 +71,11 @@ def render_calibration_set(
         preset = CALIBRATION_PRESETS[k % len(CALIBRATION_PRESETS)]
         index = FIRST_INDEX["calibrate"] + k
         folder = root / f"{k:02d}_{preset}"
-        write_sequence(folder, CALIBRATION_SEED, index, frames, CALIBRATION_SIZE, preset=preset)
+        write_sequence(folder, CALIBRATION_SEED, index, frames, size, preset=preset)
         folders.append(folder)
         rendered.append((preset, index))
     log.info("rendered %d calibration sequences of %d frames", count, frames)
-    return CalibrationSet(tuple(folders), tuple(rendered))
+    return CalibrationSet(tuple(folders), tuple(rendered), frames, size)
 
 
 def user_calibration_set(folders: list[Path]) -> CalibrationSet:

@@ -36,6 +36,8 @@ SLAM_SEED_OFFSET = 1  # the sequence's seed is --seed + 1: not the training imag
 # The headline's warning: masks whose ATE exceeds this share of a camera that never moves have
 # failed, whatever they gain over raw frames.
 FLOOR_SHARE = 0.5
+#: The demo's calibration time bound (s): the model's own masking settings before its SLAM run.
+DEMO_CALIBRATION_S = 240.0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -112,6 +114,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=Path,
         default=None,
         help="ORBvoc.txt (default: a small vocabulary built from the sequence)",
+    )
+    g.add_argument(
+        "--calibration-budget",
+        type=float,
+        default=DEMO_CALIBRATION_S,
+        metavar="SECONDS",
+        help="time bound of the model's calibration before its SLAM run (slimseg calibrate; "
+        f"default {DEMO_CALIBRATION_S:g})",
     )
     p.set_defaults(run=run)  # fmt: skip
 
@@ -212,6 +222,8 @@ def _check_slam_args(args: argparse.Namespace) -> None:
         raise SlimsegError(f"--slam-size {args.slam_size[0]} {args.slam_size[1]}: both ≥ 64")
     if args.slam_seed is not None and args.slam_seed < 0:
         raise SlimsegError(f"--slam-seed {args.slam_seed} must be 0 or more")
+    if not args.calibration_budget > 0:
+        raise SlimsegError(f"--calibration-budget {args.calibration_budget}: expected seconds > 0")
     if args.vocab is not None and not Path(args.vocab).is_file():
         raise SlimsegError(f"--vocab {args.vocab} does not exist")
 
@@ -262,7 +274,12 @@ def _slam_stage(
     vocab, built = demo_run.prepare_vocabulary(folder, seq, s)
     seconds["vocabulary"] = time.perf_counter() - t
     print(f"{'built' if built else 'using'} the vocabulary {vocab}")
-    outcome = demo_run.evaluate(onnx, seq, vocab, folder, s, print)
+    t = time.perf_counter()
+    calibrated = _calibrate(onnx, args)
+    seconds["calibration"] = time.perf_counter() - t
+    if calibrated != onnx:
+        paths += [f"  calibrated  {calibrated} (report: {_report_dir(calibrated)}/)"]
+    outcome = demo_run.evaluate(calibrated, seq, vocab, folder, s, print)
     seconds.update(outcome.seconds)
     fig = demo_run.write_figure(outcome, out / "slam.png", s, args.model)
     total = time.perf_counter() - t0
@@ -275,6 +292,38 @@ def _slam_stage(
     print(table_lines(outcome.rows, markdown=False))
     paths += [f"  slam        {fig}, {folder / 'results.md'} (runs.csv, trajectories/)"]
     return _SlamSummary(total, _timing(seconds), paths, _result(table))
+
+
+def _report_dir(calibrated: Path) -> Path:
+    return calibrated.with_name(calibrated.stem + "_calibration")
+
+
+def _calibrate(onnx: Path, args: argparse.Namespace) -> Path:
+    """The demo's calibration of its model (``slimseg calibrate`` within
+    ``--calibration-budget`` seconds, on sequences of the SLAM stage's frame size): the export
+    beside it with its ``calibrated`` preset."""
+    import importlib.util
+
+    from slimseg.calibrate.run import CalibrationPlan
+    from slimseg.cli.calibrate import calibrate_model
+
+    if importlib.util.find_spec("optuna") is None:
+        print(f"calibration skipped: Optuna is not installed ({install_command('calibrate')}); "
+              "the shipped masking defaults are used")  # fmt: skip
+        return onnx
+    calibrated = onnx.with_name(onnx.stem + "_calibrated.onnx")
+    budget = args.calibration_budget
+    print(f"calibrating the masking settings for this model (at most {budget:.0f} s; "
+          "slimseg calibrate)")  # fmt: skip
+    plan = CalibrationPlan(
+        model=onnx,
+        budget_s=budget,
+        size=tuple(args.slam_size),
+        confirm_runs=min(args.slam_runs, 3),
+        progress=not args.quiet,
+    )
+    print(calibrate_model(plan, calibrated, _report_dir(calibrated), print))
+    return calibrated
 
 
 def _timing(seconds: dict[str, float]) -> str:

@@ -150,7 +150,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if (args.model is None) == (not args.gt_instances):
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
-    masking, track = settings_from_args(args)
+    masking, track = settings_from_args(args, None if args.gt_instances else args.model)
     if args.fps is not None and not track.rate.thread:
         raise SlimsegError("--fps sets the real-time replay of --rate thread: add --rate thread")
     if args.fps is not None and not (args.fps >= 0 and math.isfinite(args.fps)):

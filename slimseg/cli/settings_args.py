@@ -8,10 +8,17 @@ from __future__ import annotations
 import argparse
 import sys
 import textwrap
+from pathlib import Path
 
 from slimseg.dynamic.chain_config import TrackPlan
 from slimseg.dynamic.knobs import BY_KEY, KNOBS, Knob, KnobError, Value, knob
-from slimseg.dynamic.masking_settings import DEFAULT_PRESET, PRESETS, MaskingSettings, preset
+from slimseg.dynamic.masking_settings import (
+    CALIBRATED,
+    DEFAULT_PRESET,
+    PRESETS,
+    MaskingSettings,
+    preset,
+)
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.track_settings import (
     DEFAULT_TRACK_PRESET,
@@ -50,10 +57,12 @@ def add_settings_args(
 ) -> None:
     """``--preset`` and ``--set`` (``masking``), ``--track`` and (``rate``) ``--rate``."""
     g = p.add_argument_group("masking chain (docs/settings.md; every key in the epilog)")
-    p.set_defaults(preset=DEFAULT_PRESET, settings=[], rate=None)
+    p.set_defaults(preset=None, settings=[], rate=None)
     if masking:
-        g.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
-                       help=f"named masking settings (default {DEFAULT_PRESET})")  # fmt: skip
+        g.add_argument("--preset", choices=(*PRESETS, CALIBRATED), default=None,
+                       help=f"named masking settings (default: the model's own {CALIBRATED} "
+                       f"preset when its export has one, else {DEFAULT_PRESET}; slimseg "
+                       "calibrate makes one)")  # fmt: skip
         g.add_argument(
             "--set",
             dest="settings",
@@ -91,9 +100,33 @@ def add_settings_args(
         )
 
 
-def settings_from_args(args: argparse.Namespace) -> tuple[MaskingSettings, TrackPlan]:
-    """The preset with every ``--set`` applied, and the track stage with its rate
-    (validated: a :class:`SlimsegError` names a bad value)."""
+def base_masking(preset_name: str | None, model: str | None) -> MaskingSettings:
+    """The settings ``--set`` applies to: the named preset; with none named, the model's own
+    ``calibrated`` preset when ``model`` is an export that carries one, else the shipped
+    defaults (a note on stderr says so for an export without one)."""
+    if preset_name is not None and preset_name != CALIBRATED:
+        return preset(preset_name)
+    if model is None or Path(model).suffix != ".onnx":
+        if preset_name == CALIBRATED:
+            raise SlimsegError(f"--preset {CALIBRATED} is a model's own: give --model X.onnx "
+                               "(an export slimseg calibrate wrote)")  # fmt: skip
+        return preset(DEFAULT_PRESET)
+    from slimseg.deploy.calibrated import model_masking, read_model_metadata
+
+    settings, note = model_masking(read_model_metadata(model), model)
+    if note is not None:
+        if preset_name == CALIBRATED:
+            raise SlimsegError(f"--preset {CALIBRATED}: {note}")
+        print(f"note: {note}", file=sys.stderr)
+    return settings
+
+
+def settings_from_args(
+    args: argparse.Namespace, model: str | None = None
+) -> tuple[MaskingSettings, TrackPlan]:
+    """The preset (:func:`base_masking`: ``model``'s own by default) with every ``--set``
+    applied, and the track stage with its rate (validated: a :class:`SlimsegError` names a bad
+    value)."""
     given: dict[str, Value] = {}
     for key, text in args.settings:
         try:
@@ -105,7 +138,7 @@ def settings_from_args(args: argparse.Namespace) -> tuple[MaskingSettings, Track
         given[key] = value
     track_given = {k: v for k, v in given.items() if BY_KEY[k].group == "track"}
     masking_given = {k: v for k, v in given.items() if k not in track_given}
-    masking = preset(args.preset).with_values(**masking_given)
+    masking = base_masking(args.preset, model).with_values(**masking_given)
     for key in masking_given:
         if masking.inert(key):
             print(f"note: --set {key} changes nothing under rule {masking.rule} "

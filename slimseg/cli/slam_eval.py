@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
-    masking, track = settings_from_args(args)
+    masking, track = settings_from_args(args, None if args.gt_instances else args.model)
     dropout = dropout_from_args(args)
     if args.runs < 1:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")

@@ -16,14 +16,15 @@ from pathlib import Path
 from typing import Any
 
 from slimseg.deploy.metadata import masking_from_metadata, read_onnx_metadata, slam_masking_entry
-from slimseg.deploy.onnx_io import publish, stage, staging_dir
-from slimseg.dynamic.masking_settings import DEFAULT, DEFAULT_PRESET, MaskingSettings
+from slimseg.dynamic.masking_settings import (
+    CALIBRATED,
+    DEFAULT,
+    DEFAULT_PRESET,
+    MaskingSettings,
+)
 from slimseg.errors import SlimsegError
 
 log = logging.getLogger(__name__)
-
-CALIBRATED = "calibrated"
-"""The preset name of a model's own settings."""
 
 
 def is_calibrated(meta: dict[str, Any]) -> bool:
@@ -92,6 +93,8 @@ def write_calibrated(
     (ONNX ``metadata_props`` and the ``out``'s ``.json`` sidecar), staged then renamed; never
     over ``model`` itself or a file that is not an earlier slimseg export. Returns ``out``."""
     import onnx
+
+    from slimseg.deploy.onnx_io import publish, stage, staging_dir
 
     if out.resolve() == model.resolve():
         raise SlimsegError(f"--out {out} is the --model itself: give a new file name")

@@ -12,9 +12,11 @@ export's metadata, explicit arguments override them. docs/runtime_api.md.
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
+from slimseg.deploy.calibrated import is_calibrated, uncalibrated_note
 from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.predictor import Predictor
 from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
@@ -23,6 +25,8 @@ from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.modes import FPS, KEYPOINTS, Mode
 from slimseg.dynamic.track_settings import DEFAULT_TRACK_PRESET, TrackSettings, track_preset
 from slimseg.errors import SlimsegError
+
+log = logging.getLogger(__name__)
 
 
 class Masker(FrameMasker):
@@ -71,6 +75,8 @@ class Masker(FrameMasker):
         depth) instead of saying so once; the rest as
         :class:`~slimseg.dynamic.chain_config.ChainConfig`."""
         settings = masking_from_metadata(predictor.metadata, preset)
+        if preset is None and not is_calibrated(predictor.metadata):
+            log.info("%s", uncalibrated_note(predictor.path))
         if masking:
             settings = settings.with_values(**masking)
         stage = _track_settings(track)

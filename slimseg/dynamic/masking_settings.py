@@ -113,6 +113,9 @@ docs/slam_defaults.md (values and reasons: docs/settings.md)."""
 PAPERS = PRESETS["papers"]
 SLIMSEG = PRESETS["slimseg"]
 DEFAULT_PRESET = "slimseg"
+CALIBRATED = "calibrated"
+"""The name of a model's own preset, which ``slimseg calibrate`` writes into its export's
+metadata (:mod:`slimseg.deploy.calibrated`): not one of :data:`PRESETS`, it lives in the model."""
 DEFAULT = PRESETS[DEFAULT_PRESET]
 
 

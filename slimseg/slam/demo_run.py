@@ -26,13 +26,13 @@ import logging
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from slimseg.dynamic.masking_settings import DEFAULT, DEFAULT_PRESET
+from slimseg.dynamic.masking_settings import CALIBRATED, DEFAULT_PRESET
 from slimseg.dynamic.modes import Mode
 from slimseg.errors import SlimsegError
 from slimseg.utils.atomic import write_json
@@ -86,6 +86,8 @@ class SlamOutcome:
     """slam-eval summary rows (the last one the still-camera floor)"""
     floor: float = float("nan")
     seconds: dict[str, float] = field(default_factory=dict)
+    masking: str = ""
+    """the masking settings the model's masks were made with (its preset's name and values)"""
 
 
 def slam_extra_missing() -> list[str]:
@@ -161,16 +163,22 @@ def evaluate(
     """Masks and ORB-SLAM3 runs of the three conditions, scored and reported as slam-eval
     does (its files land in ``folder``)."""
     from slimseg.data.tum import TumSequence
+    from slimseg.deploy.calibrated import is_calibrated, model_masking, read_model_metadata
     from slimseg.slam import session
     from slimseg.slam.condition_runs import evaluate_condition
     from slimseg.slam.conditions import Condition
     from slimseg.slam.metrics import still_floor
     from slimseg.slam.report import RunInfo, write_report
 
+    meta = read_model_metadata(onnx)
+    masking, note = model_masking(meta, onnx)
+    if note is not None:
+        say(f"note: {note}")
+    name = CALIBRATED if is_calibrated(meta) else DEFAULT_PRESET
     with TumSequence(seq_dir) as seq:
         plan = session.Plan(
             sequence=seq, names=list(CONDITIONS), model=str(onnx), runs=s.runs, vocab=vocab,
-            masking=DEFAULT, speed=s.speed, threads=s.threads, progress=s.progress,
+            masking=masking, speed=s.speed, threads=s.threads, progress=s.progress,
         )  # fmt: skip
         label = session.check_engine(plan.engine, vocab)
         session.clean(folder, None)
@@ -194,7 +202,8 @@ def evaluate(
         )  # fmt: skip
         rows = write_report(folder, info, results, floor)
         seconds = {"masks": t1 - t0, "orbslam3": time.perf_counter() - t1}
-        return SlamOutcome(folder, seq_dir, label, results, rows, floor, seconds)
+        used = f"{name} preset {masking.as_dict()}"
+        return SlamOutcome(folder, seq_dir, label, results, rows, floor, seconds, used)
 
 
 def _num(v: object) -> float | None:
@@ -224,7 +233,7 @@ def slam_table(outcome: SlamOutcome, s: DemoSlamSettings) -> dict[str, object]:
     return {
         "engine": "orbslam3 (RGB-D)",
         "sequence": {**s.sequence_key(), "path": str(outcome.sequence)},
-        "masking": f"{MODE} mode, {DEFAULT_PRESET} preset {asdict(DEFAULT)}",
+        "masking": f"{MODE} mode, {outcome.masking}",
         "vocabulary": outcome.vocabulary,
         "runs_per_condition": s.runs,
         "replay_speed": s.speed,
@@ -252,7 +261,7 @@ def write_figure(outcome: SlamOutcome, path: Path, s: DemoSlamSettings, model: s
     title = (
         f"ORB-SLAM3 RGB-D on the synthetic {s.preset} sequence (seed {s.seed}, {s.frames} "
         f"frames, {w}×{h}), {s.runs} runs per condition\nslimseg masks: {model} ONNX, {MODE} "
-        f"mode, {DEFAULT_PRESET} masking defaults; vocabulary built from the sequence "
+        f"mode, {outcome.masking.split(' ')[0]} masking preset; vocabulary built from the sequence "
         "(non-official)"
     )
     return plot_demo_slam(path, gt[:, 1:4], conds, title, floor=outcome.floor)

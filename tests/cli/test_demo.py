@@ -87,7 +87,7 @@ def test_demo_with_the_slam_stage_small(tmp_path: Path, capsys: pytest.CaptureFi
     out = tmp_path / "demo"
     argv = ["demo", "--out", str(out), "--epochs", "1", "--seq-train", "1", "--seq-val", "1",
             "--imgsz", "64", "--quiet", "--slam-frames", "30", "--slam-size", "320", "240",
-            "--slam-runs", "2"]  # fmt: skip
+            "--slam-runs", "2", "--calibration-budget", "40"]  # fmt: skip
     assert main(argv) == 0
     printed = capsys.readouterr().out
     steps = [line.split("]")[0] + "]" for line in printed.splitlines() if line[:1] == "["]
