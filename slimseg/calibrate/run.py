@@ -55,9 +55,9 @@ CONFIRM_SHARE = 0.6
 class CalibrationPlan:
     """What to calibrate and how: the export ``model``, the user's ``sequences`` (empty:
     render ``rendered`` of them, ``frames`` frames of ``size`` W×H each), the ``mode``, the
-    time ``budget_s``, the search's ``max_trials``, ``workers`` and ``seed``, and the confirmation (``confirm_runs`` ORB-SLAM3
-    runs per condition, 0: none; ``vocab``: ORB-SLAM3's vocabulary, None: built from the
-    calibration frames)."""
+    time ``budget_s``, the search's ``max_trials``, ``workers`` and ``seed``, and the
+    confirmation (``confirm_runs`` ORB-SLAM3 runs per condition, 0: none; ``vocab``:
+    ORB-SLAM3's vocabulary, None: built from the calibration frames)."""
 
     model: Path
     sequences: tuple[Path, ...] = ()
