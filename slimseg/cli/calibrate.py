@@ -95,8 +95,6 @@ def run(args: argparse.Namespace) -> int:
     model, out = Path(args.model), Path(args.out)
     if not model.is_file():
         raise SlimsegError(f"--model {model}: no such file")
-    if out.suffix != ".onnx":
-        raise SlimsegError(f"--out {out}: give a .onnx file name")
     if not args.budget > 0:
         raise SlimsegError(f"--budget {args.budget}: expected seconds > 0")
     report = args.report or out.with_name(out.stem + "_calibration")
@@ -123,11 +121,20 @@ def calibrate_model(plan: object, out: Path, report: Path, say) -> str:
     line (also what ``slimseg demo`` prints)."""
     from slimseg.calibrate.report import write_report
     from slimseg.calibrate.run import calibrate
-    from slimseg.deploy.calibrated import read_model_metadata, write_calibrated
+    from slimseg.calibrate.sequences import user_calibration_set
+    from slimseg.deploy.calibrated import (
+        check_calibrated_out,
+        read_model_metadata,
+        write_calibrated,
+    )
     from slimseg.utils.atomic import staged_dir
+    from slimseg.utils.outputs import claim_folder
 
-    _check_extras(plan.confirm_runs > 0)
-    read_model_metadata(plan.model)  # a one-line error before any work
+    _check_extras(plan.confirm_runs > 0)  # one-line errors before any work
+    read_model_metadata(plan.model)
+    check_calibrated_out(plan.model, out)
+    claim_folder(report, "--report")
+    user_calibration_set(list(plan.sequences))
     inputs = {"--model": plan.model, "--sequence": list(plan.sequences)}
     with staged_dir(report, "--report", "calibrate", inputs) as folder:
         result = calibrate(plan, folder, say)

@@ -86,6 +86,16 @@ def with_calibration(
     return {**meta, "slam_masking": entry}
 
 
+def check_calibrated_out(model: Path, out: Path) -> None:
+    """One-line :class:`SlimsegError` unless ``out`` may take the calibrated copy of
+    ``model``: a new ``.onnx`` name, or an earlier slimseg export; never ``model`` itself."""
+    from slimseg.deploy.onnx_io import claim_export
+
+    if out.resolve() == model.resolve():
+        raise SlimsegError(f"--out {out} is the --model itself: give a new file name")
+    claim_export(out)
+
+
 def write_calibrated(
     model: Path, out: Path, settings: MaskingSettings, provenance: dict[str, Any]
 ) -> Path:
@@ -96,8 +106,7 @@ def write_calibrated(
 
     from slimseg.deploy.onnx_io import publish, stage, staging_dir
 
-    if out.resolve() == model.resolve():
-        raise SlimsegError(f"--out {out} is the --model itself: give a new file name")
+    check_calibrated_out(model, out)
     proto = onnx.load(str(model))
     props = {p.key: p.value for p in proto.metadata_props}
     meta = with_calibration(read_onnx_metadata(model, props), settings, provenance)

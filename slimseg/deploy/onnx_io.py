@@ -47,13 +47,11 @@ def owned_export(out: Path) -> bool:
     return out.is_file() and json_with(sidecar_path(out), dict, "slimseg_version")
 
 
-def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
-    """A temporary folder beside ``out`` (created with its parents), removed on exit with
-    whatever is left in it. Use as ``with staging_dir(out) as tmp:``. ``SlimsegError`` first
-    (before any export work) when ``out`` or its sidecar is an existing folder, when ``out``
-    does not end in ``.onnx`` (its sidecar would be itself), or when either is an existing
-    file slimseg did not write (:func:`owned_export`): an export replaces an earlier export
-    only, never a user's ``annotations.json`` that happens to share the stem."""
+def claim_export(out: Path) -> None:
+    """``SlimsegError`` when ``out`` or its sidecar is an existing folder, when ``out`` does
+    not end in ``.onnx`` (its sidecar would be itself), or when either is an existing file
+    slimseg did not write (:func:`owned_export`): an export replaces an earlier export only,
+    never a user's ``annotations.json`` that happens to share the stem."""
     check_onnx_name(out)
     for path in (out, sidecar_path(out)):
         if path.is_dir():
@@ -63,6 +61,13 @@ def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
             )
     claim_file(out, "--out", owned_export, "ONNX graph")
     claim_file(sidecar_path(out), "--out", lambda p: owned_export(out), "metadata sidecar")
+
+
+def staging_dir(out: Path) -> tempfile.TemporaryDirectory:
+    """A temporary folder beside ``out`` (created with its parents), removed on exit with
+    whatever is left in it. Use as ``with staging_dir(out) as tmp:``; :func:`claim_export`'s
+    refusals come first, before any export work."""
+    claim_export(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     return tempfile.TemporaryDirectory(dir=out.parent, prefix=f".{out.stem}.")
 

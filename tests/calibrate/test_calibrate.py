@@ -1,0 +1,226 @@
+"""`slimseg calibrate`: the search space from the registry, the hand-checked objective, the
+reserved sequences, the choice after the ORB-SLAM3 confirmation, the calibrated export and
+its use by default (dynamic, slam-eval's settings, Masker), and the CLI's refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from conftest import open_class_bias
+
+import slimseg
+from slimseg.calibrate.confirm import Ate, choose
+from slimseg.calibrate.objective import RECALL_FLOOR, RECALL_WEIGHT, CellScore, Evaluation
+from slimseg.calibrate.search import SEARCHED, Trial, clipped, run_search
+from slimseg.calibrate.sequences import CALIBRATION_PRESETS
+from slimseg.cli.main import main
+from slimseg.data.synth.sequence import write_sequence
+from slimseg.data.synth.world_frames import FIRST_INDEX, MAX_EVAL_SEQUENCES
+from slimseg.data.tum import TumSequence
+from slimseg.deploy.calibrated import (
+    CALIBRATED,
+    is_calibrated,
+    model_masking,
+    read_model_metadata,
+    write_calibrated,
+)
+from slimseg.deploy.onnx_export import export_onnx
+from slimseg.deploy.predictor import Predictor
+from slimseg.dynamic.annotations import AnnotationInstances, Dropout
+from slimseg.dynamic.knobs import BY_KEY, KNOBS
+from slimseg.dynamic.masking_settings import DEFAULT, PAPERS
+from slimseg.models.batchnorm_stats import batchnorm_from
+from slimseg.sequence.detection_cache import build_cache
+
+NAMES = ["person", "chair"]
+
+
+def test_search_space_is_the_registry_s() -> None:
+    """Every masking knob but none of the track stage's is searched, inside its valid range;
+    the presets are points of the space."""
+    assert {k.key for k in SEARCHED} == {k.key for k in KNOBS if k.group == "masking"}
+    for k in SEARCHED:
+        if k.choices:
+            continue
+        lo, hi = k.search
+        assert lo < hi, k.key
+        k.check(k.kind(lo)), k.check(k.kind(hi))
+        assert not k.log or lo > 0, k.key
+    for preset in (DEFAULT, PAPERS):
+        values = clipped(preset.as_dict())
+        assert preset.with_values(**values) == preset  # the presets lie inside the spans
+
+
+def test_objective_by_hand() -> None:
+    """precision - 5 x recall shortfall below 95 %, mean over the cells."""
+    assert RECALL_FLOOR == 0.95 and RECALL_WEIGHT == 5.0
+    met = CellScore("a", "per_frame", 0.6, 0.97, 1.0)
+    short = CellScore("a", "track", 0.8, 0.90, 1.0)
+    assert met.value() == pytest.approx(0.6)
+    assert short.value() == pytest.approx(0.8 - 5 * 0.05)
+    nothing = CellScore("b", "track", float("nan"), 0.0, 1.0)  # nothing masked on walkers
+    assert nothing.value() == pytest.approx(-5 * 0.95)
+    no_walkers = CellScore("c", "track", 0.0, float("nan"), 1.0)
+    assert no_walkers.value() == 0.0
+    ev = Evaluation(DEFAULT, (met, short))
+    assert ev.value() == pytest.approx((0.6 + 0.55) / 2)
+    assert not ev.floor_met() and Evaluation(DEFAULT, (met,)).floor_met()
+    assert ev.pooled("track") == (pytest.approx(0.8), pytest.approx(0.9))
+
+
+def test_calibration_sequences_are_reserved() -> None:
+    """Their indices are neither training worlds (10,000+, 20,000+) nor evaluation sequences
+    (below 10,000) of any seed."""
+    first = FIRST_INDEX["calibrate"]
+    assert first >= MAX_EVAL_SEQUENCES
+    others = [v for k, v in FIRST_INDEX.items() if k != "calibrate"]
+    assert all(first >= v + (FIRST_INDEX["val"] - FIRST_INDEX["train"]) for v in others)
+    assert set(CALIBRATION_PRESETS) <= {"walking_xyz", "walking_halfsphere", "walking_static"}
+
+
+def _trial(n: int, value: float) -> Trial:
+    cell = CellScore("s", "per_frame", value, 1.0, 1.0)
+    return Trial(n, "search", Evaluation(DEFAULT, (cell,)), 0.0)
+
+
+def test_choice_after_confirmation() -> None:
+    """Within the ground-truth masks' run spread the objective decides; beyond it, the ATE."""
+    truth = Ate("gt", (0.010, 0.012, 0.018), lost=0, frames=60)
+    a, b, c = _trial(0, 0.9), _trial(1, 0.8), _trial(2, 0.7)
+    ates = {0: Ate("0", (0.03,) * 3, 0, 60), 1: Ate("1", (0.015,) * 3, 0, 60),
+            2: Ate("2", (0.011,) * 3, 0, 60)}  # fmt: skip
+    assert choose([a, b, c], truth, ates).number == 1  # b, c within; b scores higher
+    ates[1] = Ate("1", (0.015,) * 3, lost=5, frames=60)  # loses frames the truth does not
+    assert choose([a, b, c], truth, ates).number == 2
+    far = {n: Ate(str(n), (v,) * 3, 0, 60) for n, v in ((0, 0.05), (1, 0.04), (2, 0.09))}
+    assert choose([a, b, c], truth, far).number == 1  # none within: the lowest ATE
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("calibrate") / "seq"
+    write_sequence(root, seed=5, index=FIRST_INDEX["calibrate"], frames=14, size=(320, 240),
+                   preset="walking_xyz")  # fmt: skip
+    return root
+
+
+def test_search_on_ground_truth_instances(sequence: Path) -> None:
+    """The presets come first, every candidate is scored in both conditions, the best is at
+    least the shipped preset's; the forked workers score as the process itself does."""
+    seq = TumSequence(sequence)
+    source = AnnotationInstances(sequence, Dropout(0.3, 2, seed=1))
+    caches = {"s": build_cache(source, seq, 0.0, progress=False)}
+    one = run_search(caches, DEFAULT, 1e9, 5, workers=1, seed=3)
+    assert [t.origin for t in one[:2]] == ["slimseg", "papers"] and len(one) == 5
+    assert all(len(t.evaluation.cells) == 2 for t in one)
+    shipped = one[0]
+    assert max(t.value for t in one) >= shipped.value
+    two = run_search(caches, DEFAULT, 1e9, 3, workers=2, seed=3)
+    by_origin = {t.origin: t.value for t in two if t.origin != "search"}
+    assert by_origin["slimseg"] == pytest.approx(shipped.value)
+    assert by_origin["papers"] == pytest.approx(one[1].value)
+
+
+@pytest.fixture(scope="module")
+def model(sequence: Path) -> Path:
+    """yolov8n-seg at 64 px, BatchNorm statistics of the sequence's frames, a few scores above
+    the masking threshold; slimseg's metadata."""
+    torch.manual_seed(0)
+    net = slimseg.build_model("yolov8n-seg", num_classes=len(NAMES))
+    seq = TumSequence(sequence)
+    frames = np.stack([cv2.resize(seq.load(i)[0], (64, 64)) for i in range(0, 14, 3)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        batchnorm_from(net, torch.from_numpy(frames).permute(0, 3, 1, 2).float() / 255)
+        open_class_bias(net)
+        out = sequence.parent / "m.onnx"
+        export_onnx(net, out, (64, 64), NAMES, [1.0, 0.0], simplify=False)
+    return out
+
+
+def test_calibrated_export_is_the_default(model: Path, sequence: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A calibrated copy carries its preset beside the shipped ones; dynamic uses it without a
+    note, the uncalibrated model with one; Masker takes it by default."""
+    settings = DEFAULT.with_values(conf=0.3, dilation_px=7)
+    out = write_calibrated(model, tmp_path / "cal.onnx", settings, {"report_digest": "x"})
+    meta = read_model_metadata(out)
+    assert is_calibrated(meta) and not is_calibrated(read_model_metadata(model))
+    assert set(meta["slam_masking"]["presets"]) == {"papers", "slimseg", CALIBRATED}
+    assert model_masking(meta, out) == (settings, None)
+    assert json.loads((tmp_path / "cal.json").read_text())["slam_masking"]["preset"] == CALIBRATED
+    masker = slimseg.Masker.from_predictor(Predictor.from_path(out))
+    assert masker.config.masking == settings
+    for onnx, noted in ((out, False), (model, True)):
+        argv = ["dynamic", "--sequence", str(sequence), "--model", str(onnx), "--out",
+                str(tmp_path / f"d_{onnx.stem}"), "--quiet"]  # fmt: skip
+        assert main(argv) == 0
+        cap = capsys.readouterr()
+        assert ("no calibrated masking preset" in cap.err) is noted
+        if not noted:
+            assert "conf 0.3, dilation_px 7" in cap.out
+    argv = ["dynamic", "--sequence", str(sequence), "--model", str(model), "--preset",
+            CALIBRATED, "--out", str(tmp_path / "d_refused")]  # fmt: skip
+    assert main(argv) == 2
+    assert "--preset calibrated" in capsys.readouterr().err
+
+
+def test_calibrate_cli(model: Path, sequence: Path, tmp_path: Path,
+                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The command end to end without the ORB-SLAM3 confirmation: report files, the chosen
+    settings in the copy, the report's digest in its metadata; the model left as it was."""
+    pytest.importorskip("optuna")
+    before = model.read_bytes()
+    out = tmp_path / "m_cal.onnx"
+    argv = ["calibrate", "--model", str(model), "--out", str(out), "--sequence", str(sequence),
+            "--confirm-runs", "0", "--trials", "4", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert model.read_bytes() == before
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("calibrated m.onnx") and "4 candidates" in line, line
+    folder = tmp_path / "m_cal_calibration"
+    report = json.loads((folder / "report.json").read_text())
+    assert len(report["trials"]) == 4 and report["confirmation"] is None
+    chosen = report["trials"][[t["number"] for t in report["trials"]].index(report["chosen"])]
+    assert chosen["objective"] == max(t["objective"] for t in report["trials"])
+    png = cv2.imread(str(folder / "report.png"))
+    assert png is not None and png.shape[1] > 1000 and png.std() > 10
+    meta = read_model_metadata(out)
+    entry = meta["slam_masking"]
+    assert entry["presets"][CALIBRATED] == report["settings"]
+    assert entry["calibration"]["report_digest"].startswith("sha256:")
+    assert entry["calibration"]["on"] == {"sequences": ["seq"]}
+    for key, value in report["settings"].items():
+        BY_KEY[key].check(value)
+    assert not math.isnan(chosen["objective"])
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--out", "{model}"], "is the --model itself"),
+        (["--out", "{tmp}/x.txt"], "ending in .onnx"),
+        (["--out", "{tmp}/foreign.onnx"], "foreign.onnx"),
+        (["--out", "{tmp}/y.onnx", "--budget", "0"], "--budget 0"),
+        (["--out", "{tmp}/z.onnx", "--sequence", "{tmp}"], "no dynamic/ folder"),
+    ],
+)
+def test_calibrate_refuses(model: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                           extra: list[str], message: str) -> None:  # fmt: skip
+    """One line naming the option, exit 2, nothing written."""
+    pytest.importorskip("optuna")
+    (tmp_path / "foreign.onnx").write_bytes(b"a user's file")
+    args = [a.format(model=model, tmp=tmp_path) for a in extra]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["calibrate", "--model", str(model), "--confirm-runs", "0", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert (tmp_path / "foreign.onnx").read_bytes() == b"a user's file"
