@@ -8,6 +8,7 @@ import io
 import math
 import os
 import shutil
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -150,7 +151,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if (args.model is None) == (not args.gt_instances):
         raise SlimsegError("slimseg dynamic: give exactly one of --model PATH or --gt-instances")
-    masking, track = settings_from_args(args, None if args.gt_instances else args.model)
+    notes: list[str] = []  # said once the model has loaded
+    masking, track = settings_from_args(args, None if args.gt_instances else args.model, notes)
     if args.fps is not None and not track.rate.thread:
         raise SlimsegError("--fps sets the real-time replay of --rate thread: add --rate thread")
     if args.fps is not None and not (args.fps >= 0 and math.isfinite(args.fps)):
@@ -161,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     bag_out = _bag_output(args, out)
     rerun = rerun_path(args, out, {"--sequence": args.sequence, "--model": args.model})
     with open_sequence(sequence, bag_options_from_args(args)) as seq:  # before the model loads
-        return _run(args, seq, masking, track, dropout, bag_out, rerun)
+        return _run(args, seq, masking, track, dropout, bag_out, rerun, notes)
 
 
 def _run(
@@ -172,8 +174,10 @@ def _run(
     dropout: Dropout | None,
     bag_out: bool,
     rerun: Path | None,
+    notes: list[str],
 ) -> int:
-    """:func:`run` on the opened sequence (closed by the caller)."""
+    """:func:`run` on the opened sequence (closed by the caller); ``notes`` printed on stderr
+    once the model has loaded."""
     sequence, out = Path(args.sequence), Path(args.out)
     if isinstance(seq, BagSequence):
         if args.gt_instances:
@@ -192,6 +196,8 @@ def _run(
         from slimseg.deploy.predictor import Predictor
 
         predictor = Predictor.from_path(args.model, args.backend, threads=args.threads)
+    for line in notes:
+        print(line, file=sys.stderr)
     restore_mask = args.restore_mask or ("pred" if args.model else "gt")
     if args.restore and restore_mask == "gt" and not (sequence / "dynamic").is_dir():
         raise SlimsegError(

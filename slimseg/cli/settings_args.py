@@ -100,10 +100,11 @@ def add_settings_args(
         )
 
 
-def base_masking(preset_name: str | None, model: str | None) -> MaskingSettings:
+def base_masking(preset_name: str | None, model: str | None, notes: list[str]) -> MaskingSettings:
     """The settings ``--set`` applies to: the named preset; with none named, the model's own
     ``calibrated`` preset when ``model`` is an export that carries one, else the shipped
-    defaults (a note on stderr says so for an export without one)."""
+    defaults (for an export without one, a note is added to ``notes``: the command prints it
+    once its inputs have loaded, so a bad input still ends in one line)."""
     if preset_name is not None and preset_name != CALIBRATED:
         return preset(preset_name)
     if model is None or Path(model).suffix != ".onnx":
@@ -117,16 +118,18 @@ def base_masking(preset_name: str | None, model: str | None) -> MaskingSettings:
     if note is not None:
         if preset_name == CALIBRATED:
             raise SlimsegError(f"--preset {CALIBRATED}: {note}")
-        print(f"note: {note}", file=sys.stderr)
+        notes.append(f"note: {note}")
     return settings
 
 
 def settings_from_args(
-    args: argparse.Namespace, model: str | None = None
+    args: argparse.Namespace, model: str | None = None, notes: list[str] | None = None
 ) -> tuple[MaskingSettings, TrackPlan]:
     """The preset (:func:`base_masking`: ``model``'s own by default) with every ``--set``
     applied, and the track stage with its rate (validated: a :class:`SlimsegError` names a bad
-    value)."""
+    value). ``notes``: where the lines to print once the inputs have loaded go (None: printed
+    on stderr now)."""
+    said: list[str] = [] if notes is None else notes
     given: dict[str, Value] = {}
     for key, text in args.settings:
         try:
@@ -138,7 +141,10 @@ def settings_from_args(
         given[key] = value
     track_given = {k: v for k, v in given.items() if BY_KEY[k].group == "track"}
     masking_given = {k: v for k, v in given.items() if k not in track_given}
-    masking = base_masking(args.preset, model).with_values(**masking_given)
+    masking = base_masking(args.preset, model, said).with_values(**masking_given)
+    if notes is None:
+        for line in said:
+            print(line, file=sys.stderr)
     for key in masking_given:
         if masking.inert(key):
             print(f"note: --set {key} changes nothing under rule {masking.rule} "

@@ -170,7 +170,8 @@ def run(args: argparse.Namespace) -> int:
     from slimseg.slam import session
 
     say = (lambda s: print(s, file=sys.stderr)) if args.json else print
-    masking, track = settings_from_args(args, None if args.gt_instances else args.model)
+    notes: list[str] = []  # said once the inputs have loaded
+    masking, track = settings_from_args(args, None if args.gt_instances else args.model, notes)
     dropout = dropout_from_args(args)
     if args.runs < 1:
         raise SlimsegError(f"--runs {args.runs} must be at least 1")
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sweep:
         from slimseg.cli.slam_sweep import run_sweep_command
 
-        return run_sweep_command(args, masking, say, track, dropout)
+        return run_sweep_command(args, masking, say, track, dropout, notes)
     if len(args.sequence) > 1:
         raise SlimsegError("several --sequence values need --sweep (one table per sequence)")
     args.sequence = args.sequence[0]
@@ -218,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
         # every file appears when the session is done, replacing an earlier session's folder
         # whole (never mixed into the new table); a folder holding a user's files is refused
         with staged_dir(out, command="slam-eval", inputs=_inputs(args)) as stage:
+            for line in notes:
+                print(line, file=sys.stderr)
             rows, info = session.run_plan(plan, stage, say)
     from slimseg.slam.report import as_json_rows, table_lines
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 
 from slimseg.dynamic.annotations import Dropout
@@ -38,9 +39,11 @@ def run_sweep_command(
     say: Callable[[str], None],
     track: TrackPlan = TRACK_OFF,
     dropout: Dropout | None = None,
+    notes: Sequence[str] = (),
 ) -> int:
     """Validate the sweep options, run it, print and write the tables (every setting under
-    the ``track`` stage, on ground-truth instances with ``dropout`` if given)."""
+    the ``track`` stage, on ground-truth instances with ``dropout`` if given); ``notes``
+    printed on stderr once the sequences have opened."""
     from slimseg.data.bags.reader import is_bag
     from slimseg.data.tum import TumSequence
     from slimseg.slam.sweep import parse_sweep
@@ -84,6 +87,8 @@ def run_sweep_command(
         inputs = {"--sequence": args.sequence, "--model": args.model, "--vocab": args.vocab}
         refuse_inputs(args.out, "--out", inputs, folder=True)
         claim_sweep_out(plan, args.out)  # a user's files in --out are never replaced
+        for line in notes:
+            print(line, file=sys.stderr)
         sweeps = run_sweep(plan, args.out, say)
     model = "ground-truth instances" if args.gt_instances else f"model {args.model}"
     rows = write_sweep(args.out, plan, sweeps, model)
