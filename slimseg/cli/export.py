@@ -119,9 +119,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="--int8: DATA.yaml to gate on (needed if --calib is a folder)",
     )
+    p.add_argument(
+        "--calibrate-masking",
+        type=float,
+        nargs="?",
+        const=CALIBRATION_BUDGET_S,
+        default=None,
+        metavar="SECONDS",
+        help="then choose the model's own masking settings (slimseg calibrate, within SECONDS; "
+        f"default {CALIBRATION_BUDGET_S:g}) and write them into the export as its 'calibrated' "
+        "preset (raw FP32/FP16 exports; needs slimseg[calibrate] and, for the ORB-SLAM3 "
+        "confirmation, slimseg[slam])",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--out", default=None, help="output .onnx (default export/<model>.onnx)")
     p.set_defaults(run=run)
+
+
+#: ``--calibrate-masking``'s default time bound (s): slimseg calibrate's.
+CALIBRATION_BUDGET_S = 300.0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,6 +152,11 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError("--conf, --iou and --max-det only apply with --end2end")
     if args.end2end:
         check_end2end_size(args.max_det or DEFAULT_END2END_MAX_DET, args.imgsz)
+    if args.calibrate_masking is not None and (args.int8 or args.end2end):
+        raise SlimsegError("--calibrate-masking calibrates a raw FP32/FP16 export: drop --int8 / "
+                           "--end2end, or run slimseg calibrate on the raw export")  # fmt: skip
+    if args.calibrate_masking is not None and not args.calibrate_masking > 0:
+        raise SlimsegError(f"--calibrate-masking {args.calibrate_masking}: expected seconds > 0")
     if args.int8 and not args.calib:
         raise SlimsegError("--int8 needs --calib DATA.yaml or --calib FOLDER of frames")
     if not args.int8 and (args.calib or args.calib_images or args.int8_val or args.int8_target):
@@ -179,7 +200,29 @@ def run(args: argparse.Namespace) -> int:
     print(f"  metadata sidecar {report.sidecar}")
     print(f"  ops: {', '.join(report.ops)}")
     print("  parity vs fused torch: " + ", ".join(f"{k} {v:.3g}" for k, v in report.parity.items()))
+    if args.calibrate_masking is not None:
+        _calibrate_masking(report.path, args.calibrate_masking, not args.quiet)
     return 0
+
+
+def _calibrate_masking(path: Path, budget_s: float, progress: bool) -> None:
+    """Calibrate the export ``path`` into a staged copy, then put the copy (and its sidecar)
+    in its place: the export carries its ``calibrated`` preset; the report lands beside it."""
+    import os
+
+    from slimseg.calibrate.run import CalibrationPlan
+    from slimseg.cli.calibrate import calibrate_model
+
+    staged = path.with_name(f".{path.stem}.calibrated.onnx")
+    report = path.with_name(path.stem + "_calibration")
+    plan = CalibrationPlan(model=path, budget_s=budget_s, progress=progress)
+    try:
+        print(calibrate_model(plan, staged, report, print).replace(str(staged), str(path)))
+        os.replace(sidecar_path(staged), sidecar_path(path))
+        os.replace(staged, path)
+    finally:
+        for p in (staged, sidecar_path(staged)):
+            p.unlink(missing_ok=True)
 
 
 def _end2end_settings(args: argparse.Namespace) -> End2EndSettings | None:

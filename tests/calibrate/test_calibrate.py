@@ -224,3 +224,21 @@ def test_calibrate_refuses(model: Path, tmp_path: Path, capsys: pytest.CaptureFi
     assert len(err) == 1 and message in err[0], err
     assert sorted(p.name for p in tmp_path.iterdir()) == before
     assert (tmp_path / "foreign.onnx").read_bytes() == b"a user's file"
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--end2end", "--calibrate-masking"], "--calibrate-masking calibrates a raw"),
+        (["--calibrate-masking", "0"], "--calibrate-masking 0.0: expected seconds > 0"),
+    ],
+)
+def test_export_calibrate_masking_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                          extra: list[str], message: str) -> None:  # fmt: skip
+    """export --calibrate-masking: one line before any export work."""
+    out = tmp_path / "m.onnx"
+    argv = ["export", "--weights", "yolov8n-seg", "--nc", "2", "--imgsz", "64", "--out", str(out)]
+    assert main([*argv, *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert not out.exists()
