@@ -41,13 +41,16 @@ CONDITIONS: dict[str, TrackPlan] = {
 @dataclass(frozen=True)
 class CellScore:
     """One (sequence, condition): keypoint ``precision`` and ``recall`` (NaN: no keypoint
-    masked / no dynamic keypoint) and the masking logic's ms per frame."""
+    masked / no dynamic keypoint), the masking logic's ms per frame, and the mean shares of
+    the frame masked and of the keypoints left static."""
 
     sequence: str
     condition: str
     precision: float
     recall: float
     logic_ms: float
+    mask_share: float = 0.0
+    static_share: float = 1.0
 
     def value(self, floor: float = RECALL_FLOOR) -> float:
         """``precision - RECALL_WEIGHT * shortfall``; a mask that drops nothing scores 0 on a
@@ -76,6 +79,13 @@ class Evaluation:
         mean = lambda v: sum(v) / len(v) if v else float("nan")  # noqa: E731
         return mean(p), mean(r)
 
+    def shares(self, condition: str = "per_frame") -> tuple[float, float]:
+        """Mean ``(mask share, static keypoint share)`` over the sequences under
+        ``condition``: what the chain expects of this model under these settings."""
+        cells = [c for c in self.cells if c.condition == condition] or list(self.cells)
+        n = max(len(cells), 1)
+        return sum(c.mask_share for c in cells) / n, sum(c.static_share for c in cells) / n
+
     def floor_met(self, floor: float = RECALL_FLOOR) -> bool:
         """Every cell's recall at or above ``floor``."""
         return all(math.isnan(c.recall) or c.recall >= floor for c in self.cells)
@@ -99,5 +109,6 @@ def evaluate(
         for condition, plan in CONDITIONS.items():
             res = mask_with(cache, mode, settings, None, plan)
             s = res.score or ModeScore()
-            cells.append(CellScore(name, condition, s.precision, s.recall, res.logic_ms))
+            cells.append(CellScore(name, condition, s.precision, s.recall, res.logic_ms,
+                                   res.mask_share, res.static_share))  # fmt: skip
     return Evaluation(settings, tuple(cells))

@@ -139,6 +139,7 @@ def calibrate_model(plan: object, out: Path, report: Path, say) -> str:
     with staged_dir(report, "--report", "calibrate", inputs) as folder:
         result = calibrate(plan, folder, say)
         digest = write_report(result, plan.model, folder)
+        share, static = result.chosen.evaluation.shares()
         provenance = {
             "on": result.calibration_set.describe(),
             "mode": plan.mode,
@@ -146,6 +147,7 @@ def calibrate_model(plan: object, out: Path, report: Path, say) -> str:
             "report": report.name,
             "report_digest": digest,
             "seconds": round(result.seconds.get("total", 0.0), 1),
+            "expect": {"mask_share": round(share, 4), "static_share": round(static, 4)},
         }
         write_calibrated(plan.model, out, result.settings, provenance)
     ship, chosen = result.shipped.evaluation, result.chosen.evaluation

@@ -28,6 +28,7 @@ from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.tum import mask_name
+from slimseg.deploy.calibrated import expectation
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
 from slimseg.dynamic.masking_settings import MaskingSettings
@@ -221,7 +222,9 @@ def _run(
     with kept_recording(viz) as seal_rerun, _staged_output(out, seq, bag_out, args, boxes) as stage:
         config = ChainConfig(mode=args.mode, masking=masking, track=track,
                              keypoints=args.keypoints, camera=seq.camera.pinhole,
-                             epipolar_depth=args.epipolar_depth)  # fmt: skip
+                             epipolar_depth=args.epipolar_depth,
+                             expect=None if args.gt_instances else
+                             expectation(predictor.metadata, masking))  # fmt: skip
         report = run_sequence(predictor, seq, stage, config, progress=not args.quiet,
                               replay_fps=args.fps, observers=observers,
                               use_depth=not args.no_depth)  # fmt: skip

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from slimseg.deploy.metadata import masking_from_metadata, read_onnx_metadata, slam_masking_entry
+from slimseg.dynamic.familiarity import Expectation
 from slimseg.dynamic.masking_settings import (
     CALIBRATED,
     DEFAULT,
@@ -56,6 +57,21 @@ def model_masking(meta: dict[str, Any], model: str | Path) -> tuple[MaskingSetti
     if is_calibrated(meta):
         return masking_from_metadata(meta, CALIBRATED), None
     return DEFAULT, uncalibrated_note(model)
+
+
+def expectation(meta: dict[str, Any], settings: MaskingSettings) -> Expectation | None:
+    """What the export's calibration measured, for the chain to compare its masks with
+    (:mod:`slimseg.dynamic.familiarity`): only when ``settings`` are its calibrated ones (a
+    user's own choice is not second-guessed) and the export records the measurement."""
+    info = calibration_info(meta)
+    expect = info.get("expect") if info else None
+    if not isinstance(expect, dict) or settings != masking_from_metadata(meta, CALIBRATED):
+        return None
+    share, static = expect.get("mask_share"), expect.get("static_share")
+    if not all(isinstance(v, int | float) and 0 <= v <= 1 for v in (share, static)):
+        raise SlimsegError(f"export metadata slam_masking.calibration.expect: expected two "
+                           f"shares in [0, 1], got {str(expect)[:80]}")  # fmt: skip
+    return Expectation(float(share), float(static), DEFAULT)
 
 
 def read_model_metadata(path: str | Path) -> dict[str, Any]:

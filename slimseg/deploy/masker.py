@@ -16,7 +16,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from slimseg.deploy.calibrated import is_calibrated, uncalibrated_note
+from slimseg.deploy.calibrated import expectation, is_calibrated, uncalibrated_note
 from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.predictor import Predictor
 from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
@@ -85,7 +85,7 @@ class Masker(FrameMasker):
         config = ChainConfig(
             mode=mode, masking=settings, track=TrackPlan(stage, rate), keypoints=keypoints,
             camera=camera, epipolar_depth=epipolar_depth, fps=fps, depth_scale=depth_scale,
-            strict=strict,
+            strict=strict, expect=expectation(predictor.metadata, settings),
         )  # fmt: skip
         return cls(predictor, config)
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from numbers import Integral
 
 from slimseg.data.value_checks import check_intrinsics
+from slimseg.dynamic.familiarity import Expectation
 from slimseg.dynamic.masking_settings import DEFAULT, MaskingSettings
 from slimseg.dynamic.model_rate import EVERY_FRAME, ModelRate
 from slimseg.dynamic.modes import FPS, KEYPOINTS, MAX_KEYPOINTS, Mode, mode_of
@@ -66,7 +67,9 @@ class ChainConfig:
     previous depth (its PnP residual; needs ``camera``); ``fps``: the stream's rate (the
     stage's time constants); ``depth_scale``: units per metre of integer depth images (TUM:
     5000; float depth is metres); ``strict``: a setting that cannot act (its lever lacks the
-    camera, or a frame lacks depth) is refused (``SlimsegError``) instead of said once."""
+    camera, or a frame lacks depth) is refused (``SlimsegError``) instead of said once;
+    ``expect``: what the model's calibration measured (:mod:`slimseg.dynamic.familiarity`:
+    masks far looser than that move the settings to the tighter evidence; None: no check)."""
 
     mode: Mode = Mode.FUSION
     masking: MaskingSettings = DEFAULT
@@ -77,6 +80,7 @@ class ChainConfig:
     fps: float = FPS
     depth_scale: float | None = None
     strict: bool = False
+    expect: Expectation | None = None
 
     def __post_init__(self) -> None:
         try:

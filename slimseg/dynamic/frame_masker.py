@@ -30,6 +30,7 @@ from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import ChainConfig
 from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
+from slimseg.dynamic.familiarity import Familiarity
 from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.knobs import Rule, Value, unmet
 from slimseg.dynamic.mobility import Decision, MotionBelief
@@ -196,6 +197,7 @@ class FrameMasker:
         self._closed = False
         self._busy = threading.Lock()  # held by the step in progress: overlapping calls refused
         self._told_no_depth = False
+        self._familiar = config.expect and Familiarity(config.expect, config.masking)
         if config.camera is None:
             self._unmet({"depth", "history", "track"}, "no camera intrinsics (camera=)")
 
@@ -262,6 +264,9 @@ class FrameMasker:
             result = apply_rules(inputs, decision, self.rules, rng=self._rng, moved=moved)
         self.feed.other_time(clock.since("features"))
         self._remember(features, depth_m)
+        if self._familiar and (new := self._familiar.observe(result.mask, result.dynamic)):
+            self.config = replace(config, masking=new)  # far looser than calibrated: tighter
+            self.rules = FrameRules(self.mobility, config.mode, new)
         self.frames += 1
         return MaskedFrame(
             index=i, stamp=stamp, mask=result.mask, dynamic=result.dynamic,

@@ -132,6 +132,10 @@ class SettingMasks:
     digest: str = ""
     model_share: float = 1.0
     """share of frames the model ran on (``--rate N``: 1/N)"""
+    mask_share: float = 0.0
+    """mean share of the frame masked"""
+    static_share: float = 1.0
+    """mean share of the frame's keypoints left static (the support a SLAM engine keeps)"""
 
 
 def mask_with(
@@ -156,7 +160,7 @@ def mask_with(
     seq = cache.sequence
     have_truth = all(f.truth is not None for f in cache.frames)
     score = ModeScore() if have_truth and cache.frames else None
-    t_logic = 0.0
+    t_logic, masked, static = 0.0, 0.0, 0.0
     digest = hashlib.sha1()
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -174,9 +178,11 @@ def mask_with(
             if out is not None:
                 write_png(out / mask_name(f.stamp), res.mask)
             digest.update(np.ascontiguousarray(res.mask).tobytes())
+            masked += float(np.count_nonzero(res.mask)) / res.mask.size
+            static += 1.0 - float(np.mean(res.dynamic)) if len(res.dynamic) else 1.0
             if score is not None:
                 score.add(res.dynamic, f.truth)
     n = max(len(cache.frames), 1)
     logic_ms = 1000 * t_logic / n + cache.prep_ms
     return SettingMasks(score, logic_ms, len(cache.frames), digest.hexdigest(),
-                        1.0 / track.rate.every)  # fmt: skip
+                        1.0 / track.rate.every, masked / n, static / n)  # fmt: skip

@@ -159,8 +159,12 @@ def _mode_condition(
     from slimseg.sequence.sequence_run import run_sequence
 
     folder = out / "masks" / mode.replace("+", "_")
+    from slimseg.deploy.calibrated import expectation
+
+    meta = None if plan.gt_instances else predictor.metadata
     config = ChainConfig(mode=mode, masking=plan.masking, track=plan.track,
-                         keypoints=plan.keypoints)  # fmt: skip
+                         keypoints=plan.keypoints,
+                         expect=meta and expectation(meta, plan.masking))  # fmt: skip
     rep = run_sequence(predictor, plan.sequence, folder, config, progress=plan.progress)
     ms = rep.ms_per_frame["model"] + rep.ms_per_frame["masking_logic"]
     say(f"{mode}: masks for {rep.frames} frames in {folder / 'masks'} ({ms:.1f} ms/frame)")

@@ -26,11 +26,13 @@ from slimseg.data.synth.world_frames import FIRST_INDEX, MAX_EVAL_SEQUENCES
 from slimseg.data.tum import TumSequence
 from slimseg.deploy.calibrated import (
     CALIBRATED,
+    expectation,
     is_calibrated,
     model_masking,
     read_model_metadata,
     write_calibrated,
 )
+from slimseg.deploy.metadata import masking_from_metadata
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor
 from slimseg.dynamic.annotations import AnnotationInstances, Dropout
@@ -197,6 +199,11 @@ def test_calibrate_cli(model: Path, sequence: Path, tmp_path: Path,
     assert entry["presets"][CALIBRATED] == report["settings"]
     assert entry["calibration"]["report_digest"].startswith("sha256:")
     assert entry["calibration"]["on"] == {"sequences": ["seq"]}
+    expect = entry["calibration"]["expect"]
+    assert 0 <= expect["mask_share"] <= 1 and 0 <= expect["static_share"] <= 1
+    settings = masking_from_metadata(meta, CALIBRATED)
+    assert expectation(meta, settings).mask_share == expect["mask_share"]
+    assert expectation(meta, DEFAULT.with_values(conf=0.49)) is None  # a user's own choice
     for key, value in report["settings"].items():
         BY_KEY[key].check(value)
     assert not math.isnan(chosen["objective"])
