@@ -24,6 +24,16 @@ def _modes(k: Knob) -> str:
     return "all" if len(k.acts_in) == len(MODES) else ", ".join(m.value for m in k.acts_in)
 
 
+def _span(k: Knob) -> str:
+    """The span ``slimseg calibrate`` searches (docs/calibrate.md), or a dash."""
+    if not k.search:
+        return "–"
+    if k.choices:
+        return " or ".join(k.choices)
+    lo, hi = (_value(v) for v in k.search)
+    return f"{lo}–{hi}" + (" (log)" if k.log else "")
+
+
 def docs_table() -> str:
     """``docs/settings.md``: one row per knob (key, range, presets, modes, needs, what)."""
     head = [
@@ -38,12 +48,15 @@ def docs_table() -> str:
         "[slam_defaults.md](slam_defaults.md)); the track stage's knobs act with `--track` "
         "(preset `coast`; `no-coast` sets `max_coast` 0). A rule-bound knob changes nothing "
         "under the other rule, and the CLI says so; a lever switched on whose needs a run "
-        "lacks (no camera, no depth) is said once in the log, or refused with `strict`.",
+        "lacks (no camera, no depth) is said once in the log, or refused with `strict`. "
+        "`slimseg calibrate` searches the spans given for a model's own `calibrated` preset "
+        "([calibrate.md](calibrate.md)).",
         "",
     ]
     rows = [
-        "| key | range | papers | slimseg | off at | acts in modes | needs | rule | what |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| key | range | papers | slimseg | off at | calibrate searches | acts in modes | needs "
+        "| rule | what |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for k in KNOBS:
         if k.group == "track":
@@ -54,7 +67,7 @@ def docs_table() -> str:
         rule = k.rule.value if k.rule else "both"
         off = "–" if k.off is None else _value(k.off)
         rows.append(f"| `{k.key}` | {k.describe_range()} | {papers} | {slimseg} | {off} | "
-                    f"{_modes(k)} | {needs} | {rule} | {k.help} |")  # fmt: skip
+                    f"{_span(k)} | {_modes(k)} | {needs} | {rule} | {k.help} |")  # fmt: skip
     return "\n".join(head + rows) + "\n"
 
 

@@ -23,6 +23,7 @@ EXTRA_USES = {
     "viz": "--rerun FILE.rrd recordings (dynamic, predict --track, slam-eval)",
     "ray": "ablate --backend ray",
     "openvino": "--backend openvino (predict, dynamic, val, bench; Predictor, slimseg.Masker)",
+    "calibrate": "calibrate (a model's own masking settings; Optuna), the demo's calibration",
 }
 _NAME = re.compile(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)")
 _EXTRA = re.compile(r"""extra\s*==\s*['"]([^'"]+)['"]""")
