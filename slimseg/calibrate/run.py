@@ -171,26 +171,25 @@ def _caches(
 def _search(
     plan: CalibrationPlan, caches: dict[str, DetectionCache], search_s: float
 ) -> list[Trial]:
+    """The search with a progress bar over its time budget (candidates and the best so far
+    beside it)."""
     from tqdm import tqdm
 
-    bar = tqdm(total=plan.max_trials, desc="calibrate", unit="candidate", disable=not plan.progress)
+    total = max(round(search_s), 1)
+    bar = tqdm(total=total, desc="calibrate", unit="s", disable=not plan.progress)
+    count = 0
 
     def show(trial: Trial, leader: Trial) -> None:
+        nonlocal count
+        count += 1
         p, r = leader.evaluation.pooled("track")
-        bar.set_postfix_str(f"best {leader.value:.3f} (track precision {p:.0%} recall {r:.0%})")
-        bar.update(1)
+        bar.n = min(round(trial.finished_s), total)
+        bar.set_postfix_str(f"{count} candidates, best {leader.value:.3f} (tracked precision "
+                            f"{p:.0%}, recall {r:.0%})")  # fmt: skip
 
     try:
-        return run_search(
-            caches,
-            DEFAULT,
-            search_s,
-            plan.max_trials,
-            mode=plan.mode,
-            workers=plan.workers,
-            seed=plan.seed,
-            on_trial=show,
-        )
+        return run_search(caches, DEFAULT, search_s, plan.max_trials, mode=plan.mode,
+                          workers=plan.workers, seed=plan.seed, on_trial=show)  # fmt: skip
     finally:
         bar.close()
 
