@@ -54,10 +54,16 @@ def check_precision(
 
 
 def check_int8_kernels(
-    what: str, frame: int, ref: dict[str, np.ndarray], got: dict[str, np.ndarray], meta: dict
+    what: str,
+    frame: int,
+    ref: dict[str, np.ndarray],
+    got: dict[str, np.ndarray],
+    meta: dict,
+    precision: str = "f32",
 ) -> bool:
-    """Log how many candidate anchors OpenVINO's INT8 kernels (``got``) keep of the exact
-    Q/DQ arithmetic (``ref``) on ``frame``; True when at least :data:`INT8_AGREEMENT`."""
+    """Log how many candidate anchors OpenVINO's INT8 kernels (``got``, their float parts at
+    ``precision``) keep of the exact Q/DQ arithmetic at f32 (``ref``) on ``frame``; True when
+    at least :data:`INT8_AGREEMENT`."""
     if "output0" not in ref:
         return True
     kept, checked = candidate_agreement(ref["output0"], got["output0"], len(meta["names"]))
@@ -66,11 +72,18 @@ def check_int8_kernels(
         f"{checked} candidate detections kept"
     )
     if checked and kept < INT8_AGREEMENT * checked:
+        why, instead = (
+            ("this CPU's INT8 kernels do not compute this file as written (without VNNI they "
+             "saturate; docs/engines.md)", "give OpenVINO the FP32 file on this CPU")
+            if precision == "f32"
+            else (f"its INT8 kernels with {precision} float parts are that far from it",
+                  "--backend openvino (f32) keeps the INT8 kernels")
+        )  # fmt: skip
         log.warning(
-            "%s: this CPU's INT8 kernels do not compute this file as written (without VNNI "
-            "they saturate; docs/engines.md); running its Q/DQ in float from now on (right, "
-            "FP32's speed): give OpenVINO the FP32 file on this CPU",
+            "%s: %s; running its Q/DQ in float at f32 from now on (right, FP32's speed): %s",
             line,
+            why,
+            instead,
         )
         return False
     log.info(line)

@@ -176,7 +176,7 @@ class OpenVinoSession:
         named = [dict(zip(output_names, o, strict=True)) for o in (ref, got)]
         what = f"{self.path.name}: OpenVINO ({self.precision})"
         if self._int8_check:
-            if not check_int8_kernels(what, self._checked, *named, self.metadata):
+            if not check_int8_kernels(what, self._checked, *named, self.metadata, self.precision):
                 # from now on the Q/DQ as written: right, if slower
                 self._request, self.int8_kernels, got = ref_request, False, ref
                 self._checked = CHECK_FRAMES

@@ -321,8 +321,14 @@ def test_int8_kernel_check_keeps_or_replaces_the_kernels(caplog) -> None:
         assert not check_int8_kernels("m.onnx: OpenVINO (f32)", 1, {"output0": ref},
                                       {"output0": far}, meta)  # fmt: skip
     (line,) = [r.getMessage() for r in caplog.records]
-    assert "0 of 50 candidate detections kept" in line and "in float from now on" in line
+    assert "0 of 50 candidate detections kept" in line and "in float at f32 from now on" in line
     assert "give OpenVINO the FP32 file" in line
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="slimseg.deploy.ov_checks"):
+        assert not check_int8_kernels("m.onnx: OpenVINO (bf16)", 1, {"output0": ref},
+                                      {"output0": far}, meta, "bf16")  # fmt: skip
+    (line,) = [r.getMessage() for r in caplog.records]
+    assert "with bf16 float parts" in line and "--backend openvino (f32)" in line
 
 
 @pytest.mark.slow
