@@ -361,13 +361,10 @@ def _split_concat_qdq(zero_point: int) -> onnx.ModelProto:
              n("DequantizeLinear", ["cq", "s2", "z"], ["cd"]),
              n("DequantizeLinear", ["wq", "sw", "zw"], ["wd"], axis=0),
              n("Conv", ["cd", "wd"], ["y"])]  # fmt: skip
-    inits = [numpy_helper.from_array(np.array([8, 8], np.int64), "sp"),
-             numpy_helper.from_array(np.array(0.097, np.float32), "s1"),
-             numpy_helper.from_array(np.array(0.13, np.float32), "s2"),
-             numpy_helper.from_array(np.array(zero_point, np.int8), "z"),
-             numpy_helper.from_array(np.round(w / sw[:, None, None, None]).astype(np.int8), "wq"),
-             numpy_helper.from_array(sw, "sw"),
-             numpy_helper.from_array(np.zeros(8, np.int8), "zw")]  # fmt: skip
+    values = {"sp": np.array([8, 8], np.int64), "s1": np.float32(0.097), "s2": np.float32(0.13),
+              "z": np.int8(zero_point), "wq": np.round(w / sw[:, None, None, None]).astype(np.int8),
+              "sw": sw, "zw": np.zeros(8, np.int8)}  # fmt: skip
+    inits = [numpy_helper.from_array(np.asarray(v), k) for k, v in values.items()]
     x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 16, 20, 20])
     y = helper.make_tensor_value_info("y", TensorProto.FLOAT, None)
     proto = helper.make_model(helper.make_graph(nodes, "g", [x], [y], inits),
