@@ -15,15 +15,19 @@ against onnxruntime on the raw FP32 file (what INT8 and FP16 keep of FP32); ``ra
 time of the whole per-frame path (``Predictor.predict``: letterbox, network,
 post-processing, masks on the frame) divided by onnxruntime's on the raw FP32 file, the two
 timed alternately in the same rounds; ``net``: the same ratio of the network call alone.
-Then the per-frame masking chain (``slimseg.Masker.step``, fusion mode) with each engine,
-ratios to onnxruntime FP32.
+INT8 files also run in onnxruntime with its graph optimisations off (``ort:qdq-float``: the
+Q/DQ computed as written, in float), which says how far onnxruntime's own integer kernels are
+from the file's arithmetic. Then the per-frame masking chain (``slimseg.Masker.step``, fusion
+mode) with each engine on the raw FP32, end-to-end FP32 and both INT8 files, ratios to
+onnxruntime on the raw FP32 file.
 
     python benchmarks/engines.py [--model yolov8n-seg] [--imgsz 320] [--threads 1] [--runs 20]
     python benchmarks/engines.py --onnx ../shared/models/demo-intel/yolov8n-seg-gs-rep.onnx
 
-``--onnx``: a trained static FP32 export instead of the random model (every kind but the
-dynamic ones derived from it: they need the weights); the frames are the synthetic scenes the
-demo trains on, so a trained demo model has real detections and a meaningful INT8.
+``--onnx``: a trained static FP32 export instead of the random model (every kind derived from
+it; the dynamic ones from the weights recovered from it, ``onnx_weights.py``); the frames are
+the synthetic scenes the demo trains on, so a trained demo model has real detections and a
+meaningful INT8.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ import numpy as np
 import onnx
 import torch
 from end2end_latency import scored_model
+from onnx_weights import model_from_onnx
 
 from slimseg.data.synth.scene import STREAM_VAL, render_image
 from slimseg.deploy.calibration import load_calibration_set
@@ -65,6 +70,7 @@ from slimseg.deploy.runners import OnnxRunner
 from slimseg.detections import Prediction
 from slimseg.ops.nms_numpy import PREDICT_CONF
 
+QDQ_FLOAT = "ort:qdq-float"  # INT8 files only: onnxruntime's Q/DQ as written, in float
 KINDS = ("raw32", "raw16", "rawdyn", "e2e32", "e2e16", "e2edyn", "int8_trt", "int8_ort")
 
 
@@ -87,6 +93,17 @@ class CvDnnSession:
         ((name, x),) = input_feed.items()
         self.net.setInput(x, name)
         return list(self.net.forward(output_names))
+
+
+def qdq_float_session(path: Path, threads: int) -> Any:
+    """onnxruntime with no graph optimisation: an INT8 file's Q/DQ computed as written, in
+    float (the ONNX operators' own arithmetic; its default fuses them into integer kernels)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    opts.intra_op_num_threads = threads
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
 def _publish(proto: onnx.ModelProto, meta: dict, out: Path) -> Path:
@@ -112,15 +129,18 @@ def _end2end(raw: Path, out: Path, nc: int, settings: End2EndSettings) -> Path:
 
 
 def make_files(model: torch.nn.Module | Path, side: int, nc: int, root: Path) -> dict[str, Path]:
-    """Every export kind of ``model`` (weights, or a static FP32 ``.onnx``: no dynamic kinds)
-    at ``side`` px (FP16 without the FP16 gate, which a random head need not pass; INT8
-    calibrated on 8 synthetic frames, min-max)."""
-    files = {"raw32": root / "raw32.onnx"}
+    """Every export kind of ``model`` (weights, or a trained static FP32 ``.onnx``: its
+    dynamic kinds from the weights :func:`onnx_weights.model_from_onnx` recovers) at ``side``
+    px (FP16 without the FP16 gate, which a random head need not pass; INT8 calibrated on 8
+    synthetic frames, min-max)."""
+    files = {"raw32": root / "raw32.onnx", "rawdyn": root / "rawdyn.onnx"}
     if isinstance(model, Path):
         meta = _sidecar(model)
         _publish(onnx.load(str(model)), meta, files["raw32"])
+        fused, _ = model_from_onnx(model)
+        export_onnx(fused, files["rawdyn"], (side, side), meta["names"], meta["mobility"],
+                    dynamic=True)  # fmt: skip
     else:
-        files["rawdyn"] = root / "rawdyn.onnx"
         export_onnx(model, files["raw32"], (side, side))
         export_onnx(model, files["rawdyn"], (side, side), dynamic=True)
     meta = {**_sidecar(files["raw32"]), "precision": "fp16"}
@@ -146,10 +166,13 @@ def make_files(model: torch.nn.Module | Path, side: int, nc: int, root: Path) ->
 
 
 def open_engine(path: Path, engine: str, threads: int) -> Predictor:
-    if engine == "opencv":
+    if engine in ("opencv", QDQ_FLOAT):
         ort = Predictor.from_path(path, threads=threads)
-        runner = OnnxRunner(CvDnnSession(path, threads), str(path))
-        return Predictor(runner, ort.metadata, ort.imgsz, "opencv", path, threads)
+        session = (
+            CvDnnSession(path, threads) if engine == "opencv" else qdq_float_session(path, threads)
+        )
+        runner = OnnxRunner(session, str(path))
+        return Predictor(runner, ort.metadata, ort.imgsz, engine, path, threads)
     return Predictor.from_path(path, backend=engine, threads=threads)
 
 
@@ -214,7 +237,7 @@ def main() -> None:
             fp32_preds = [base.predict(f, conf=PREDICT_CONF) for f in frames]
             row: dict[str, Predictor] = {}
             cells: dict[str, tuple[str, str, str]] = {}  # engine -> (match, FP32 match, limit x)
-            for engine in engines:
+            for engine in engines + ([QDQ_FLOAT] if kind.startswith("int8") else []):
                 try:
                     row[engine] = open_engine(files[kind], engine, args.threads)
                     preds = [row[engine].predict(f, conf=PREDICT_CONF) for f in frames]
@@ -246,12 +269,7 @@ def main() -> None:
         print(
             "\nper-frame masking chain (slimseg.Masker.step, fusion), ratio to onnxruntime raw FP32"
         )
-        chain = [("raw32", "onnxruntime"), ("int8_ort", "onnxruntime"), ("int8_trt", "onnxruntime"),
-                 ("raw32", "openvino"), ("int8_trt", "openvino"), ("int8_ort", "openvino"),
-                 ("e2e32", "openvino"),
-                 ("e2e32", "onnxruntime")]  # fmt: skip
-        if default != "f32":
-            chain += [(k, f"openvino:{default}") for k in ("raw32", "int8_trt", "int8_ort")]
+        chain = [(k, e) for e in engines for k in ("raw32", "e2e32", "int8_ort", "int8_trt")]
         maskers = {
             f"{k} {e}": Masker.from_predictor(opened[(k, e)]) for k, e in chain if (k, e) in opened
         }

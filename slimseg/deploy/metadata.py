@@ -48,6 +48,25 @@ LETTERBOX_RULE = {
 }
 
 
+# The precision the contract's parity holds at, and what each engine computes by default
+# (export/CONTRACT.md "Precision", docs/engines.md): one entry, the same in every file.
+PARITY_ENTRY: dict[str, Any] = {
+    "arithmetic": "fp32",
+    "checked_with": "onnxruntime CPU float32 kernels on the file's own types (FP16 tensors in "
+    "fp16, INT8 Q/DQ as written, the rest in fp32)",
+    "engine_defaults": {
+        "onnxruntime": "fp32",
+        "openvino_x86_amx_or_avx512_bf16": "bf16: set INFERENCE_PRECISION_HINT=f32 "
+        "(slimseg --backend openvino does)",
+        "openvino_x86_other": "f32 (set INFERENCE_PRECISION_HINT=f32 anyway)",
+        "openvino_arm": "f16: set INFERENCE_PRECISION_HINT=f32",
+        "opencv_dnn": "fp32",
+        "tensorrt": "fp16 where built with --fp16 (export/build_engine.sh on 8.6 / 10): build "
+        "without it; strongly typed (11): the file's own types",
+    },
+}
+
+
 def build_metadata(
     model: ZooModel,
     names: list[str],
@@ -92,6 +111,7 @@ def build_metadata(
         "recommended_mask_dilation_px": input_dilation_px(DEFAULT.dilation_px, imgsz),
         "slam_masking": slam_masking_entry(),
         "nms": {"conf": PREDICT_CONF, "iou": NMS_IOU, "max_det": MAX_DET, "class_aware": True},
+        "parity": PARITY_ENTRY,
     }
     if spec.task == "semantic":
         del meta["nms"], meta["recommended_mask_dilation_px"]

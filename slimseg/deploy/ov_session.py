@@ -12,8 +12,10 @@ precision the contract's parity holds at) unless ``bf16`` / ``f16`` is asked for
 :data:`CHECK_FRAMES` frames also run at f32 and one log line says by how much the outputs differ,
 in multiples of the export's FP32 limits (:mod:`slimseg.deploy.tolerances`).
 
-INT8 Q/DQ files: OpenVINO's INT8 kernels do not compute every file as written on every CPU
-(the ``tensorrt``-target file on an AVX512-VNNI CPU without AMX: docs/engines.md), so the first
+INT8 Q/DQ files: OpenVINO computes signed int8 activation Q/DQ feeding a requantized ``Concat``
+wrongly (the ``tensorrt``-target file), so the session gives it the same arithmetic with uint8
+activations (:mod:`slimseg.deploy.qdq_unsigned`). Its INT8 kernels may still not compute a file
+as written on some CPU (without VNNI they saturate: docs/engines.md), so the first
 :data:`CHECK_FRAMES` frames also run the file's Q/DQ in float; kernels that lose the candidate
 detections are replaced by that float path for the session, with one log line
 (:mod:`slimseg.deploy.ov_checks`).
@@ -25,18 +27,23 @@ OpenVINO may give a port several names and ``get_any_name()`` an internal one.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import onnx
 
 from slimseg.deploy.end2end_postprocess import END2END_OUTPUTS
 from slimseg.deploy.metadata import check_graph_outputs, read_onnx_metadata
 from slimseg.deploy.ov_checks import CHECK_FRAMES, check_int8_kernels, check_precision
+from slimseg.deploy.qdq_unsigned import unsigned_activations
 from slimseg.errors import SlimsegError
 from slimseg.utils.extras import install_command
 from slimseg.utils.threads import check_threads
+
+log = logging.getLogger(__name__)
 
 OPENVINO_EXTRA = "openvino"
 PRECISIONS = ("f32", "bf16", "f16")
@@ -102,6 +109,10 @@ class OpenVinoSession:
         framework = model.get_rt_info()["framework"] if model.has_rt_info(["framework"]) else {}
         props = {str(k): v.astype(str) for k, v in framework.items()}
         self.metadata = read_onnx_metadata(self.path, props)
+        self.unsigned_qdq = 0
+        """signed activation Q/DQ nodes given to OpenVINO as their uint8 equivalent"""
+        if self.metadata.get("precision") == "int8":
+            model = self._unsigned(core, model)
         self._compiled = self._compile(core, model, threads, precision)
         self._inputs = [_port(p) for p in self._compiled.inputs]
         self._outputs = [_port(p) for p in self._compiled.outputs]
@@ -119,6 +130,17 @@ class OpenVinoSession:
             self._reference = self._compile(core, model, threads, DEFAULT_PRECISION)
         self._int8_check = self.int8_kernels
         self._checked = 0
+
+    def _unsigned(self, core: Any, model: Any) -> Any:
+        """``model`` with its signed activation Q/DQ as the same uint8 arithmetic
+        (:mod:`slimseg.deploy.qdq_unsigned`: OpenVINO computes the signed form wrongly)."""
+        proto = onnx.load(str(self.path))
+        self.unsigned_qdq = unsigned_activations(proto)
+        if not self.unsigned_qdq:
+            return model
+        log.info("%s: %d signed int8 activation Q/DQ nodes given to OpenVINO as the same uint8 "
+                 "arithmetic", self.path.name, self.unsigned_qdq)  # fmt: skip
+        return core.read_model(proto.SerializeToString())
 
     @staticmethod
     def _compile(
@@ -154,7 +176,7 @@ class OpenVinoSession:
         named = [dict(zip(output_names, o, strict=True)) for o in (ref, got)]
         what = f"{self.path.name}: OpenVINO ({self.precision})"
         if self._int8_check:
-            if not check_int8_kernels(what, self._checked, *named, self.metadata):
+            if not check_int8_kernels(what, self._checked, *named, self.metadata, self.precision):
                 # from now on the Q/DQ as written: right, if slower
                 self._request, self.int8_kernels, got = ref_request, False, ref
                 self._checked = CHECK_FRAMES

@@ -69,6 +69,11 @@ def test_metadata_and_sidecar(tmp_path: Path) -> None:
     assert meta["spec_hash"] == model.spec.hash and meta["num_masks"] == 32
     assert meta["letterbox"]["pad_value"] == 114 and meta["input"]["color"] == "RGB"
     assert set(meta["outputs"]) == {"output0", "output1"}
+    # the precision the parity holds at, and each engine's default and how to ask for FP32
+    assert meta["parity"]["arithmetic"] == "fp32"
+    defaults = meta["parity"]["engine_defaults"]
+    assert {"onnxruntime", "opencv_dnn", "tensorrt", "openvino_arm"} <= set(defaults)
+    assert "INFERENCE_PRECISION_HINT=f32" in defaults["openvino_x86_amx_or_avx512_bf16"]
 
 
 def test_fp16_export_matches_detections(tmp_path: Path) -> None:
