@@ -14,6 +14,7 @@ import pytest
 
 from slimseg.cli import demo
 from slimseg.cli.main import main
+from slimseg.deploy.calibrated import read_model_metadata
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.models.registry import build_model
 from slimseg.slam import demo_run
@@ -87,7 +88,7 @@ def test_demo_with_the_slam_stage_small(tmp_path: Path, capsys: pytest.CaptureFi
     out = tmp_path / "demo"
     argv = ["demo", "--out", str(out), "--epochs", "1", "--seq-train", "1", "--seq-val", "1",
             "--imgsz", "64", "--quiet", "--slam-frames", "30", "--slam-size", "320", "240",
-            "--slam-runs", "2", "--calibration-budget", "40"]  # fmt: skip
+            "--slam-runs", "2", "--calibration-budget", "20"]  # fmt: skip
     assert main(argv) == 0
     printed = capsys.readouterr().out
     steps = [line.split("]")[0] + "]" for line in printed.splitlines() if line[:1] == "["]
@@ -104,8 +105,12 @@ def test_demo_with_the_slam_stage_small(tmp_path: Path, capsys: pytest.CaptureFi
         assert ate is not None and math.isfinite(ate) and ate > 0, (key, row)
         assert row["ate_min_m"] <= ate <= row["ate_max_m"]
     assert math.isfinite(slam["still_camera_ate_m"])
-    for rel in ("slam/results.md", "slam/runs.csv", "export/yolov8n-seg-gs-rep.onnx"):
+    for rel in ("slam/results.md", "slam/runs.csv", "export/yolov8n-seg-gs-rep.onnx",
+                "export/yolov8n-seg-gs-rep_calibration/report.png"):  # fmt: skip
         assert (out / rel).is_file(), rel
+    calibrated = read_model_metadata(out / "export" / "yolov8n-seg-gs-rep_calibrated.onnx")
+    assert calibrated["slam_masking"]["preset"] == "calibrated"
+    assert slam["masking"].startswith("fusion mode, calibrated preset")
     last = printed.strip().splitlines()[-1]
     assert last.startswith("mask mAP50-95 ") and "ATE raw " in last, last
     assert "→ slimseg " in last and "→ ground-truth masks " in last and "2 ORB-SLAM3 runs" in last
