@@ -295,7 +295,8 @@ def _slam_stage(
 
 
 def _report_dir(calibrated: Path) -> Path:
-    return calibrated.with_name(calibrated.stem + "_calibration")
+    """``export/<model>_calibration`` beside ``export/<model>_calibrated.onnx``."""
+    return calibrated.with_name(calibrated.stem.removesuffix("_calibrated") + "_calibration")
 
 
 def _calibrate(onnx: Path, args: argparse.Namespace) -> Path:
