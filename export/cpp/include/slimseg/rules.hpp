@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -64,13 +65,27 @@ struct DynamicResult {
     std::vector<std::uint8_t> used_seg;  // Eq. 4 per object (fusion on dynamic frames)
 };
 
+// What the multi-frame chain (slimseg/chain.hpp) brings to one frame's rules: the objects'
+// decided mobility (empty: the class priors), their motion layers given the pixels the depth
+// cut would drop (h*w 0/1) and the objects' near depths (NaN: none; null or a result of
+// another size: none), and the degrading rule's static support (x, y pairs; null: the
+// keypoints).
+struct Evidence {
+    std::vector<float> mobility;
+    std::function<std::vector<float>(const std::vector<std::uint8_t>& behind,
+                                      const std::vector<float>& reference)>
+        layers;
+    const std::vector<float>* support = nullptr;
+};
+
 // keypoints_xy: N (x, y) pairs in frame pixels, flattened.
 // depth_m: optional h*w metres (0 or NaN: no depth), for rules.cut_behind_m.
 DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& keypoints_xy,
-                           const Rules& rules, const float* depth_m = nullptr);
+                           const Rules& rules, const float* depth_m = nullptr,
+                           const Evidence* evidence = nullptr);
 DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                            const std::vector<float>& keypoints_xy, const Rules& rules,
-                           const float* depth_m = nullptr);
+                           const float* depth_m = nullptr, const Evidence* evidence = nullptr);
 
 // The contract's step 6 without keypoints: union of the masks (boxes for detection models,
 // class pixels for class maps) of `classes`, dilated by `radius` frame pixels.

@@ -1,0 +1,88 @@
+// ORB features and their ratio-test matching (include/slimseg/features.hpp).
+#include "slimseg/features.hpp"
+
+#include <algorithm>
+#include <climits>
+#include <numeric>
+#include <string>
+
+#include "slimseg/error.hpp"
+
+namespace slimseg {
+namespace {
+
+int popcount8(std::uint8_t v) {
+    int n = 0;
+    for (; v; v &= static_cast<std::uint8_t>(v - 1)) ++n;
+    return n;
+}
+
+struct Table {
+    int bits[256];
+    Table() {
+        for (int i = 0; i < 256; ++i) bits[i] = popcount8(static_cast<std::uint8_t>(i));
+    }
+};
+
+}  // namespace
+
+void Features::check() const {
+    if (xy.size() % 2) throw Error("features: keypoints are not (x, y) pairs");
+    if (desc.size() != size() * 32)
+        throw Error("features: " + std::to_string(size()) + " keypoints but " +
+                    std::to_string(desc.size()) + " descriptor bytes (expected 32 each)");
+}
+
+int hamming32(const std::uint8_t* a, const std::uint8_t* b) {
+    static const Table table;
+    int d = 0;
+    for (int i = 0; i < 32; ++i) d += table.bits[a[i] ^ b[i]];
+    return d;
+}
+
+std::vector<std::array<int, 2>> match_features(const Features& a, const Features& b,
+                                               double ratio) {
+    std::vector<std::array<int, 2>> out;
+    const int na = static_cast<int>(a.size()), nb = static_cast<int>(b.size());
+    if (na < 2 || nb < 2) return out;
+    struct Row { int qa, tb, dist; };
+    std::vector<Row> rows;
+    for (int i = 0; i < na; ++i) {
+        int best = INT_MAX, second = INT_MAX, at = -1;
+        for (int j = 0; j < nb; ++j) {
+            const int d = hamming32(&a.desc[static_cast<size_t>(i) * 32],
+                                    &b.desc[static_cast<size_t>(j) * 32]);
+            if (d < best) second = best, best = d, at = j;
+            else if (d < second) second = d;
+        }
+        if (static_cast<double>(best) < ratio * static_cast<double>(second))
+            rows.push_back({i, at, best});
+    }
+    std::stable_sort(rows.begin(), rows.end(),
+                     [](const Row& x, const Row& y) { return x.dist < y.dist; });
+    std::vector<char> used(nb, 0);
+    for (const Row& r : rows) {
+        if (used[r.tb]) continue;
+        used[r.tb] = 1;
+        out.push_back({r.qa, r.tb});
+    }
+    return out;
+}
+
+Features subsample(const Features& f, std::vector<int>& index) {
+    const int n = static_cast<int>(f.size());
+    const int m = generated::multi_frame::kMotionFeatures;
+    const int step = std::max(1, (n + m - 1) / m);
+    Features out;
+    index.clear();
+    for (int i = 0; i < n; i += step) {
+        index.push_back(i);
+        out.xy.push_back(f.xy[2 * static_cast<size_t>(i)]);
+        out.xy.push_back(f.xy[2 * static_cast<size_t>(i) + 1]);
+        out.desc.insert(out.desc.end(), f.desc.begin() + static_cast<std::ptrdiff_t>(i) * 32,
+                        f.desc.begin() + static_cast<std::ptrdiff_t>(i + 1) * 32);
+    }
+    return out;
+}
+
+}  // namespace slimseg
