@@ -140,7 +140,8 @@ struct PgmOut {
 };
 
 void write_results(const std::string& path, const FramePrediction& p, const DynamicResult& r,
-                   float letterbox_diff, std::vector<std::pair<std::string, RawDump>>* later) {
+                   float letterbox_diff, std::vector<std::pair<std::string, RawDump>>* later,
+                   const FrameChain* chain) {
     RawDump out;
     const std::int64_t n = static_cast<std::int64_t>(p.detections.size());
     std::vector<float> boxes, boxes_in, scores;
@@ -175,6 +176,12 @@ void write_results(const std::string& path, const FramePrediction& p, const Dyna
     float m_th = r.gave_up ? -1.0f : static_cast<float>(r.m_th);
     out.add("m_th", RawType::Float32, {1}, &m_th);
     out.add("letterbox_max_diff", RawType::Float32, {1}, &letterbox_diff);
+    if (chain) {  // the multi-frame chain's decisions: the mobility the rules used, stillness
+        const auto& mob = chain->mobility();
+        const auto& still = chain->still();
+        out.add("mobility", RawType::Float32, {static_cast<std::int64_t>(mob.size())}, mob.data());
+        out.add("still", RawType::UInt8, {static_cast<std::int64_t>(still.size())}, still.data());
+    }
     later->emplace_back(path, std::move(out));
 }
 
@@ -349,7 +356,8 @@ int run(const Args& a) {
         PgmOut pgm{(fs::path(a.out) / (stem + ".pgm")).string(), std::move(r.mask), w, h};
         if (a.results) {
             r.mask = pgm.px;
-            write_results((fs::path(a.out) / (stem + ".ssres")).string(), p, r, diff, &results);
+            write_results((fs::path(a.out) / (stem + ".ssres")).string(), p, r, diff, &results,
+                          chain ? &*chain : nullptr);
         }
         pgms.push_back(std::move(pgm));
     }
