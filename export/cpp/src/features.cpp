@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <climits>
+#include <cstring>
 #include <numeric>
 #include <string>
 
@@ -11,18 +12,13 @@
 namespace slimseg {
 namespace {
 
-int popcount8(std::uint8_t v) {
-    int n = 0;
-    for (; v; v &= static_cast<std::uint8_t>(v - 1)) ++n;
-    return n;
+// Set bits of a 64-bit word (SWAR: no popcount instruction assumed).
+int popcount64(std::uint64_t x) {
+    x = x - ((x >> 1) & 0x5555555555555555ULL);
+    x = (x & 0x3333333333333333ULL) + ((x >> 2) & 0x3333333333333333ULL);
+    x = (x + (x >> 4)) & 0x0F0F0F0F0F0F0F0FULL;
+    return static_cast<int>((x * 0x0101010101010101ULL) >> 56);
 }
-
-struct Table {
-    int bits[256];
-    Table() {
-        for (int i = 0; i < 256; ++i) bits[i] = popcount8(static_cast<std::uint8_t>(i));
-    }
-};
 
 }  // namespace
 
@@ -34,9 +30,13 @@ void Features::check() const {
 }
 
 int hamming32(const std::uint8_t* a, const std::uint8_t* b) {
-    static const Table table;
-    int d = 0;
-    for (int i = 0; i < 32; ++i) d += table.bits[a[i] ^ b[i]];
+    int d = 0;  // four 64-bit words (byte order does not change a bit count)
+    for (int i = 0; i < 32; i += 8) {
+        std::uint64_t x, y;
+        std::memcpy(&x, a + i, 8);
+        std::memcpy(&y, b + i, 8);
+        d += popcount64(x ^ y);
+    }
     return d;
 }
 
