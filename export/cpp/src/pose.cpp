@@ -169,8 +169,9 @@ bool pnp_pose(const std::vector<double>& p0, const std::vector<double>& p1,
     for (int it = 0; it < need; ++it) {
         draws.distinct(3, static_cast<int>(both.size()), sample);
         for (int& s : sample) s = both[s];
-        Pose p;
+        Pose p;  // the rigid fit of the three, then their reprojection error (a P3P solution)
         if (!rigid_fit(prev, cur, sample, p)) continue;
+        refine(p, cam, prev, p1, sample);
         std::vector<int> in = inliers(p);
         if (in.size() > best.size()) {
             best.swap(in);
