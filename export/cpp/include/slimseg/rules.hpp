@@ -36,9 +36,10 @@ struct Rules {
     static Rules from_metadata(const Metadata& meta, Mode mode, const std::string& preset = "");
 };
 
-// The settings of `s` switched on that this consumer does not apply (the multi-frame
-// evidence of `slimseg dynamic`: motion_odds, motion_layer_px, still_frames), each as
-// "key value"; empty: its masks follow every setting. A caller says so once, or refuses.
+// The settings of `s` switched on that dynamic_mask alone does not apply (the multi-frame
+// evidence of `slimseg dynamic`: motion_odds, motion_layer_px, still_frames; FrameChain in
+// slimseg/chain.hpp applies them), each as "key value"; empty: its masks follow every
+// setting. A caller says so once, or refuses.
 std::vector<std::string> unapplied(const MaskingSettings& s);
 
 // dilation_px scaled to a frame: round(dilation_px * max(h, w) / dilation_reference_px).
