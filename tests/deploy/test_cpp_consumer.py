@@ -405,6 +405,28 @@ BROKEN = {  # what is broken -> the words the one-line error must contain
         "output1: shape [1, 32, 20, 20], expected [1, 32, 40, 40]",
     ),
     "truncated dump": ({"truncate": True}, "truncated raw dump"),
+    "descriptor rows": (
+        {"tensors": {"descriptors": np.zeros((3, 32), np.uint8)}},
+        "descriptors must be uint8 [N, 32] of the keypoints",
+    ),
+    "camera shape": (
+        {
+            "tensors": {
+                "descriptors": np.zeros((KEYPOINTS, 32), np.uint8),
+                "camera": np.ones(3, np.float32),
+            }
+        },
+        "camera must be float32 [4]",
+    ),
+    "camera values": (
+        {
+            "tensors": {
+                "descriptors": np.zeros((KEYPOINTS, 32), np.uint8),
+                "camera": np.array([0, 500, 80, 60], np.float32),
+            }
+        },
+        "camera must be finite (fx, fy, cx, cy) with fx, fy > 0",
+    ),
 }
 
 

@@ -243,6 +243,10 @@ int run(const Args& a) {
         std::optional<Camera> cam;
         if (have.camera) {
             const std::vector<float> c = floats(RawDump::load(dumps.front().string()), "camera", 4);
+            if (!(c[0] > 0 && c[1] > 0 && std::isfinite(c[0]) && std::isfinite(c[1]) &&
+                  std::isfinite(c[2]) && std::isfinite(c[3])))
+                throw Error(dumps.front().string() + ": camera must be finite (fx, fy, cx, cy) "
+                            "with fx, fy > 0");
             cam = Camera{c[0], c[1], c[2], c[3]};
         }
         chain.emplace(rules, cam);
