@@ -14,7 +14,9 @@ files slimseg did not write, or one that is (or contains) ``--source``, is refus
 
 With ``--dump-raw DIR`` (an ``.onnx`` model) every frame's network input and raw outputs, as
 onnxruntime gave them, also go to ``DIR/<stem>.ssraw`` (:mod:`slimseg.deploy.raw_dump`), with
-the frame size and the ORB keypoints ``slimseg dynamic`` would use; the frame itself goes to
+the frame size, the ORB keypoints ``slimseg dynamic`` would use with their descriptors and
+the frame's FAST corners (with ``--dump-depth`` the depth and the camera too: what the C++
+chain's multi-frame stages need); the frame itself goes to
 ``DIR/<stem>.ppm`` and the model's metadata to ``DIR/metadata.json``: the input of the C++
 reference consumer's example (``export/cpp``, docs/cpp_consumer.md). ``DIR`` is staged like
 ``--out``: an interrupted run leaves it as it was.
@@ -119,8 +121,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="SEQUENCE",
         default=None,
         help="--dump-raw: also each frame's depth (metres), from the TUM-layout sequence whose "
-        "rgb/ frames --source names: the C++ consumer's depth cut then acts as slimseg "
-        "dynamic's",
+        "rgb/ frames --source names, and its camera: the C++ consumer's depth cut, motion "
+        "layers and stillness test then act as slimseg dynamic's",
     )
     add_settings_args(p, masking=False)
     add_rerun_arg(p, "--track's frames: image, class-coloured mask, boxes, keypoints, timing")
