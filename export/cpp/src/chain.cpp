@@ -124,15 +124,15 @@ DynamicResult FrameChain::step(const Objects& objects, int h, int w, const Featu
         !prev->depth.empty()) {
         ev.layers = [&, prev](const std::vector<std::uint8_t>& behind,
                               const std::vector<float>& reference) -> std::vector<float> {
-            std::vector<std::uint8_t> where = surfaces(depth);
+            const std::vector<std::uint8_t> where = surface_pixels(depth, behind);
             bool any = false;
-            for (size_t i = 0; i < where.size(); ++i) any |= (where[i] &= behind[i]) != 0;
+            for (std::uint8_t v : where) any |= v != 0;
             Pose pose;
             if (!any || !camera_pose(prev->features, prev->depth.data(), features, depth_m, h, w,
                                      *camera_, pose))
                 return {};
             const DepthImage before{prev->depth.data(), h, w};
-            const auto marked = moved_in(depth, nearest_before(before), *camera_, pose, where);
+            const auto marked = moved_in(depth, before, *camera_, pose, where);
             return motion_layers(marked, depth, objects.boxes, reference, s.cut_behind_m,
                                  s.motion_layer_px);
         };

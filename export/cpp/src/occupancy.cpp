@@ -27,16 +27,46 @@ std::vector<float> nearest_before(const DepthImage& previous) {
     return near;
 }
 
-std::vector<std::uint8_t> moved_in(const DepthImage& depth, const std::vector<float>& before,
+std::vector<std::uint8_t> surface_pixels(const DepthImage& depth,
+                                         const std::vector<std::uint8_t>& where) {
+    std::vector<std::uint8_t> out(where.size(), 0);
+    const int r = mf::kSurfacePx;
+    const float tau = static_cast<float>(mf::kTauM);
+    for (int y = 0; y < depth.h; ++y)
+        for (int x = 0; x < depth.w; ++x) {
+            const size_t i = static_cast<size_t>(y) * depth.w + x;
+            if (!where[i]) continue;
+            float lo = INFINITY, hi = 0.0f;
+            for (int v = std::max(0, y - r); v <= std::min(depth.h - 1, y + r); ++v)
+                for (int u = std::max(0, x - r); u <= std::min(depth.w - 1, x + r); ++u) {
+                    float d = depth.at(v, u);
+                    if (!(std::isfinite(d) && d > 0)) d = 0.0f;
+                    lo = std::min(lo, d);
+                    hi = std::max(hi, d);
+                }
+            out[i] = lo > 0 && hi - lo <= tau;
+        }
+    return out;
+}
+
+std::vector<std::uint8_t> moved_in(const DepthImage& depth, const DepthImage& previous,
                                    const Camera& cam, const Pose& pose,
                                    const std::vector<std::uint8_t>& where) {
     const int s = mf::kStride, gh = (depth.h + s - 1) / s, gw = (depth.w + s - 1) / s;
     std::vector<std::uint8_t> out(static_cast<size_t>(gh) * gw, 0);
     const Warped g = warp_grid(depth, cam, pose, &where);
     const float tau = static_cast<float>(mf::kTauM);
-    for (size_t i = 0; i < g.z.size(); ++i)
-        if (before[static_cast<size_t>(g.v[i]) * depth.w + g.u[i]] > g.z[i] + tau)
+    const int r = mf::kNeighbourhoodPx;
+    for (size_t i = 0; i < g.z.size(); ++i) {
+        float near = INFINITY;  // nearest_before at the landing pixel, looked up there only
+        for (int y = std::max(0, g.v[i] - r); y <= std::min(previous.h - 1, g.v[i] + r); ++y)
+            for (int x = std::max(0, g.u[i] - r); x <= std::min(previous.w - 1, g.u[i] + r); ++x) {
+                const float d = previous.at(y, x);
+                near = std::min(near, std::isfinite(d) && d > 0 ? d : 0.0f);
+            }
+        if (near > 0 && near > g.z[i] + tau)  // no depth near there: marks nothing
             out[static_cast<size_t>(g.gy[i]) * gw + g.gx[i]] = 1;
+    }
     return out;
 }
 

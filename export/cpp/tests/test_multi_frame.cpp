@@ -156,6 +156,8 @@ void test_depth_filters_and_surfaces() {
     CHECK_EQ(lo[4 * w + 0], 2.0f);
     CHECK_EQ(hi[4 * w + 4], 3.0f);
     const auto s = surfaces(img);
+    const auto some = surface_pixels(img, std::vector<std::uint8_t>(h * w, 1));
+    CHECK(some == s);
     CHECK_EQ(int(s[4 * w + 1]), 1);
     CHECK_EQ(int(s[4 * w + 4]), 0);  // the step: 1 m within a pixel
     CHECK_EQ(int(s[2 * w + 2]), 0);  // beside the hole
@@ -185,7 +187,7 @@ void test_stillness_and_layers() {
     CHECK(std::isnan(changed_fractions(a, same, c, still, {&tiny})[0]));  // < kMinTested
     // motion layers: the moved-in pixels behind a near layer at 0.2 m (reference) stand
     std::vector<std::uint8_t> where(h * w, 1);
-    const auto marked = moved_in(a, nearest_before(b), c, still, where);
+    const auto marked = moved_in(a, b, c, still, where);
     int count = 0;
     for (auto v : marked) count += v;
     CHECK_EQ(count, 15 * 12);  // the object's grid pixels (every 2nd of 30 x 24)

@@ -50,9 +50,13 @@ std::vector<std::uint8_t> surfaces(const DepthImage& depth);
 // occupancy.nearest_before: the nearest valid previous depth within kNeighbourhoodPx (NaN:
 // none valid there).
 std::vector<float> nearest_before(const DepthImage& previous);
+// surfaces() on the pixels of `where` only (h*w 0/1; 0 elsewhere).
+std::vector<std::uint8_t> surface_pixels(const DepthImage& depth,
+                                         const std::vector<std::uint8_t>& where);
 // occupancy.moved_in: the kStride grid's pixels of `where` that the previous frame saw more
-// than kTauM farther along the same ray (grid rows ceil(h / kStride) x ceil(w / kStride)).
-std::vector<std::uint8_t> moved_in(const DepthImage& depth, const std::vector<float>& before,
+// than kTauM farther along the same ray, nearest_before(previous) looked up where they land
+// (grid rows ceil(h / kStride) x ceil(w / kStride)).
+std::vector<std::uint8_t> moved_in(const DepthImage& depth, const DepthImage& previous,
                                    const Camera& cam, const Pose& pose,
                                    const std::vector<std::uint8_t>& where);
 // occupancy.motion_layers: per object, the median depth of the marked grid pixels in its box
