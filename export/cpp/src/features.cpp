@@ -20,6 +20,42 @@ int popcount64(std::uint64_t x) {
     return static_cast<int>((x * 0x0101010101010101ULL) >> 56);
 }
 
+// The best and second-best Hamming distances of descriptor x (four words) among the nb of
+// wb, and the index of the best (the first of equals).
+template <typename Count>
+void nearest_two_with(const std::uint64_t* x, const std::uint64_t* wb, int nb, int& best,
+                      int& second, int& at, Count count) {
+    for (int j = 0; j < nb; ++j) {
+        const std::uint64_t* y = wb + static_cast<size_t>(j) * 4;
+        const int d = count(x[0] ^ y[0]) + count(x[1] ^ y[1]) + count(x[2] ^ y[2]) +
+                      count(x[3] ^ y[3]);
+        if (d < best) second = best, best = d, at = j;
+        else if (d < second) second = d;
+    }
+}
+
+#if (defined(__GNUC__) || defined(__clang__)) && (defined(__x86_64__) || defined(__i386__))
+// x86 CPUs with the popcnt instruction (checked at run time) count with it.
+__attribute__((target("popcnt"))) void nearest_two_popcnt(const std::uint64_t* x,
+                                                          const std::uint64_t* wb, int nb,
+                                                          int& best, int& second, int& at) {
+    nearest_two_with(x, wb, nb, best, second, at,
+                     [](std::uint64_t v) { return __builtin_popcountll(v); });
+}
+
+void nearest_two(const std::uint64_t* x, const std::uint64_t* wb, int nb, int& best,
+                 int& second, int& at) {
+    static const bool has_popcnt = __builtin_cpu_supports("popcnt");
+    if (has_popcnt) return nearest_two_popcnt(x, wb, nb, best, second, at);
+    nearest_two_with(x, wb, nb, best, second, at, popcount64);
+}
+#else
+void nearest_two(const std::uint64_t* x, const std::uint64_t* wb, int nb, int& best,
+                 int& second, int& at) {
+    nearest_two_with(x, wb, nb, best, second, at, popcount64);
+}
+#endif
+
 }  // namespace
 
 void Features::check() const {
@@ -45,16 +81,14 @@ std::vector<std::array<int, 2>> match_features(const Features& a, const Features
     std::vector<std::array<int, 2>> out;
     const int na = static_cast<int>(a.size()), nb = static_cast<int>(b.size());
     if (na < 2 || nb < 2) return out;
+    std::vector<std::uint64_t> wa(static_cast<size_t>(na) * 4), wb(static_cast<size_t>(nb) * 4);
+    std::memcpy(wa.data(), a.desc.data(), wa.size() * 8);  // 32 bytes: four 64-bit words
+    std::memcpy(wb.data(), b.desc.data(), wb.size() * 8);
     struct Row { int qa, tb, dist; };
     std::vector<Row> rows;
     for (int i = 0; i < na; ++i) {
         int best = INT_MAX, second = INT_MAX, at = -1;
-        for (int j = 0; j < nb; ++j) {
-            const int d = hamming32(&a.desc[static_cast<size_t>(i) * 32],
-                                    &b.desc[static_cast<size_t>(j) * 32]);
-            if (d < best) second = best, best = d, at = j;
-            else if (d < second) second = d;
-        }
+        nearest_two(&wa[static_cast<size_t>(i) * 4], wb.data(), nb, best, second, at);
         if (static_cast<double>(best) < ratio * static_cast<double>(second))
             rows.push_back({i, at, best});
     }

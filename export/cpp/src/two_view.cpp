@@ -26,8 +26,28 @@ std::array<double, 2> apply(const Mat3& t, double x, double y) {
     return {t[0] * x + t[1] * y + t[2], t[3] * x + t[4] * y + t[5]};
 }
 
-// The unit null vector of the stacked rows (the eigenvector of A^T A's smallest eigenvalue).
+// The unit null vector of the stacked rows (the eigenvector of A^T A's smallest eigenvalue);
+// eight rows (a minimal sample): solved with the last entry 1 where that system is regular.
 std::array<double, 9> null_vector(const std::vector<std::array<double, 9>>& rows) {
+    if (rows.size() == 8) {
+        std::vector<double> a(64), b(8), x;
+        for (int r = 0; r < 8; ++r) {
+            for (int c = 0; c < 8; ++c) a[r * 8 + c] = rows[r][c];
+            b[r] = -rows[r][8];
+        }
+        if (linalg::solve(8, a, b, x)) {
+            std::array<double, 9> out;
+            double norm = 1.0;
+            for (int i = 0; i < 8; ++i) out[i] = x[i], norm += x[i] * x[i];
+            out[8] = 1.0;
+            norm = std::sqrt(norm);
+            bool finite = std::isfinite(norm) && norm < 1e12;
+            if (finite) {
+                for (double& v : out) v /= norm;
+                return out;
+            }
+        }
+    }
     std::vector<double> ata(81, 0.0);
     for (const auto& r : rows)
         for (int i = 0; i < 9; ++i)
