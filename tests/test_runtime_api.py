@@ -137,6 +137,30 @@ def test_masker_settings_come_from_the_export(model: Path, sequence: Path) -> No
             slimseg.Masker.from_onnx(model, threads=1, **bad)
 
 
+def test_masker_without_camera_says_so_once_or_refuses(model: Path, sequence: Path, caplog):
+    """``slimseg.Masker`` built without ``camera`` cannot run the shipped preset's motion
+    layers and stillness: it says so once in the log (by name), or refuses with ``strict``."""
+    seq = TumSequence(sequence)
+    with (
+        caplog.at_level("WARNING", logger="slimseg"),
+        slimseg.Masker.from_onnx(model, threads=1) as m,
+    ):
+        for i in range(3):
+            m.step(*seq.load(i))
+    said = [r.getMessage() for r in caplog.records if "cannot act" in r.getMessage()]
+    assert len(said) == 1 and "no camera intrinsics" in said[0], said
+    assert "motion_layer_px 100" in said[0] and "still_frames 20" in said[0]
+    with pytest.raises(SlimsegError, match=r"still_frames 20 cannot act .*strict"):
+        slimseg.Masker.from_onnx(model, threads=1, strict=True)
+    caplog.clear()
+    with (
+        caplog.at_level("WARNING", logger="slimseg"),
+        slimseg.Masker.from_onnx(model, threads=1, camera=seq.camera.pinhole, strict=True) as m,
+    ):  # with the camera (and depth) every setting acts: nothing said
+        m.step(*seq.load(0))
+    assert not [r for r in caplog.records if "cannot act" in r.getMessage()]
+
+
 def test_realtime_benchmark_runs_every_rate_through_the_object(model: Path, sequence: Path):
     """benchmarks/realtime_masks.py (the figures of docs/tracking.md section 6.6): one row per
     rate, shares of the per-frame recall, the emulated lag exactly as asked."""

@@ -14,7 +14,9 @@ files slimseg did not write, or one that is (or contains) ``--source``, is refus
 
 With ``--dump-raw DIR`` (an ``.onnx`` model) every frame's network input and raw outputs, as
 onnxruntime gave them, also go to ``DIR/<stem>.ssraw`` (:mod:`slimseg.deploy.raw_dump`), with
-the frame size and the ORB keypoints ``slimseg dynamic`` would use; the frame itself goes to
+the frame size, the ORB keypoints ``slimseg dynamic`` would use with their descriptors and
+the frame's FAST corners (with ``--dump-depth`` the depth and the camera too: what the C++
+chain's multi-frame stages need); the frame itself goes to
 ``DIR/<stem>.ppm`` and the model's metadata to ``DIR/metadata.json``: the input of the C++
 reference consumer's example (``export/cpp``, docs/cpp_consumer.md). ``DIR`` is staged like
 ``--out``: an interrupted run leaves it as it was.
@@ -119,8 +121,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="SEQUENCE",
         default=None,
         help="--dump-raw: also each frame's depth (metres), from the TUM-layout sequence whose "
-        "rgb/ frames --source names: the C++ consumer's depth cut then acts as slimseg "
-        "dynamic's",
+        "rgb/ frames --source names, and its camera: the C++ consumer's depth cut, motion "
+        "layers and stillness test then act as slimseg dynamic's",
     )
     add_settings_args(p, masking=False)
     add_rerun_arg(p, "--track's frames: image, class-coloured mask, boxes, keypoints, timing")
@@ -252,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
     out_dir = Path(args.out)
     print(f"{predictor} -> {out_dir}")
     dump_dir = None if args.dump_raw is None else Path(args.dump_raw)
-    depth_of = _depth_source(args.dump_depth, dump_dir)
+    depth_of, camera = _depth_source(args.dump_depth, dump_dir)
     if dump_dir is not None and predictor.backend != "onnxruntime":
         raise SlimsegError(f"--dump-raw needs an exported .onnx model, not {args.model}")
     inputs = _inputs(args)
@@ -280,7 +282,7 @@ def run(args: argparse.Namespace) -> int:
             )
             if dump_stage is not None and raw is not None:
                 depth = None if depth_of is None else depth_of(stem)
-                _dump_frame(dump_stage, stem, image, raw, args.keypoints, depth)
+                _dump_frame(dump_stage, stem, image, raw, args.keypoints, depth, camera)
             save_prediction(
                 stage,
                 stem,
@@ -323,11 +325,12 @@ def _dump_stage(dump_dir: Path | None, inputs: dict) -> Iterator[Path | None]:
 
 def _depth_source(
     sequence: str | None, dump_dir: Path | None
-) -> Callable[[str], np.ndarray] | None:
+) -> tuple[Callable[[str], np.ndarray] | None, tuple[float, float, float, float] | None]:
     """``--dump-depth``: the depth (``float32 [H, W]`` metres) of the frame whose rgb file
-    is called ``stem``, from the sequence's associations (None: no depth dumped)."""
+    is called ``stem``, from the sequence's associations, and the sequence's camera ``(fx,
+    fy, cx, cy)`` px (``(None, None)``: no depth dumped)."""
     if sequence is None:
-        return None
+        return None, None
     if dump_dir is None:
         raise SlimsegError("--dump-depth adds each frame's depth to the raw dumps: add --dump-raw")
     seq = TumSequence(sequence)
@@ -339,7 +342,7 @@ def _depth_source(
                                "the sequence whose rgb/ frames --source names)")  # fmt: skip
         return seq.load(by_stem[stem])[1]
 
-    return depth_of
+    return depth_of, seq.camera.pinhole
 
 
 def _dump_frame(
@@ -349,11 +352,13 @@ def _dump_frame(
     raw: dict[str, np.ndarray],
     keypoints: int,
     depth_m: np.ndarray | None = None,
+    camera: tuple[float, float, float, float] | None = None,
 ) -> None:
-    """``<stem>.ssraw`` (input, outputs, frame size, ORB keypoints, the depth if given) and
-    ``<stem>.ppm``."""
-    kps = orb_features(image, keypoints).keypoints
-    dump = frame_dump(raw, image.shape[:2], kps, depth_m=depth_m)
+    """``<stem>.ssraw`` (input, outputs, frame size, the chain's ORB keypoints with their
+    descriptors and the FAST corners, the depth and camera if given) and ``<stem>.ppm``."""
+    f = orb_features(image, keypoints, corners=True)
+    dump = frame_dump(raw, image.shape[:2], f.keypoints, depth_m=depth_m,
+                      descriptors=f.descriptors, corners=f.corners, camera=camera)  # fmt: skip
     write_raw(dump_dir / f"{stem}{RAW_SUFFIX}", dump)
     with atomic_path(dump_dir / f"{stem}.ppm") as tmp:
         if not cv2.imwrite(str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):

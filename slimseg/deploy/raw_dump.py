@@ -10,7 +10,11 @@ tensors. The format is named tensors, every number little-endian:
 
 Tensors of a dump: ``images [1, 3, H, W]`` (the letterboxed input), ``output0`` (+ ``output1``)
 or ``logits`` (export/CONTRACT.md), ``frame_hw`` int32 ``[2]`` and ``keypoints`` float32
-``[N, 2]`` (x, y frame pixels: the ORB keypoints ``slimseg dynamic`` would use).
+``[N, 2]`` (x, y frame pixels: the ORB keypoints ``slimseg dynamic`` would use), with their
+``descriptors`` uint8 ``[N, 32]`` and the frame's FAST ``corners`` float32 ``[P, 2]`` (the
+degrading rule's static support) as the chain computed them; with ``--dump-depth``
+``depth_m`` float32 ``[H, W]`` and the camera's ``camera`` float32 ``[4]`` (fx, fy, cx, cy):
+what the C++ chain's multi-frame stages need (docs/cpp_consumer.md).
 """
 
 from __future__ import annotations
@@ -85,15 +89,26 @@ def frame_dump(
     frame_hw: tuple[int, int],
     keypoints: np.ndarray,
     depth_m: np.ndarray | None = None,
+    *,
+    descriptors: np.ndarray | None = None,
+    corners: np.ndarray | None = None,
+    camera: tuple[float, float, float, float] | None = None,
 ) -> dict[str, np.ndarray]:
     """A dump's tensors: ``raw`` (``Predictor.predict(..., raw=raw)``: input and outputs), the
     frame size, ``keypoints float32 [N, 2]`` and, optionally, ``depth_m float32 [H, W]``
-    (metres; the masking rules' depth cut)."""
-    out = {
-        **raw,
-        "frame_hw": np.asarray(frame_hw, np.int32),
-        "keypoints": np.asarray(keypoints, np.float32).reshape(-1, 2),
-    }
+    (metres; the masking rules' depth cut), the keypoints' ORB ``descriptors uint8 [N, 32]``,
+    the FAST ``corners float32 [P, 2]`` and the ``camera`` ``(fx, fy, cx, cy)`` px."""
+    kps = np.asarray(keypoints, np.float32).reshape(-1, 2)
+    out = {**raw, "frame_hw": np.asarray(frame_hw, np.int32), "keypoints": kps}
+    if descriptors is not None:
+        desc = np.asarray(descriptors, np.uint8)
+        if desc.shape != (len(kps), 32):
+            raise ValueError(f"descriptors {list(desc.shape)}: expected [{len(kps)}, 32]")
+        out["descriptors"] = np.ascontiguousarray(desc)
+    if corners is not None:
+        out["corners"] = np.asarray(corners, np.float32).reshape(-1, 2)
     if depth_m is not None:
         out["depth_m"] = np.ascontiguousarray(depth_m, np.float32)
+    if camera is not None:
+        out["camera"] = np.asarray(camera, np.float32).reshape(4)
     return out

@@ -65,7 +65,13 @@ MIN_POINTS = 5  # matched points an object needs to be decided
 FLOOR_PX = 1.0  # lowest epipolar threshold (px)
 K_MAD = 3.0  # threshold = median + K_MAD * sigma_MAD of the background distances
 RANSAC_PX = 1.0  # findFundamentalMat reprojection threshold
+RANSAC_CONFIDENCE = 0.999  # findFundamentalMat's confidence
 H_RATIO = 0.9  # homography wins when it explains >= this fraction of F's background inliers
+PNP_PX = 2.0  # solvePnPRansac's reprojection threshold (px)
+PNP_ITERATIONS = 100  # its draws
+PNP_CONFIDENCE = 0.999
+PNP_MIN_POINTS = 12  # matches with previous depth a pose needs
+PNP_REFINE_MIN = 6  # RANSAC inliers the Levenberg-Marquardt refinement needs
 ORB_MIN_SIDE = 2 * 31 + 1  # pixels: ORB (edge threshold 31) finds no keypoint in a smaller frame
 
 
@@ -243,7 +249,11 @@ def check_motion(
     background = ~inside.any(0)
     fit = background if background.sum() >= MIN_BACKGROUND else np.ones(len(pairs), bool)
     f, _ = cv2.findFundamentalMat(
-        p0[fit].astype(np.float64), p1[fit].astype(np.float64), cv2.FM_RANSAC, RANSAC_PX, 0.999
+        p0[fit].astype(np.float64),
+        p1[fit].astype(np.float64),
+        cv2.FM_RANSAC,
+        RANSAC_PX,
+        RANSAC_CONFIDENCE,
     )
     none.background = int(background.sum())
     if f is None or f.shape != (3, 3):
@@ -310,19 +320,22 @@ def pnp_pose(
     z = depth_m[yi, xi].astype(np.float64)
     ok = np.isfinite(z) & (z > 0)
     use = ok & use
-    if use.sum() < 12:
+    if use.sum() < PNP_MIN_POINTS:
         return None
     z = np.where(ok, z, np.nan)
     pts3 = np.stack([(p0[:, 0] - cx) * z / fx, (p0[:, 1] - cy) * z / fy, z], 1)
     k = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], np.float64)
     x3, x2 = pts3[use], p1[use].astype(np.float64)
     found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        x3, x2, k, None, reprojectionError=2.0, iterationsCount=100, confidence=0.999,
+        x3, x2, k, None, reprojectionError=PNP_PX, iterationsCount=PNP_ITERATIONS,
+        confidence=PNP_CONFIDENCE,
         flags=cv2.SOLVEPNP_AP3P,
     )  # fmt: skip
     if not found:
         return None
-    if inliers is not None and len(inliers) >= 6:  # the minimal fit, refined on its inliers
+    if (
+        inliers is not None and len(inliers) >= PNP_REFINE_MIN
+    ):  # the minimal fit, refined on its inliers
         i = inliers.ravel()
         rvec, tvec = cv2.solvePnPRefineLM(x3[i], x2[i], k, None, rvec, tvec)
     return PnpPose(rvec, tvec, pts3, k)

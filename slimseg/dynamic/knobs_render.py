@@ -5,6 +5,7 @@ them; ``tests/dynamic/test_knobs.py`` fails when either differs from what this m
 
 from __future__ import annotations
 
+from slimseg.dynamic import epipolar, occupancy, stillness
 from slimseg.dynamic.depth_cut import REFERENCE_QUANTILE
 from slimseg.dynamic.knobs import KNOBS, MASKING_PRESETS, Knob, Value
 from slimseg.dynamic.masking_settings import DILATION_REFERENCE_PX
@@ -122,10 +123,52 @@ def cpp_header() -> str:
         f"inline constexpr double kUncutTO = {float(T_O)!r};",
         f"inline constexpr int kDilationReferencePx = {DILATION_REFERENCE_PX};",
         "",
+        *_multi_frame_constants(),
         "}  // namespace slimseg::generated",
         "",
     ]
     return "\n".join(out)
+
+
+# The multi-frame stages' constants (the C++ chain, export/cpp/src/chain.cpp and the stages it
+# calls): (C++ name, module, attribute); each module is their one home.
+MULTI_FRAME: tuple[tuple[str, object, str], ...] = (
+    ("kRatio", epipolar, "RATIO"),
+    ("kMinBackground", epipolar, "MIN_BACKGROUND"),
+    ("kMinPoints", epipolar, "MIN_POINTS"),
+    ("kFloorPx", epipolar, "FLOOR_PX"),
+    ("kKMad", epipolar, "K_MAD"),
+    ("kRansacPx", epipolar, "RANSAC_PX"),
+    ("kRansacConfidence", epipolar, "RANSAC_CONFIDENCE"),
+    ("kHRatio", epipolar, "H_RATIO"),
+    ("kPnpPx", epipolar, "PNP_PX"),
+    ("kPnpIterations", epipolar, "PNP_ITERATIONS"),
+    ("kPnpConfidence", epipolar, "PNP_CONFIDENCE"),
+    ("kPnpMinPoints", epipolar, "PNP_MIN_POINTS"),
+    ("kPnpRefineMin", epipolar, "PNP_REFINE_MIN"),
+    ("kTauM", occupancy, "TAU_M"),
+    ("kNeighbourhoodPx", occupancy, "NEIGHBOURHOOD_PX"),
+    ("kSurfacePx", occupancy, "SURFACE_PX"),
+    ("kStride", occupancy, "STRIDE"),
+    ("kMotionFeatures", occupancy, "MOTION_FEATURES"),
+    ("kStillFraction", stillness, "STILL_FRACTION"),
+    ("kMinTested", stillness, "MIN_TESTED"),
+)
+
+
+def _multi_frame_constants() -> list[str]:
+    """The ``multi_frame`` namespace of the header: :data:`MULTI_FRAME`'s values."""
+    out = ["// the multi-frame stages (motion odds, motion layers, stillness): their Python",
+           "// modules' constants (slimseg.dynamic.epipolar, .occupancy, .stillness)",
+           "namespace multi_frame {"]  # fmt: skip
+    for name, module, attr in MULTI_FRAME:
+        v = getattr(module, attr)
+        where = f"{module.__name__.rsplit('.', 1)[1]}.{attr}"  # type: ignore[attr-defined]
+        if isinstance(v, int):
+            out.append(f"inline constexpr int {name} = {v};  // {where}")
+        else:
+            out.append(f"inline constexpr double {name} = {float(v)!r};  // {where}")
+    return [*out, "}  // namespace multi_frame", ""]
 
 
 def rendered() -> dict[str, str]:

@@ -35,7 +35,14 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from slimseg.dynamic.epipolar import OrbFeatures, PnpPose, PreviousFrame, match_features, pnp_pose
+from slimseg.dynamic.epipolar import (
+    PNP_MIN_POINTS,
+    OrbFeatures,
+    PnpPose,
+    PreviousFrame,
+    match_features,
+    pnp_pose,
+)
 from slimseg.dynamic.seg_box import box_spans
 
 if TYPE_CHECKING:
@@ -77,7 +84,7 @@ def camera_pose(previous: PreviousFrame, current: OrbFeatures) -> PnpPose | None
     a, ia = subsample(previous.features)
     b, ib = subsample(current)
     pairs = match_features(a, b)
-    if len(pairs) < 12:
+    if len(pairs) < PNP_MIN_POINTS:
         return None
     p0 = previous.features.keypoints[ia[pairs[:, 0]]]
     p1 = current.keypoints[ib[pairs[:, 1]]]

@@ -405,6 +405,28 @@ BROKEN = {  # what is broken -> the words the one-line error must contain
         "output1: shape [1, 32, 20, 20], expected [1, 32, 40, 40]",
     ),
     "truncated dump": ({"truncate": True}, "truncated raw dump"),
+    "descriptor rows": (
+        {"tensors": {"descriptors": np.zeros((3, 32), np.uint8)}},
+        "descriptors must be uint8 [N, 32] of the keypoints",
+    ),
+    "camera shape": (
+        {
+            "tensors": {
+                "descriptors": np.zeros((KEYPOINTS, 32), np.uint8),
+                "camera": np.ones(3, np.float32),
+            }
+        },
+        "camera must be float32 [4]",
+    ),
+    "camera values": (
+        {
+            "tensors": {
+                "descriptors": np.zeros((KEYPOINTS, 32), np.uint8),
+                "camera": np.array([0, 500, 80, 60], np.float32),
+            }
+        },
+        "camera must be finite (fx, fy, cx, cy) with fx, fy > 0",
+    ),
 }
 
 
@@ -422,8 +444,10 @@ def test_malformed_input_gets_a_one_line_error(example, cases, tmp_path, what) -
 @pytest.mark.slow
 def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_path) -> None:
     """``slimseg predict --dump-raw`` on a sequence's frames, the example program on the
-    dumps (frames read as PPM, the model's own metadata and masking preset, ORB keypoints from
-    the dump) and ``slimseg dynamic`` on the same sequence write identical masks."""
+    dumps (frames read as PPM, the model's own metadata and masking preset, the chain's ORB
+    keypoints, descriptors and corners from the dump) and ``slimseg dynamic --no-depth`` on
+    the same sequence write identical masks: without depth the motion odds act in both, and
+    what needs depth is named once (refused with --strict)."""
     generate(tmp_path / "d", 1, 1, 64, 0, sequences=1, frames=3, seq_size=(160, 120),
              progress=False)  # fmt: skip
     seq = tmp_path / "d" / "sequences" / "seq_000"
@@ -431,41 +455,74 @@ def test_dump_raw_command_and_example_match_slimseg_dynamic(example, cases, tmp_
     dumps, out = tmp_path / "dumps", tmp_path / "cpp"
     argv = ["predict", "--model", model, "--source", str(seq / "rgb"), "--quiet"]
     assert main([*argv, "--out", str(tmp_path / "pred"), "--dump-raw", str(dumps)]) == 0
-    # the dumps carry no depth (predict reads colour frames) and the C++ core runs no epipolar
-    # check: slimseg dynamic without the depth cut and the motion evidence (both pinned with
-    # depth and keypoints by the parity tests above)
-    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet",
-            "--set", "cut_behind_m=0", "motion_odds=1"]  # fmt: skip
+    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet", "--no-depth"]
     assert main([*argv, "--out", str(tmp_path / "dyn")]) == 0
     cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
     done = subprocess.run([*cmd, "--out", str(out), "--frames", str(dumps)], capture_output=True)
     assert done.returncode == 0, done.stderr
     _same_masks(seq, out, tmp_path / "dyn")
-    # --dump-depth: the dumps carry the sequence's depth, and the depth cut acts in C++ as in
-    # slimseg dynamic (only the multi-frame evidence off; Eq. 1's rule: the degrading rule
-    # counts its static support on the dump's keypoints in C++, on ORB-SLAM3's FAST corners in
-    # Python, docs/cpp_consumer.md)
-    argv = ["predict", "--model", model, "--source", str(seq / "rgb"), "--quiet",
-            "--dump-depth", str(seq)]  # fmt: skip
-    deep = tmp_path / "deep"
-    assert main([*argv, "--out", str(tmp_path / "pred2"), "--dump-raw", str(deep)]) == 0
-    meta = json.loads((deep / "metadata.json").read_text())
-    meta["slam_masking"]["rule"] = "eq1"
-    (deep / "metadata.json").write_text(json.dumps(meta))
-    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet", "--set",
-            "motion_odds=1", "motion_layer_px=0", "still_frames=0", "rule=eq1"]  # fmt: skip
-    assert main([*argv, "--out", str(tmp_path / "dyn2")]) == 0
-    cmd2 = [str(example), "--meta", str(deep / "metadata.json"), "--dumps", str(deep)]
-    done2 = subprocess.run([*cmd2, "--out", str(tmp_path / "cpp2")], capture_output=True)
-    assert done2.returncode == 0, done2.stderr
-    _same_masks(seq, tmp_path / "cpp2", tmp_path / "dyn2")
-    # the shipped preset's multi-frame evidence is named once, not dropped without a word
-    note = "motion_odds 10, motion_layer_px 100, still_frames 20: multi-frame settings"
+    # what cannot act without depth is named once, not dropped without a word
+    note = "cut_behind_m 0.5, motion_layer_px 100, still_frames 20: settings that cannot act"
     assert done.stderr.decode().count(note) == 1, done.stderr
     strict = subprocess.run([*cmd, "--out", str(tmp_path / "s"), "--strict"], capture_output=True)
     err = strict.stderr.decode().strip().splitlines()
     assert strict.returncode == 2 and len(err) == 1 and note in err[0] and "--strict" in err[0]
     assert not (tmp_path / "s").exists()
+
+
+# The chain parity test's changes to the shipped preset: the stillness test's window (it acts
+# from frame 2 on) and a score threshold that keeps the test model's detections to a few dozen
+CHAIN_SETTINGS = {"still_frames": 4, "conf": 0.25}
+
+
+def test_multi_frame_chain_matches_slimseg_dynamic(example, cases, tmp_path) -> None:
+    """The whole preset in C++: ``predict --dump-raw --dump-depth`` on a short synthetic
+    sequence (dumps with the chain's ORB keypoints, descriptors and FAST corners, the depth and
+    the camera), the example on the dumps and ``slimseg dynamic`` on the sequence (motion
+    odds, motion layers, stillness, the degrading rule; ``CHAIN_SETTINGS``): at least 99 %
+    of mask pixels equal per frame, and no setting named as unapplied."""
+    generate(tmp_path / "d", 0, 0, 64, 131, sequences=1, frames=6, seq_size=(320, 240),
+             progress=False, preset="walking_xyz")  # fmt: skip
+    seq = tmp_path / "d" / "sequences" / "seq_000"
+    model = str(cases("yolov8n-seg fp32").predictor.path)
+    dumps = tmp_path / "dumps"
+    argv = [
+        "predict",
+        "--model",
+        model,
+        "--source",
+        str(seq / "rgb"),
+        "--quiet",
+        "--dump-depth",
+        str(seq),
+        "--out",
+        str(tmp_path / "pred"),
+        "--dump-raw",
+        str(dumps),
+    ]
+    assert main(argv) == 0
+    meta = json.loads((dumps / "metadata.json").read_text())
+    meta["slam_masking"].update(CHAIN_SETTINGS)
+    (dumps / "metadata.json").write_text(json.dumps(meta))
+    argv = ["dynamic", "--model", model, "--sequence", str(seq), "--quiet",
+            "--set", *(f"{k}={v}" for k, v in CHAIN_SETTINGS.items()),
+            "--out", str(tmp_path / "dyn")]  # fmt: skip
+    assert main(argv) == 0
+    cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
+    cmd += ["--out", str(tmp_path / "cpp"), "--strict", "--results"]
+    done = subprocess.run(cmd, capture_output=True)
+    assert done.returncode == 0, done.stderr
+    assert b"cannot act" not in done.stderr, done.stderr
+    stems = sorted(p.stem for p in (seq / "rgb").glob("*.png"))
+    assert len(stems) == 6
+    results = [read_raw(tmp_path / "cpp" / f"{stem}.ssres") for stem in stems]
+    priors = set(np.float32(meta["mobility"]).tolist())
+    assert any(r["still"].any() for r in results), "the stillness test never acted"
+    assert any(set(r["mobility"].tolist()) - priors - {0.0} for r in results), "no odds weighed"
+    for stem in stems:
+        ours = cv2.imread(str(tmp_path / "cpp" / f"{stem}.pgm"), cv2.IMREAD_UNCHANGED)
+        theirs = cv2.imread(str(tmp_path / "dyn" / "masks" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        assert (ours == theirs).mean() >= 0.99, stem
 
 
 def _same_masks(seq: Path, cpp: Path, dynamic: Path) -> None:

@@ -14,8 +14,12 @@
 // dynamic, keypoint_dynamic, used_seg, m_th) for comparisons. Exit 2 with one line on bad input.
 // Dumps of an end-to-end export (metadata end2end) carry num_dets, boxes, scores, classes and
 // masks instead of output0/output1: the NMS ran in the graph (--iou does not apply).
-// Settings of the preset that this consumer does not apply (the multi-frame evidence:
-// motion_odds, motion_layer_px, still_frames) are named once on stderr; --strict refuses them.
+// Dumps with the chain's ORB descriptors (`predict --dump-raw` writes them) run the whole
+// preset through the multi-frame chain (slimseg/chain.hpp: stillness, motion odds, motion
+// layers), the frames in sorted order as one sequence; with --dump-depth they carry the depth
+// and the camera those need. Settings of the preset that cannot act on what the dumps carry
+// (no depth, no camera, no descriptors) are named once on stderr; --strict refuses them.
+#include <slimseg/chain.hpp>
 #include <slimseg/consumer.hpp>
 
 #include <algorithm>
@@ -26,6 +30,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -128,8 +133,15 @@ Args parse(int argc, char** argv) {
     return a;
 }
 
+struct PgmOut {
+    std::string path;
+    std::vector<std::uint8_t> px;
+    int w = 0, h = 0;
+};
+
 void write_results(const std::string& path, const FramePrediction& p, const DynamicResult& r,
-                   float letterbox_diff) {
+                   float letterbox_diff, std::vector<std::pair<std::string, RawDump>>* later,
+                   const FrameChain* chain) {
     RawDump out;
     const std::int64_t n = static_cast<std::int64_t>(p.detections.size());
     std::vector<float> boxes, boxes_in, scores;
@@ -164,7 +176,13 @@ void write_results(const std::string& path, const FramePrediction& p, const Dyna
     float m_th = r.gave_up ? -1.0f : static_cast<float>(r.m_th);
     out.add("m_th", RawType::Float32, {1}, &m_th);
     out.add("letterbox_max_diff", RawType::Float32, {1}, &letterbox_diff);
-    out.save(path);
+    if (chain) {  // the multi-frame chain's decisions: the mobility the rules used, stillness
+        const auto& mob = chain->mobility();
+        const auto& still = chain->still();
+        out.add("mobility", RawType::Float32, {static_cast<std::int64_t>(mob.size())}, mob.data());
+        out.add("still", RawType::UInt8, {static_cast<std::int64_t>(still.size())}, still.data());
+    }
+    later->emplace_back(path, std::move(out));
 }
 
 // An int32 tensor of a dump (end-to-end exports' num_dets and classes).
@@ -175,22 +193,33 @@ std::vector<std::int32_t> int32s(const RawTensor& t, const std::string& where) {
     return v;
 }
 
+// What a dump carries for the multi-frame chain (the first dump's say; the others must agree).
+Have carried(const RawDump& dump) {
+    Have h;
+    h.depth = dump.find("depth_m") != nullptr;
+    h.camera = dump.find("camera") != nullptr;
+    h.descriptors = dump.find("descriptors") != nullptr;
+    return h;
+}
+
+std::vector<float> floats(const RawDump& dump, const std::string& name, std::int64_t cols) {
+    std::vector<float> v;
+    if (const RawTensor* t = dump.find(name)) {
+        if (t->type != RawType::Float32 || t->shape.size() != (cols == 4 ? 1u : 2u) ||
+            t->shape.back() != cols)
+            throw Error(dump.path + ": " + name + " must be float32 " +
+                        (cols == 4 ? "[4]" : "[N, " + std::to_string(cols) + "]"));
+        v.resize(static_cast<size_t>(t->numel()));
+        std::memcpy(v.data(), t->bytes.data(), t->bytes.size());
+    }
+    return v;
+}
+
 int run(const Args& a) {
     Metadata meta = Metadata::from_file(a.meta);
     Postprocessor post(meta);
     Rules rules = Rules::from_metadata(meta, a.mode, a.preset);
     const MaskingSettings& masking = meta.masking(a.preset);
-    std::string idle_note;  // said once, after the run (an error stays the only line)
-    if (const auto idle = unapplied(rules.masking); !idle.empty()) {
-        std::string list;
-        for (const auto& s : idle) list += (list.empty() ? "" : ", ") + s;
-        idle_note = list + ": multi-frame settings this consumer does not apply (its masks are "
-                           "slimseg dynamic's with them off; docs/cpp_consumer.md)";
-        if (a.strict) throw Error(idle_note + " (--strict)");
-    }
-    const double conf = a.conf >= 0 ? a.conf : masking.conf;
-    const double iou = a.iou >= 0 ? a.iou : meta.nms.iou;
-    const int max_det = a.max_det > 0 ? a.max_det : meta.nms.max_det;
     if (!fs::is_directory(a.dumps)) throw Error(a.dumps + ": no such folder of raw dumps");
     std::vector<fs::path> dumps;
     for (const auto& e : fs::directory_iterator(a.dumps))
@@ -198,12 +227,44 @@ int run(const Args& a) {
     std::sort(dumps.begin(), dumps.end());
     if (dumps.empty()) throw Error(a.dumps + ": no .ssraw files (write them with slimseg predict "
                                    "--dump-raw)");
-    fs::create_directories(a.out);
-    double ms = 0, ms_post = 0;
+    const Have have = carried(RawDump::load(dumps.front().string()));
+    std::string idle_note;  // said once, after the run (an error stays the only line)
+    if (const auto idle = unapplied(rules.masking, have); !idle.empty()) {
+        std::string list;
+        for (const auto& s : idle) list += (list.empty() ? "" : ", ") + s;
+        idle_note = list + ": settings that cannot act on these dumps (they carry no " +
+                    (have.descriptors ? "" : "descriptors, ") + (have.depth ? "" : "depth, ") +
+                    (have.camera ? "" : "camera, ") +
+                    "see docs/cpp_consumer.md; the masks are slimseg dynamic's with them off)";
+        if (a.strict) throw Error(idle_note + " (--strict)");
+    }
+    std::optional<FrameChain> chain;  // the multi-frame chain, where the dumps carry descriptors
+    if (have.descriptors) {
+        std::optional<Camera> cam;
+        if (have.camera) {
+            const std::vector<float> c = floats(RawDump::load(dumps.front().string()), "camera", 4);
+            if (!(c[0] > 0 && c[1] > 0 && std::isfinite(c[0]) && std::isfinite(c[1]) &&
+                  std::isfinite(c[2]) && std::isfinite(c[3])))
+                throw Error(dumps.front().string() + ": camera must be finite (fx, fy, cx, cy) "
+                            "with fx, fy > 0");
+            cam = Camera{c[0], c[1], c[2], c[3]};
+        }
+        chain.emplace(rules, cam);
+    }
+    const double conf = a.conf >= 0 ? a.conf : masking.conf;
+    const double iou = a.iou >= 0 ? a.iou : meta.nms.iou;
+    const int max_det = a.max_det > 0 ? a.max_det : meta.nms.max_det;
+    double ms = 0, ms_post = 0, ms_chain = 0;
+    std::vector<PgmOut> pgms;  // written after the last frame
+    std::vector<std::pair<std::string, RawDump>> results;
     float worst_letterbox = 0;
     for (const auto& path : dumps) {
         const std::string stem = path.stem().string();
         RawDump dump = RawDump::load(path.string());
+        if (const Have h = carried(dump); h.depth != have.depth || h.camera != have.camera ||
+                                          h.descriptors != have.descriptors)
+            throw Error(path.string() + ": carries other tensors (depth_m, camera, descriptors) "
+                        "than " + dumps.front().string() + "; dump the sequence in one run");
         const RawTensor& hw = dump.need("frame_hw");
         if (hw.type != RawType::Int32 || hw.numel() != 2)
             throw Error(path.string() + ": frame_hw must be int32 [2]");
@@ -274,16 +335,44 @@ int run(const Args& a) {
             depth.resize(static_cast<size_t>(d->numel()));
             std::memcpy(depth.data(), d->bytes.data(), d->bytes.size());
         }
-        DynamicResult r = dynamic_mask(p, kps, rules, depth.empty() ? nullptr : depth.data());
+        const float* dm = depth.empty() ? nullptr : depth.data();
+        DynamicResult r;
+        std::vector<float> corners;
+        if (chain) {
+            Features f;
+            f.xy = kps;
+            const RawTensor& d = dump.need("descriptors");
+            if (d.type != RawType::UInt8 || d.shape.size() != 2 || d.shape[1] != 32 ||
+                static_cast<size_t>(d.shape[0]) != kps.size() / 2)
+                throw Error(path.string() + ": descriptors must be uint8 [N, 32] of the keypoints");
+            f.desc = d.bytes;
+            corners = floats(dump, "corners", 2);
+            const bool support = dump.find("corners") != nullptr && rules.degrade();
+            t1 = clock::now();  // the chain's own cost, without post-processing
+            r = chain->step(objects_of(p), h, w, f, dm, support ? &corners : nullptr);
+        } else {
+            r = dynamic_mask(p, kps, rules, dm);
+        }
         auto t2 = clock::now();
+        ms_chain += std::chrono::duration<double, std::milli>(t2 - t1).count();
         ms_post += std::chrono::duration<double, std::milli>(t1 - t0).count();
         ms += std::chrono::duration<double, std::milli>(t2 - t0).count();
-        write_pgm((fs::path(a.out) / (stem + ".pgm")).string(), r.mask, w, h);
-        if (a.results) write_results((fs::path(a.out) / (stem + ".ssres")).string(), p, r, diff);
+        PgmOut pgm{(fs::path(a.out) / (stem + ".pgm")).string(), std::move(r.mask), w, h};
+        if (a.results) {
+            r.mask = pgm.px;
+            write_results((fs::path(a.out) / (stem + ".ssres")).string(), p, r, diff, &results,
+                          chain ? &*chain : nullptr);
+        }
+        pgms.push_back(std::move(pgm));
     }
+    // written when every frame is done: a bad frame leaves nothing half-written
+    fs::create_directories(a.out);
+    for (const auto& g : pgms) write_pgm(g.path, g.px, g.w, g.h);
+    for (const auto& [where, res] : results) res.save(where);
     std::printf("%zu frames: dynamic masks in %s; post-processing + masking %.3f ms per frame "
-                "(post-processing %.3f ms)",
-                dumps.size(), a.out.c_str(), ms / dumps.size(), ms_post / dumps.size());
+                "(post-processing %.3f ms; %s %.3f ms)",
+                dumps.size(), a.out.c_str(), ms / dumps.size(), ms_post / dumps.size(),
+                chain ? "multi-frame chain" : "rules", ms_chain / dumps.size());
     if (!a.frames.empty()) std::printf("; letterbox vs dump: max %.2f grey levels", worst_letterbox);
     std::printf("\n");
     if (!idle_note.empty()) std::fprintf(stderr, "slimseg_masks: note: %s\n", idle_note.c_str());

@@ -97,16 +97,20 @@ float reference_depth(const WindowMask& mask, const WindowMask& box, const float
 }
 
 // slimseg.dynamic.depth_cut.cut_behind: the region's pixels inside the box deeper than
-// ref + band (compared in float32; NaN depth or reference: kept) are cleared.
+// ref + band (compared in float32; NaN depth or reference: kept) are cleared, except those
+// within band of the object's motion layer (NaN: none).
 void cut_behind(WindowMask& region, const WindowMask& box, const float* depth, int w, float ref,
-                double band) {
+                double band, float layer) {
     if (!std::isfinite(ref)) return;
     const float thr = static_cast<float>(static_cast<double>(ref) + band);
+    const float near = static_cast<float>(band);
+    const bool keep_layer = std::isfinite(layer);
     const int y0 = std::max(box.y0, region.y0), y1 = std::min(box.y0 + box.h, region.y0 + region.h);
     const int x0 = std::max(box.x0, region.x0), x1 = std::min(box.x0 + box.w, region.x0 + region.w);
     for (int y = y0; y < y1; ++y)
         for (int x = x0; x < x1; ++x)
-            if (depth[static_cast<size_t>(y) * w + x] > thr)
+            if (const float d = depth[static_cast<size_t>(y) * w + x];
+                d > thr && !(keep_layer && std::fabs(d - layer) <= near))
                 region.pixels[static_cast<size_t>(y - region.y0) * region.w + (x - region.x0)] = 0;
 }
 
@@ -114,26 +118,38 @@ void cut_behind(WindowMask& region, const WindowMask& box, const float* depth, i
 // (mobility > m_th_start) leave the mask least certain first (score x mobility; ties: the
 // larger region, then the later object) while fewer than min_static keypoints lie outside
 // it; scores >= keep_score stay.
-void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
-             const std::vector<float>& mob, const std::vector<float>& scores,
-             const std::vector<float>& kps, const Rules& rules, float start, int h, int w) {
-    const size_t m = regions.size(), n = kps.size() / 2;
-    std::vector<std::uint8_t> masked(m, 0);
-    for (size_t k = 0; k < m; ++k) masked[k] = mob[k] > start;
+// hits[k][i]: region k holds point i (rounded half to even, clipped to the frame)
+std::vector<std::vector<std::uint8_t>> hits(const std::vector<WindowMask>& regions,
+                                            const std::vector<float>& pts, int h, int w) {
+    const size_t m = regions.size(), n = pts.size() / 2;
     std::vector<std::vector<std::uint8_t>> hit(m, std::vector<std::uint8_t>(n, 0));
     for (size_t i = 0; i < n; ++i) {
-        int x = static_cast<int>(std::nearbyint(kps[2 * i]));
-        int y = static_cast<int>(std::nearbyint(kps[2 * i + 1]));
+        int x = static_cast<int>(std::nearbyint(pts[2 * i]));
+        int y = static_cast<int>(std::nearbyint(pts[2 * i + 1]));
         x = std::min(std::max(x, 0), w - 1);
         y = std::min(std::max(y, 0), h - 1);
         for (size_t k = 0; k < m; ++k) hit[k][i] = regions[k].at(y, x);
     }
+    return hit;
+}
+
+// `support`: the static support counted (null: the keypoints)
+void degrade(DynamicResult& res, const std::vector<WindowMask>& regions,
+             const std::vector<float>& mob, const std::vector<float>& scores,
+             const std::vector<float>& kps, const std::vector<float>* support, const Rules& rules,
+             float start, int h, int w) {
+    const size_t m = regions.size(), n = kps.size() / 2;
+    std::vector<std::uint8_t> masked(m, 0);
+    for (size_t k = 0; k < m; ++k) masked[k] = mob[k] > start;
+    const auto hit = hits(regions, kps, h, w);
+    const auto held = support ? hits(regions, *support, h, w) : hit;
+    const size_t p = support ? support->size() / 2 : n;
     auto score = [&](size_t k) { return scores.empty() ? 1.0f : scores[k]; };
     auto left = [&]() {
         std::int64_t out = 0;
-        for (size_t i = 0; i < n; ++i) {
+        for (size_t i = 0; i < p; ++i) {
             bool covered = false;
-            for (size_t k = 0; k < m && !covered; ++k) covered = masked[k] && hit[k][i];
+            for (size_t k = 0; k < m && !covered; ++k) covered = masked[k] && held[k][i];
             out += !covered;
         }
         return out;
@@ -207,75 +223,14 @@ int scaled_dilation_px(const MaskingSettings& s, int h, int w) {
                        s.dilation_reference_px));
 }
 
-Objects objects_of(const FramePrediction& p, int min_area) {
-    Objects o;
-    if (!p.semantic) {
-        for (const auto& d : p.detections) {
-            o.boxes.push_back(d.box);
-            o.classes.push_back(d.cls);
-            o.scores.push_back(d.score);
-        }
-        o.masks = p.masks;
-        o.has_masks = p.segmenter;
-        return o;
-    }
-    // slimseg.dynamic.semantic.class_map_to_instances: 8-connected components per class
-    const int h = p.h, w = p.w;
-    std::vector<int> label(static_cast<size_t>(h) * w, -1);
-    std::vector<int> stack;
-    int maxv = 0;
-    for (auto v : p.class_map) maxv = std::max(maxv, static_cast<int>(v));
-    for (int value = 1; value <= maxv; ++value) {
-        for (int start = 0; start < h * w; ++start) {
-            if (p.class_map[start] != value || label[start] >= 0) continue;
-            int x0 = w, y0 = h, x1 = -1, y1 = -1;
-            std::vector<int> pix;
-            stack.assign(1, start);
-            label[start] = start;
-            while (!stack.empty()) {
-                int q = stack.back();
-                stack.pop_back();
-                pix.push_back(q);
-                int qy = q / w, qx = q % w;
-                x0 = std::min(x0, qx), x1 = std::max(x1, qx);
-                y0 = std::min(y0, qy), y1 = std::max(y1, qy);
-                for (int dy = -1; dy <= 1; ++dy)
-                    for (int dx = -1; dx <= 1; ++dx) {
-                        int ny = qy + dy, nx = qx + dx;
-                        if (ny < 0 || ny >= h || nx < 0 || nx >= w) continue;
-                        int r = ny * w + nx;
-                        if (p.class_map[r] == value && label[r] < 0) {
-                            label[r] = start;
-                            stack.push_back(r);
-                        }
-                    }
-            }
-            if (static_cast<int>(pix.size()) < min_area) continue;
-            WindowMask m;
-            m.x0 = x0;
-            m.y0 = y0;
-            m.w = x1 - x0 + 1;
-            m.h = y1 - y0 + 1;
-            m.pixels.assign(static_cast<size_t>(m.w) * m.h, 0);
-            for (int q : pix) m.pixels[static_cast<size_t>(q / w - y0) * m.w + (q % w - x0)] = 1;
-            o.boxes.push_back({static_cast<float>(x0), static_cast<float>(y0),
-                               static_cast<float>(x1 + 1), static_cast<float>(y1 + 1)});
-            o.classes.push_back(value - 1);
-            o.masks.push_back(std::move(m));
-        }
-    }
-    o.has_masks = true;
-    return o;
-}
-
 DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& keypoints_xy,
-                           const Rules& rules, const float* depth_m) {
-    return dynamic_mask(objects_of(p), p.h, p.w, keypoints_xy, rules, depth_m);
+                           const Rules& rules, const float* depth_m, const Evidence* evidence) {
+    return dynamic_mask(objects_of(p), p.h, p.w, keypoints_xy, rules, depth_m, evidence);
 }
 
 DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                            const std::vector<float>& keypoints_xy, const Rules& rules,
-                           const float* depth_m) {
+                           const float* depth_m, const Evidence* evidence) {
     const MaskingSettings& s = rules.masking;
     if (keypoints_xy.size() % 2) throw Error("keypoints: expected (x, y) pairs, got an odd count");
     const size_t m = objects.boxes.size(), n = keypoints_xy.size() / 2;
@@ -290,17 +245,37 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                         std::to_string(rules.class_mobility.size()) + " classes)");
         mob[i] = rules.class_mobility[c];
     }
+    if (evidence && !evidence->mobility.empty()) {  // decided by the multi-frame chain
+        if (evidence->mobility.size() != m)
+            throw Error("evidence: " + std::to_string(evidence->mobility.size()) +
+                        " mobilities for " + std::to_string(m) + " objects");
+        mob = evidence->mobility;
+    }
     if (rules.mode != Mode::Box && !objects.has_masks)
         throw Error("mode seg/fusion needs instance masks (a segmentation model); use box");
     std::vector<WindowMask> boxes, regions;
     for (const auto& b : objects.boxes) boxes.push_back(box_window(b, h, w));
     regions = rules.mode == Mode::Box ? boxes : objects.masks;
     const bool cut = depth_m != nullptr && s.cut_behind_m > 0 && rules.mode != Mode::Box;
-    std::vector<float> ref(m, std::nanf(""));
-    for (size_t i = 0; cut && i < m; ++i) {  // masks that stay on their object
+    std::vector<float> ref(m, std::nanf("")), layer(m, std::nanf(""));
+    for (size_t i = 0; cut && i < m; ++i)  // masks that stay on their object
         ref[i] = reference_depth(regions[i], boxes[i], depth_m, w);
-        cut_behind(regions[i], boxes[i], depth_m, w, ref[i], s.cut_behind_m);
+    if (cut && evidence && evidence->layers) {  // what moved in behind the near layer stays
+        std::vector<std::uint8_t> behind(static_cast<size_t>(h) * w, 0);
+        const float* d = depth_m;
+        for (size_t i = 0; i < m; ++i) {
+            if (!std::isfinite(ref[i])) continue;
+            const float thr = static_cast<float>(static_cast<double>(ref[i]) + s.cut_behind_m);
+            const WindowMask& b = boxes[i];
+            for (int y = b.y0; y < b.y0 + b.h; ++y)
+                for (int x = b.x0; x < b.x0 + b.w; ++x)
+                    if (d[static_cast<size_t>(y) * w + x] > thr) behind[static_cast<size_t>(y) * w + x] = 1;
+        }
+        std::vector<float> got = evidence->layers(behind, ref);
+        if (got.size() == m) layer = got;
     }
+    for (size_t i = 0; cut && i < m; ++i)
+        cut_behind(regions[i], boxes[i], depth_m, w, ref[i], s.cut_behind_m, layer[i]);
     if (s.dilation_px > 0)  // points near a mask edge belong to the object (ORB patches)
         for (auto& r : regions) r = dilate(r, s.dilation_px, h, w);
     DynamicResult res;
@@ -333,7 +308,7 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
             res.used_seg[i] = s_o > t_o;
             if (!res.used_seg[i]) {
                 regions[i] = b;
-                if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], s.cut_behind_m);
+                if (cut) cut_behind(regions[i], b, depth_m, w, ref[i], s.cut_behind_m, layer[i]);
             }
         }
         point_mob = keypoint_mobility(keypoints_xy, regions, mob, h, w);
@@ -342,7 +317,8 @@ DynamicResult dynamic_mask(const Objects& objects, int h, int w,
     res.dynamic.assign(n, 0);
     const float start = static_cast<float>(s.m_th_start + 1e-9);
     if (rules.degrade()) {
-        degrade(res, regions, mob, objects.scores, keypoints_xy, rules, start, h, w);
+        degrade(res, regions, mob, objects.scores, keypoints_xy,
+                evidence ? evidence->support : nullptr, rules, start, h, w);
         return res;
     }
     // Eq. 1: raise m_th until at least min_static points stay static (compared in float32,

@@ -13,6 +13,12 @@
 //   Rules rules = Rules::from_metadata(meta, Mode::Fusion);
 //   DynamicResult r = dynamic_mask(p, keypoints_xy, rules);     // r.mask: uint8, 255 = dynamic
 //
+// or, with the multi-frame evidence of the preset (stillness, motion odds, motion layers):
+//
+//   FrameChain chain(rules, Camera{fx, fy, cx, cy});             // once per camera stream
+//   DynamicResult r = chain.step(objects_of(p), h, w, Features{keypoints_xy, descriptors},
+//                                depth_m);                       // per frame, in order
+//
 // No third-party dependency. Every malformed input throws slimseg::Error with a message that
 // names the field or tensor. docs/cpp_consumer.md documents the library and the parity tests.
 //
@@ -26,8 +32,14 @@
 //   slimseg/postprocess.hpp  Postprocessor, FramePrediction
 //   slimseg/rules.hpp        Rules, dynamic_mask, class_mask
 //   slimseg/raw_dump.hpp     RawDump (`slimseg predict --dump-raw` files)
+//   slimseg/features.hpp     Features (ORB keypoints + descriptors), match_features
+//   slimseg/geometry.hpp     fundamental / homography RANSAC, pose from depth
+//   slimseg/motion_check.hpp the epipolar check and its odds
+//   slimseg/depth_evidence.hpp  the stillness test's and the motion layers' depth stages
+//   slimseg/chain.hpp        FrameChain: the multi-frame chain per frame, unapplied(s, have)
 #pragma once
 
+#include "slimseg/chain.hpp"
 #include "slimseg/error.hpp"
 #include "slimseg/json.hpp"
 #include "slimseg/letterbox.hpp"

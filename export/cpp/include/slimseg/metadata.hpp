@@ -31,8 +31,8 @@ struct MaskingSettings {  // slam_masking: the SLAM-facing defaults (the papers 
     std::string rule = generated::kRule;  // eq1 | degrade (when static support runs short)
     double keep_score = generated::kKeepScore;  // degrade: scoring this or more: never given up
     double cut_behind_m = generated::kCutBehindM;  // with depth: pixels this far behind: cut
-    // the multi-frame evidence (slimseg.dynamic.mobility, occupancy, stillness): read and
-    // checked, not applied by this consumer (unapplied() in rules.hpp names them)
+    // the multi-frame evidence (slimseg.dynamic.mobility, occupancy, stillness): applied by
+    // FrameChain (slimseg/chain.hpp); dynamic_mask alone does not (unapplied() names them)
     double motion_odds = generated::kMotionOdds;
     int motion_layer_px = generated::kMotionLayerPx;
     int still_frames = generated::kStillFrames;

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -35,9 +36,10 @@ struct Rules {
     static Rules from_metadata(const Metadata& meta, Mode mode, const std::string& preset = "");
 };
 
-// The settings of `s` switched on that this consumer does not apply (the multi-frame
-// evidence of `slimseg dynamic`: motion_odds, motion_layer_px, still_frames), each as
-// "key value"; empty: its masks follow every setting. A caller says so once, or refuses.
+// The settings of `s` switched on that dynamic_mask alone does not apply (the multi-frame
+// evidence of `slimseg dynamic`: motion_odds, motion_layer_px, still_frames; FrameChain in
+// slimseg/chain.hpp applies them), each as "key value"; empty: its masks follow every
+// setting. A caller says so once, or refuses.
 std::vector<std::string> unapplied(const MaskingSettings& s);
 
 // dilation_px scaled to a frame: round(dilation_px * max(h, w) / dilation_reference_px).
@@ -64,13 +66,27 @@ struct DynamicResult {
     std::vector<std::uint8_t> used_seg;  // Eq. 4 per object (fusion on dynamic frames)
 };
 
+// What the multi-frame chain (slimseg/chain.hpp) brings to one frame's rules: the objects'
+// decided mobility (empty: the class priors), their motion layers given the pixels the depth
+// cut would drop (h*w 0/1) and the objects' near depths (NaN: none; null or a result of
+// another size: none), and the degrading rule's static support (x, y pairs; null: the
+// keypoints).
+struct Evidence {
+    std::vector<float> mobility;
+    std::function<std::vector<float>(const std::vector<std::uint8_t>& behind,
+                                      const std::vector<float>& reference)>
+        layers;
+    const std::vector<float>* support = nullptr;
+};
+
 // keypoints_xy: N (x, y) pairs in frame pixels, flattened.
 // depth_m: optional h*w metres (0 or NaN: no depth), for rules.cut_behind_m.
 DynamicResult dynamic_mask(const FramePrediction& p, const std::vector<float>& keypoints_xy,
-                           const Rules& rules, const float* depth_m = nullptr);
+                           const Rules& rules, const float* depth_m = nullptr,
+                           const Evidence* evidence = nullptr);
 DynamicResult dynamic_mask(const Objects& objects, int h, int w,
                            const std::vector<float>& keypoints_xy, const Rules& rules,
-                           const float* depth_m = nullptr);
+                           const float* depth_m = nullptr, const Evidence* evidence = nullptr);
 
 // The contract's step 6 without keypoints: union of the masks (boxes for detection models,
 // class pixels for class maps) of `classes`, dilated by `radius` frame pixels.

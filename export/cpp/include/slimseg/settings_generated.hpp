@@ -53,4 +53,29 @@ inline constexpr double kReferenceQuantile = 0.1;
 inline constexpr double kUncutTO = 0.25;
 inline constexpr int kDilationReferencePx = 640;
 
+// the multi-frame stages (motion odds, motion layers, stillness): their Python
+// modules' constants (slimseg.dynamic.epipolar, .occupancy, .stillness)
+namespace multi_frame {
+inline constexpr double kRatio = 0.8;  // epipolar.RATIO
+inline constexpr int kMinBackground = 20;  // epipolar.MIN_BACKGROUND
+inline constexpr int kMinPoints = 5;  // epipolar.MIN_POINTS
+inline constexpr double kFloorPx = 1.0;  // epipolar.FLOOR_PX
+inline constexpr double kKMad = 3.0;  // epipolar.K_MAD
+inline constexpr double kRansacPx = 1.0;  // epipolar.RANSAC_PX
+inline constexpr double kRansacConfidence = 0.999;  // epipolar.RANSAC_CONFIDENCE
+inline constexpr double kHRatio = 0.9;  // epipolar.H_RATIO
+inline constexpr double kPnpPx = 2.0;  // epipolar.PNP_PX
+inline constexpr int kPnpIterations = 100;  // epipolar.PNP_ITERATIONS
+inline constexpr double kPnpConfidence = 0.999;  // epipolar.PNP_CONFIDENCE
+inline constexpr int kPnpMinPoints = 12;  // epipolar.PNP_MIN_POINTS
+inline constexpr int kPnpRefineMin = 6;  // epipolar.PNP_REFINE_MIN
+inline constexpr double kTauM = 0.2;  // occupancy.TAU_M
+inline constexpr int kNeighbourhoodPx = 2;  // occupancy.NEIGHBOURHOOD_PX
+inline constexpr int kSurfacePx = 1;  // occupancy.SURFACE_PX
+inline constexpr int kStride = 2;  // occupancy.STRIDE
+inline constexpr int kMotionFeatures = 300;  // occupancy.MOTION_FEATURES
+inline constexpr double kStillFraction = 0.05;  // stillness.STILL_FRACTION
+inline constexpr int kMinTested = 100;  // stillness.MIN_TESTED
+}  // namespace multi_frame
+
 }  // namespace slimseg::generated
