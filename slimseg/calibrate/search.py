@@ -58,6 +58,12 @@ def suggest(trial: object, k: Knob) -> Value:
     return trial.suggest_float(k.key, float(low), float(high), log=k.log)
 
 
+def tidy(value: Value) -> Value:
+    """A proposed float kept to 3 significant digits (the settings a report and a metadata
+    entry show; finer steps are below what the objective can tell apart)."""
+    return float(f"{value:.3g}") if isinstance(value, float) else value
+
+
 def clipped(values: dict[str, Value]) -> dict[str, Value]:
     """A preset's values of the searched knobs, each clipped into its span (TPE is told the
     preset as a point of its space)."""
@@ -117,7 +123,7 @@ def run_search(
 
     def ask() -> tuple[object, MaskingSettings, str]:
         ot = study.ask()
-        values = {k.key: suggest(ot, k) for k in SEARCHED}
+        values = {k.key: tidy(suggest(ot, k)) for k in SEARCHED}
         origin = ot.user_attrs.get("origin", "search")
         return ot, base.with_values(**values), origin
 

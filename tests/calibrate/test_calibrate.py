@@ -206,6 +206,7 @@ def test_calibrate_cli(model: Path, sequence: Path, tmp_path: Path,
     assert expectation(meta, DEFAULT.with_values(conf=0.49)) is None  # a user's own choice
     for key, value in report["settings"].items():
         BY_KEY[key].check(value)
+        assert not isinstance(value, float) or float(f"{value:.3g}") == value, (key, value)
     assert not math.isnan(chosen["objective"])
 
 

@@ -544,3 +544,24 @@ def test_dump_raw_needs_an_onnx_model(tmp_path) -> None:
     argv = ["predict", "--model", str(weights), "--source", str(tmp_path / "a.png")]
     assert main([*argv, "--out", str(tmp_path / "o"), "--dump-raw", str(tmp_path / "d")]) == 2
     assert not (tmp_path / "d").exists()
+
+
+def test_calibrated_preset_is_the_default(example, cases, tmp_path) -> None:
+    """A metadata with a ``calibrated`` preset flat (as slimseg calibrate writes it) is what the
+    example applies, silently; without one it says once, after the run, that it used the
+    shipped settings."""
+    case = cases("yolov8n-seg fp32")
+    dumps = tmp_path / "dumps"
+    shutil.copytree(case.dumps, dumps)
+    cmd = [str(example), "--meta", str(dumps / "metadata.json"), "--dumps", str(dumps)]
+    plain = subprocess.run([*cmd, "--out", str(tmp_path / "a")], capture_output=True, text=True)
+    assert plain.returncode == 0 and plain.stderr.count("no calibrated masking preset") == 1
+    meta = json.loads((dumps / "metadata.json").read_text())
+    entry = meta["slam_masking"]
+    entry.update(conf=0.99, preset="calibrated")  # nothing scores above it: empty masks
+    entry["presets"]["calibrated"] = {k: v for k, v in entry.items() if k not in ("presets",)}
+    (dumps / "metadata.json").write_text(json.dumps(meta))
+    done = subprocess.run([*cmd, "--out", str(tmp_path / "b")], capture_output=True, text=True)
+    assert done.returncode == 0 and "calibrated" not in done.stderr, done.stderr
+    masks = sorted((tmp_path / "b").glob("*.pgm"))
+    assert masks and all(cv2.imread(str(m), cv2.IMREAD_UNCHANGED).max() == 0 for m in masks)

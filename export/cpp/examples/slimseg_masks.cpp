@@ -376,6 +376,10 @@ int run(const Args& a) {
     if (!a.frames.empty()) std::printf("; letterbox vs dump: max %.2f grey levels", worst_letterbox);
     std::printf("\n");
     if (!idle_note.empty()) std::fprintf(stderr, "slimseg_masks: note: %s\n", idle_note.c_str());
+    if (a.preset.empty() && meta.masking_presets.count("calibrated") == 0)
+        std::fprintf(stderr, "slimseg_masks: note: %s has no calibrated masking preset; its "
+                     "recommended (shipped) settings were used (slimseg calibrate chooses the "
+                     "model's own)\n", a.meta.c_str());
     return 0;
 }
 
