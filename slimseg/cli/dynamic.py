@@ -28,10 +28,10 @@ from slimseg.data.frame_source import FrameSource
 from slimseg.data.images import decode_file
 from slimseg.data.sequence_source import open_sequence
 from slimseg.data.tum import mask_name
-from slimseg.deploy.calibrated import expectation
+from slimseg.deploy.calibrated import expectation, is_own
 from slimseg.dynamic.annotations import Dropout
 from slimseg.dynamic.chain_config import ChainConfig, TrackPlan
-from slimseg.dynamic.masking_settings import MaskingSettings
+from slimseg.dynamic.masking_settings import CALIBRATED, MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES, Mode
 from slimseg.errors import SlimsegError
 from slimseg.sequence.mask_bag import (
@@ -235,7 +235,12 @@ def _run(
     if boxes is not None:
         where = f"{where} (foxglove.RawImage), objects on {OBJECTS_TOPIC} (ImageAnnotations)"
     print(f"{report.frames} frames, mode {args.mode}: masks in {where}; per frame {timing}")
-    print(f"masking settings: {masking.describe()}")
+    described = masking.describe()
+    if not args.gt_instances and is_own(predictor.metadata, masking):
+        described = (
+            f"{CALIBRATED} preset of {Path(args.model).name} " + described[described.index("(") :]
+        )
+    print(f"masking settings: {described}")
     print(
         f"masking rule ({masking.rule}): {report.dropped} candidate masks left out over "
         f"{report.frames} frames; a mover scoring >= {masking.keep_score:g} left out in "

@@ -59,13 +59,18 @@ def model_masking(meta: dict[str, Any], model: str | Path) -> tuple[MaskingSetti
     return DEFAULT, uncalibrated_note(model)
 
 
+def is_own(meta: dict[str, Any], settings: MaskingSettings) -> bool:
+    """Are ``settings`` the export's own calibrated preset?"""
+    return is_calibrated(meta) and settings == masking_from_metadata(meta, CALIBRATED)
+
+
 def expectation(meta: dict[str, Any], settings: MaskingSettings) -> Expectation | None:
     """What the export's calibration measured, for the chain to compare its masks with
     (:mod:`slimseg.dynamic.familiarity`): only when ``settings`` are its calibrated ones (a
     user's own choice is not second-guessed) and the export records the measurement."""
     info = calibration_info(meta)
     expect = info.get("expect") if info else None
-    if not isinstance(expect, dict) or settings != masking_from_metadata(meta, CALIBRATED):
+    if not isinstance(expect, dict) or not is_own(meta, settings):
         return None
     share, static = expect.get("mask_share"), expect.get("static_share")
     if not all(isinstance(v, int | float) and 0 <= v <= 1 for v in (share, static)):

@@ -167,7 +167,7 @@ def test_calibrated_export_is_the_default(model: Path, sequence: Path, tmp_path:
         cap = capsys.readouterr()
         assert ("no calibrated masking preset" in cap.err) is noted
         if not noted:
-            assert "conf 0.3, dilation_px 7" in cap.out
+            assert "calibrated preset of cal.onnx (conf 0.3, dilation_px 7" in cap.out
     argv = ["dynamic", "--sequence", str(sequence), "--model", str(model), "--preset",
             CALIBRATED, "--out", str(tmp_path / "d_refused")]  # fmt: skip
     assert main(argv) == 2
