@@ -60,6 +60,24 @@ def class_map_weights(seq: Path, path: Path) -> Path:
     return save_weights(path, model, info)
 
 
+_COMPLEXITY: dict[tuple, object] = {}
+
+
+def measured(model: nn.Module, imgsz: int | tuple[int, int] = 640):
+    """:func:`slimseg.eval.complexity.measure` of ``model``, computed once per architecture and
+    input size in a session. Params, gradients and GFLOPs depend on the architecture only (the
+    spec, the blocks' fused state, which parameters train), never on the weights; the 640-px
+    FLOP-counting forwards are the suite's largest repeated cost (test_complexity.py,
+    test_msnet.py and `slimseg info` in test_cli.py measure the same variants)."""
+    from slimseg.eval.complexity import count_params, measure
+
+    size = (imgsz, imgsz) if isinstance(imgsz, int) else tuple(imgsz)
+    key = (type(model).__qualname__, model.spec.hash, model.is_fused, count_params(model), size)
+    if key not in _COMPLEXITY:
+        _COMPLEXITY[key] = measure(model, imgsz)
+    return _COMPLEXITY[key]
+
+
 def open_class_bias(model: nn.Module) -> nn.Module:
     """Zero the detect head's class-logit biases (the prior bias ~ -7 keeps every random-init
     score under any threshold)."""

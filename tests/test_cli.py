@@ -7,10 +7,22 @@ import subprocess
 import sys
 
 import pytest
+from conftest import measured
 
 from slimseg.cli.main import main
 
 
+@pytest.fixture
+def measured_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`slimseg info` measures through tests/conftest.py's session cache: a variant that
+    tests/models/test_complexity.py measured (the same build, the same 640 px) is not counted
+    again (on a miss the command's own call runs, and the numbers are asserted either way)."""
+    from slimseg.cli import info_models
+
+    monkeypatch.setattr(info_models, "measure", measured)
+
+
+@pytest.mark.usefixtures("measured_once")
 def test_info_single_model_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["info", "--model", "yolov8n-seg", "--nc", "20", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
@@ -20,12 +32,14 @@ def test_info_single_model_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert sum(data["components"].values()) == data["params"]
 
 
+@pytest.mark.usefixtures("measured_once")
 def test_info_fused_build(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["info", "--model", "yolov8s-seg-gs-rep", "--nc", "20", "--fused", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["params"] == data["fused_params"] == 9_073_255
 
 
+@pytest.mark.usefixtures("measured_once")
 def test_info_table_for_one_model(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["info", "--model", "yolov8s-seg-gs", "--nc", "20"]) == 0
     out = capsys.readouterr().out
@@ -33,6 +47,7 @@ def test_info_table_for_one_model(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("measured_once")
 def test_info_all_compares_with_paper(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["info", "--model", "all", "--nc", "20"]) == 0
     out = capsys.readouterr().out

@@ -41,7 +41,8 @@ def test_loss_decreases_on_generated_data(batch: tuple[dict, int], name: str) ->
     loss_fn = YOLOv8Loss(nc)
     opt = torch.optim.AdamW(model.parameters(), lr=2e-3)
     history = []
-    for _ in range(25):
+    # the 0.6x drop comes by step 10; step 18: 0.38x / 0.47x (n-seg / gs-rep), 25: 0.36x / 0.40x
+    for _ in range(18):
         loss, terms = loss_fn(model(data["images"]), data["targets"], data["masks"])
         assert set(terms) == {"box", "cls", "dfl", "seg"}
         assert torch.isfinite(loss)

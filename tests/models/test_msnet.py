@@ -9,7 +9,7 @@ import numpy as np
 import onnx
 import pytest
 import torch
-from conftest import randomize_batchnorm
+from conftest import measured, randomize_batchnorm
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
@@ -17,7 +17,6 @@ import slimseg
 from slimseg.deploy.onnx_export import export_onnx
 from slimseg.deploy.predictor import Predictor, combined_mask
 from slimseg.deploy.trt_ops import DATA_DEPENDENT_OPS, TENSORRT_SUPPORTED_OPS
-from slimseg.eval.complexity import measure
 from slimseg.losses.semantic import SemanticLoss
 from slimseg.models.msnet.attention import Attention
 from slimseg.models.msnet.backbone import resize_pos_embed
@@ -57,7 +56,7 @@ def test_position_embedding_resizes_only_when_needed() -> None:
     ["msnet-t", pytest.param("msnet-s", marks=pytest.mark.slow)],  # msnet-s: ~12 s
 )
 def test_params_and_gflops_pinned(name: str) -> None:
-    c = measure(slimseg.build_model(name, num_classes=20), 640)
+    c = measured(slimseg.build_model(name, num_classes=20), 640)
     params, gflops = PINNED[name]
     assert c.params == params and c.gradients == params
     assert c.gflops == pytest.approx(gflops, abs=5e-4)
