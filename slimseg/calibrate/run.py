@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 DEFAULT_BUDGET_S = 300.0
 DEFAULT_MAX_TRIALS = 200
 #: Rendered calibration sequences by default.
-DEFAULT_SEQUENCES = 3
+DEFAULT_SEQUENCES = 4
 #: Seconds an ORB-SLAM3 run costs beyond replaying its frames (start, vocabulary, shutdown),
 #: and building the small vocabulary when none is given.
 RUN_OVERHEAD_S = 4.0

@@ -18,6 +18,7 @@ from conftest import open_class_bias
 import slimseg
 from slimseg.calibrate.confirm import Ate, choose
 from slimseg.calibrate.objective import RECALL_FLOOR, RECALL_WEIGHT, CellScore, Evaluation
+from slimseg.calibrate.run import DEFAULT_SEQUENCES
 from slimseg.calibrate.search import SEARCHED, Trial, clipped, run_search
 from slimseg.calibrate.sequences import CALIBRATION_PRESETS
 from slimseg.cli.main import main
@@ -84,7 +85,9 @@ def test_calibration_sequences_are_reserved() -> None:
     assert first >= MAX_EVAL_SEQUENCES
     others = [v for k, v in FIRST_INDEX.items() if k != "calibrate"]
     assert all(first >= v + (FIRST_INDEX["val"] - FIRST_INDEX["train"]) for v in others)
-    assert set(CALIBRATION_PRESETS) <= {"walking_xyz", "walking_halfsphere", "walking_static"}
+    assert set(CALIBRATION_PRESETS) == {"walking_xyz", "walking_halfsphere", "walking_static",
+                                        "walking_rpy"}  # fmt: skip
+    assert DEFAULT_SEQUENCES == len(CALIBRATION_PRESETS)
 
 
 def _trial(n: int, value: float) -> Trial:
