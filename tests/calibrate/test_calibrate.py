@@ -87,7 +87,7 @@ def test_calibration_sequences_are_reserved() -> None:
     assert all(first >= v + (FIRST_INDEX["val"] - FIRST_INDEX["train"]) for v in others)
     assert set(CALIBRATION_PRESETS) == {"walking_xyz", "walking_halfsphere", "walking_static",
                                         "walking_rpy"}  # fmt: skip
-    assert DEFAULT_SEQUENCES == len(CALIBRATION_PRESETS)
+    assert len(CALIBRATION_PRESETS) == DEFAULT_SEQUENCES
 
 
 def _trial(n: int, value: float) -> Trial:
