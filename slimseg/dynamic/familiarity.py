@@ -10,9 +10,12 @@ chain measures the same two shares; when the masks cover more than :data:`LOOSER
 expected share, or the static support falls below :data:`SUPPORT` times the expected, it says
 so once and moves every setting to the tighter of the calibrated and the shipped values
 (:func:`tighter`): a higher score threshold, less dilation, the closer depth cut, more weight
-on the epipolar evidence, more static support demanded. Masks far *tighter* than calibrated
-are said once too (missed walkers cost recall), but nothing is loosened: the model's own
-evidence is all there is.
+on the epipolar evidence, more static support demanded. Masks covering under :data:`TIGHTER`
+of the expected share are far *tighter* (a scene where the model scores walkers lower than on
+its calibration sequences, e.g. a rotating camera): said once too, and the recall knobs move to
+the looser of the two (:func:`looser`: the lower score threshold, the wider dilation, the
+lower mover threshold), since a missed walker costs a SLAM engine more than a few static
+keypoints.
 """
 
 from __future__ import annotations
@@ -45,6 +48,16 @@ class Expectation:
     mask_share: float
     static_share: float
     fallback: MaskingSettings
+
+
+def looser(a: MaskingSettings, b: MaskingSettings) -> MaskingSettings:
+    """Each recall knob at the looser of ``a``'s and ``b``'s values (the rest as ``a``): the
+    lower score threshold, the wider dilation, the lower mover threshold of Eq. 1."""
+    return a.with_values(
+        conf=min(a.conf, b.conf),
+        dilation_px=max(a.dilation_px, b.dilation_px),
+        m_th_start=min(a.m_th_start, b.m_th_start),
+    )
 
 
 def tighter(a: MaskingSettings, b: MaskingSettings) -> MaskingSettings:
@@ -88,8 +101,8 @@ class Familiarity:
             return None
         share, static = self._masked / self.frames, self._static / self.frames
         e = self.expect
-        looser = share > LOOSER * max(e.mask_share, 1e-3) or static < SUPPORT * e.static_share
-        if looser:
+        far_looser = share > LOOSER * max(e.mask_share, 1e-3) or static < SUPPORT * e.static_share
+        if far_looser:
             self.verdict = "looser"
             new = tighter(self.settings, e.fallback)
             log.warning(
@@ -102,11 +115,13 @@ class Familiarity:
             return new if new != self.settings else None
         if share < TIGHTER * e.mask_share:
             self.verdict = "tighter"
+            new = looser(self.settings, e.fallback)
             log.warning(
                 "the masks over the first %d frames cover %.1f %% of the frame, far less than "
-                "this model's calibration saw (%.1f %%): walkers may go unmasked; the "
-                "calibrated settings are kept", self.frames, 100 * share, 100 * e.mask_share,
+                "this model's calibration saw (%.1f %%): walkers may go unmasked; the looser "
+                "of its calibrated and the shipped recall settings from now on (%s)",
+                self.frames, 100 * share, 100 * e.mask_share, new.describe(),
             )  # fmt: skip
-            return None
+            return new if new != self.settings else None
         self.verdict = "familiar"
         return None

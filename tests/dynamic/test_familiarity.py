@@ -1,5 +1,6 @@
 """The chain against its model's calibration: masks far looser than calibrated move every
-setting to the tighter of the calibrated and shipped values, once; far tighter is said only."""
+setting to the tighter of the calibrated and shipped values, once; far tighter, the recall
+knobs to the looser."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import logging
 import numpy as np
 import pytest
 
-from slimseg.dynamic.familiarity import WINDOW, Expectation, Familiarity, tighter
+from slimseg.dynamic.familiarity import WINDOW, Expectation, Familiarity, looser, tighter
 from slimseg.dynamic.masking_settings import DEFAULT, PAPERS
 
 
@@ -51,4 +52,6 @@ def test_verdicts(share: float, static: float, verdict: str) -> None:
     f = Familiarity(Expectation(0.10, 0.80, DEFAULT), DEFAULT.with_values(conf=0.05))
     out = _frames(f, share, static)
     assert f.verdict == verdict
-    assert (out[-1] is not None) == (verdict == "looser")
+    assert (out[-1] is not None) == (verdict != "familiar")
+    if verdict == "tighter":  # the recall knobs back to the shipped ones
+        assert out[-1] == looser(f.settings, DEFAULT) and out[-1].conf == DEFAULT.conf
