@@ -49,9 +49,11 @@ def test_far_looser_masks_tighten_once(caplog: pytest.LogCaptureFixture) -> None
      (0.10, 0.30, "looser")],
 )  # fmt: skip
 def test_verdicts(share: float, static: float, verdict: str) -> None:
-    f = Familiarity(Expectation(0.10, 0.80, DEFAULT), DEFAULT.with_values(conf=0.05))
+    cal = DEFAULT.with_values(conf=0.44, dilation_px=2, m_th_start=0.5, cut_behind_m=1.0)
+    f = Familiarity(Expectation(0.10, 0.80, DEFAULT), cal)
     out = _frames(f, share, static)
     assert f.verdict == verdict
     assert (out[-1] is not None) == (verdict != "familiar")
     if verdict == "tighter":  # the recall knobs back to the shipped ones
-        assert out[-1] == looser(f.settings, DEFAULT) and out[-1].conf == DEFAULT.conf
+        assert out[-1] == looser(cal, DEFAULT) == cal.with_values(conf=0.1, dilation_px=5,
+                                                                   m_th_start=0.25)  # fmt: skip
