@@ -5,8 +5,8 @@ TPE models each knob's good and bad values from the trials so far, so its cost g
 number of trials, not with a grid's product of knob values: adding a knob to the registry adds
 a dimension, not a factor. The shipped and the papers' presets are the first two trials, so the
 report always says what the chosen settings gain over them. Candidates are scored by
-:func:`slimseg.calibrate.objective.evaluate` in forked worker processes that inherit the
-detection caches (nothing is pickled but the settings and the scores).
+:func:`slimseg.calibrate.objective.evaluate` in worker processes (started by a fork server, so
+no worker copies this process's threads) that receive the detection caches once.
 """
 
 from __future__ import annotations
@@ -75,8 +75,8 @@ def clipped(values: dict[str, Value]) -> dict[str, Value]:
 
 
 _WORKER: dict[str, object] = {}
-"""A worker process's detection caches and mode (set by :func:`_adopt` in each forked worker,
-or for the length of an in-process search)."""
+"""A worker process's detection caches and mode (set by :func:`_adopt` in each worker, or for
+the length of an in-process search)."""
 
 
 def _adopt(caches: dict[str, DetectionCache], mode: str) -> None:
@@ -142,7 +142,11 @@ def run_search(
         finally:
             _WORKER.clear()
         return trials
-    ctx = multiprocessing.get_context("fork")
+    # forkserver: the workers are forked from a fresh single-threaded server, never from this
+    # process, whose native threads (onnxruntime's, Ray's, a trainer's) a fork could copy
+    # mid-lock (a worker deadlocked that way inside the test suite); the caches are pickled
+    # to each worker once (about 140 MB per 60-frame 640x480 sequence, under a second)
+    ctx = multiprocessing.get_context("forkserver")
     with ctx.Pool(workers, initializer=_adopt, initargs=(caches, str(mode))) as pool:
         while room() or pending:
             while room() and len(pending) < workers:

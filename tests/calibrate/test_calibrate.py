@@ -118,7 +118,7 @@ def sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_search_on_ground_truth_instances(sequence: Path) -> None:
     """The presets come first, every candidate is scored in both conditions, the best is at
-    least the shipped preset's; the forked workers score as the process itself does."""
+    least the shipped preset's; the worker processes score as the process itself does."""
     seq = TumSequence(sequence)
     source = AnnotationInstances(sequence, Dropout(0.3, 2, seed=1))
     caches = {"s": build_cache(source, seq, 0.0, progress=False)}
