@@ -33,12 +33,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import onnx
 
 from slimseg.deploy.end2end_postprocess import END2END_OUTPUTS
 from slimseg.deploy.metadata import check_graph_outputs, read_onnx_metadata
 from slimseg.deploy.ov_checks import CHECK_FRAMES, check_int8_kernels, check_precision
-from slimseg.deploy.qdq_unsigned import unsigned_activations
 from slimseg.errors import SlimsegError
 from slimseg.utils.extras import install_command
 from slimseg.utils.threads import check_threads
@@ -134,6 +132,10 @@ class OpenVinoSession:
     def _unsigned(self, core: Any, model: Any) -> Any:
         """``model`` with its signed activation Q/DQ as the same uint8 arithmetic
         (:mod:`slimseg.deploy.qdq_unsigned`: OpenVINO computes the signed form wrongly)."""
+        import onnx  # the openvino extra's; the core install never imports it
+
+        from slimseg.deploy.qdq_unsigned import unsigned_activations
+
         proto = onnx.load(str(self.path))
         self.unsigned_qdq = unsigned_activations(proto)
         if not self.unsigned_qdq:
