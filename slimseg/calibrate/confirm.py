@@ -93,8 +93,7 @@ def confirm(
         say(f"  {cond.name}: ATE {ate.median:.4f} m (runs {', '.join(f'{a:.4f}' for a in runs)})")
         return ate
 
-    d = 0
-    truth = track(Condition("gt", "masked", masks=seq.root / "dynamic", dilation_px=d))
+    truth = track(Condition("gt", "masked", masks=seq.root / "dynamic"))
     out = {}
     for t in candidates:
         where = folder / "masks" / f"trial{t.number:03d}"

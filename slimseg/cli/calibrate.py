@@ -89,6 +89,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def default_report(model_out: Path) -> Path:
+    """The report folder beside a calibrated export: ``NAME_calibration`` for ``NAME.onnx``."""
+    return model_out.with_name(model_out.stem + "_calibration")
+
+
 def run(args: argparse.Namespace) -> int:
     from slimseg.calibrate.run import CalibrationPlan
 
@@ -97,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         raise SlimsegError(f"--model {model}: no such file")
     if not args.budget > 0:
         raise SlimsegError(f"--budget {args.budget}: expected seconds > 0")
-    report = args.report or out.with_name(out.stem + "_calibration")
+    report = args.report or default_report(out)
     plan = CalibrationPlan(
         model=model,
         sequences=tuple(args.sequence),

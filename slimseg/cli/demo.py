@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slimseg.cli.arg_types import count, multiple_of
+from slimseg.cli.calibrate import default_report
 from slimseg.cli.commands import COMMAND_HELP
 from slimseg.data.coco import CocoDataset
 from slimseg.data.config import load_data_config
@@ -278,7 +279,7 @@ def _slam_stage(
     calibrated = _calibrate(onnx, args)
     seconds["calibration"] = time.perf_counter() - t
     if calibrated != onnx:
-        paths += [f"  calibrated  {calibrated} (report: {_report_dir(calibrated)}/)"]
+        paths += [f"  calibrated  {calibrated} (report: {default_report(onnx)}/)"]
     outcome = demo_run.evaluate(calibrated, seq, vocab, folder, s, print)
     seconds.update(outcome.seconds)
     fig = demo_run.write_figure(outcome, out / "slam.png", s, args.model)
@@ -292,11 +293,6 @@ def _slam_stage(
     print(table_lines(outcome.rows, markdown=False))
     paths += [f"  slam        {fig}, {folder / 'results.md'} (runs.csv, trajectories/)"]
     return _SlamSummary(total, _timing(seconds), paths, _result(table))
-
-
-def _report_dir(calibrated: Path) -> Path:
-    """``export/<model>_calibration`` beside ``export/<model>_calibrated.onnx``."""
-    return calibrated.with_name(calibrated.stem.removesuffix("_calibrated") + "_calibration")
 
 
 def _calibrate(onnx: Path, args: argparse.Namespace) -> Path:
@@ -323,7 +319,7 @@ def _calibrate(onnx: Path, args: argparse.Namespace) -> Path:
         confirm_runs=min(args.slam_runs, 3),
         progress=not args.quiet,
     )
-    print(calibrate_model(plan, calibrated, _report_dir(calibrated), print))
+    print(calibrate_model(plan, calibrated, default_report(onnx), print))
     return calibrated
 
 

@@ -211,10 +211,10 @@ def _calibrate_masking(path: Path, budget_s: float, progress: bool) -> None:
     import os
 
     from slimseg.calibrate.run import CalibrationPlan
-    from slimseg.cli.calibrate import calibrate_model
+    from slimseg.cli.calibrate import calibrate_model, default_report
 
     staged = path.with_name(f".{path.stem}.calibrated.onnx")
-    report = path.with_name(path.stem + "_calibration")
+    report = default_report(path)
     plan = CalibrationPlan(model=path, budget_s=budget_s, progress=progress)
     try:
         print(calibrate_model(plan, staged, report, print).replace(str(staged), str(path)))

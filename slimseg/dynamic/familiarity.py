@@ -50,6 +50,14 @@ class Expectation:
     fallback: MaskingSettings
 
 
+def frame_shares(mask: np.ndarray, dynamic: np.ndarray) -> tuple[float, float]:
+    """One frame's share of ``mask uint8 [H, W]`` masked and share of keypoints left static
+    (``dynamic bool [N]``; 1 without keypoints): what a calibration records
+    (:class:`Expectation`) and what the chain compares with it, one definition for both."""
+    static = 1.0 - float(np.mean(dynamic)) if len(dynamic) else 1.0
+    return float(np.count_nonzero(mask)) / max(mask.size, 1), static
+
+
 def looser(a: MaskingSettings, b: MaskingSettings) -> MaskingSettings:
     """Each recall knob at the looser of ``a``'s and ``b``'s values (the rest as ``a``): the
     lower score threshold, the wider dilation, the lower mover threshold of Eq. 1."""
@@ -95,8 +103,9 @@ class Familiarity:
         if self.verdict is not None:
             return None
         self.frames += 1
-        self._masked += float(np.count_nonzero(mask)) / max(mask.size, 1)
-        self._static += 1.0 - float(np.mean(dynamic)) if len(dynamic) else 1.0
+        share, static = frame_shares(mask, dynamic)
+        self._masked += share
+        self._static += static
         if self.frames < WINDOW:
             return None
         share, static = self._masked / self.frames, self._static / self.frames

@@ -29,6 +29,7 @@ from slimseg.data.images import decode_file
 from slimseg.data.tum import TumSequence, mask_name
 from slimseg.dynamic.chain_config import TRACK_OFF, ChainConfig, TrackPlan
 from slimseg.dynamic.epipolar import OrbFeatures, orb_features
+from slimseg.dynamic.familiarity import frame_shares
 from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.masking_settings import MaskingSettings
@@ -178,8 +179,8 @@ def mask_with(
             if out is not None:
                 write_png(out / mask_name(f.stamp), res.mask)
             digest.update(np.ascontiguousarray(res.mask).tobytes())
-            masked += float(np.count_nonzero(res.mask)) / res.mask.size
-            static += 1.0 - float(np.mean(res.dynamic)) if len(res.dynamic) else 1.0
+            share, kept = frame_shares(res.mask, res.dynamic)
+            masked, static = masked + share, static + kept
             if score is not None:
                 score.add(res.dynamic, f.truth)
     n = max(len(cache.frames), 1)
