@@ -26,6 +26,7 @@ from slimseg.calibrate.objective import conf_floor
 from slimseg.calibrate.search import SEARCHED, Trial, best, run_search
 from slimseg.calibrate.sequences import (
     CALIBRATION_FRAMES,
+    CALIBRATION_PRESETS,
     CALIBRATION_SIZE,
     CalibrationSet,
     PreloadedSequence,
@@ -41,8 +42,10 @@ log = logging.getLogger(__name__)
 #: Default time bound of a calibration (s) and its cap on candidates.
 DEFAULT_BUDGET_S = 300.0
 DEFAULT_MAX_TRIALS = 200
-#: Rendered calibration sequences by default.
-DEFAULT_SEQUENCES = 4
+#: Rendered calibration sequences by default: two of each preset (with one of each, settings
+#: held the recall floor on a 60-frame rotating-camera sequence and lost 20-30 points on
+#: held-out ones, docs/calibrate.md).
+DEFAULT_SEQUENCES = 2 * len(CALIBRATION_PRESETS)
 #: Seconds an ORB-SLAM3 run costs beyond replaying its frames (start, vocabulary, shutdown),
 #: and building the small vocabulary when none is given.
 RUN_OVERHEAD_S = 4.0
@@ -117,7 +120,9 @@ def calibrate(
             f"rendering {plan.rendered} calibration sequences (indices no training world or "
             "evaluation sequence uses)"
         )
-        cal_set = render_calibration_set(work / "sequences", plan.rendered, plan.frames, plan.size)
+        cal_set = render_calibration_set(
+            work / "sequences", plan.rendered, plan.frames, plan.size, plan.workers
+        )
     seconds["sequences"] = time.perf_counter() - t0
     caches = _caches(plan, cal_set, say)
     seconds["detections"] = time.perf_counter() - t0 - seconds["sequences"]

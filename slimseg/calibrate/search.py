@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from slimseg.calibrate.objective import Evaluation, evaluate
 from slimseg.dynamic.knobs import KNOBS, Knob, Value
 from slimseg.dynamic.masking_settings import PRESETS, MaskingSettings
+from slimseg.dynamic.match_memo import MatchMemo, remembered_matches
 from slimseg.dynamic.modes import Mode
 from slimseg.sequence.detection_cache import DetectionCache
 
@@ -80,11 +81,13 @@ the length of an in-process search)."""
 
 
 def _adopt(caches: dict[str, DetectionCache], mode: str) -> None:
-    _WORKER.update(caches=caches, mode=mode)
+    _WORKER.update(caches=caches, mode=mode, matches=MatchMemo())
 
 
 def _score(settings: MaskingSettings) -> Evaluation:
-    return evaluate(settings, _WORKER["caches"], _WORKER["mode"])  # type: ignore[arg-type]
+    # every candidate replays the same frames: their feature matches are computed once
+    with remembered_matches(_WORKER["matches"]):  # type: ignore[arg-type]
+        return evaluate(settings, _WORKER["caches"], _WORKER["mode"])  # type: ignore[arg-type]
 
 
 def run_search(

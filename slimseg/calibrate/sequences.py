@@ -10,6 +10,7 @@ sequence it is judged on, whatever seeds its training and its evaluation used.
 from __future__ import annotations
 
 import logging
+import multiprocessing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,20 +70,35 @@ def render_calibration_set(
     count: int,
     frames: int = CALIBRATION_FRAMES,
     size: tuple[int, int] = CALIBRATION_SIZE,
+    workers: int = 1,
 ) -> CalibrationSet:
-    """Render ``count`` calibration sequences (presets cycled) under ``root / <preset>``."""
+    """Render ``count`` calibration sequences (presets cycled) under ``root / <preset>``,
+    ``workers`` at a time (processes from a fork server: rendering is pure Python and NumPy,
+    one core each)."""
     if count < 1:
         raise SlimsegError("a calibration needs at least one sequence")
-    folders, rendered = [], []
+    jobs = []
     for k in range(count):
         preset = CALIBRATION_PRESETS[k % len(CALIBRATION_PRESETS)]
         index = FIRST_INDEX["calibrate"] + k
-        folder = root / f"{k:02d}_{preset}"
-        write_sequence(folder, CALIBRATION_SEED, index, frames, size, preset=preset)
-        folders.append(folder)
-        rendered.append((preset, index))
+        jobs.append((root / f"{k:02d}_{preset}", CALIBRATION_SEED, index, frames, size, preset))
+    if workers > 1 and count > 1:
+        ctx = multiprocessing.get_context("forkserver")
+        with ctx.Pool(min(workers, count)) as pool:
+            pool.starmap(_render, jobs)
+    else:
+        for job in jobs:
+            _render(*job)
     log.info("rendered %d calibration sequences of %d frames", count, frames)
-    return CalibrationSet(tuple(folders), tuple(rendered), frames, size)
+    return CalibrationSet(
+        tuple(j[0] for j in jobs), tuple((j[5], j[2]) for j in jobs), frames, size
+    )
+
+
+def _render(
+    folder: Path, seed: int, index: int, frames: int, size: tuple[int, int], preset: str
+) -> None:
+    write_sequence(folder, seed, index, frames, size, preset=preset)
 
 
 def user_calibration_set(folders: list[Path]) -> CalibrationSet:

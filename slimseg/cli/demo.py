@@ -37,11 +37,11 @@ SLAM_SEED_OFFSET = 1  # the sequence's seed is --seed + 1: not the training imag
 # The headline's warning: masks whose ATE exceeds this share of a camera that never moves have
 # failed, whatever they gain over raw frames.
 FLOOR_SHARE = 0.5
-#: The demo's calibration time bound (s): the model's own masking settings before its SLAM run.
-DEMO_CALIBRATION_S = 240.0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from slimseg.calibrate.run import DEFAULT_BUDGET_S
+
     p = sub.add_parser(
         "demo",
         help=COMMAND_HELP["demo"],
@@ -119,10 +119,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument(
         "--calibration-budget",
         type=float,
-        default=DEMO_CALIBRATION_S,
+        default=DEFAULT_BUDGET_S,
         metavar="SECONDS",
         help="time bound of the model's calibration before its SLAM run (slimseg calibrate; "
-        f"default {DEMO_CALIBRATION_S:g})",
+        f"default {DEFAULT_BUDGET_S:g})",
     )
     p.set_defaults(run=run)  # fmt: skip
 

@@ -45,6 +45,8 @@ def check_end2end_size(max_det: int, imgsz: list[int]) -> None:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from slimseg.calibrate.run import DEFAULT_BUDGET_S
+
     p = sub.add_parser(
         "export",
         help=COMMAND_HELP["export"],
@@ -123,21 +125,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--calibrate-masking",
         type=float,
         nargs="?",
-        const=CALIBRATION_BUDGET_S,
+        const=DEFAULT_BUDGET_S,
         default=None,
         metavar="SECONDS",
         help="then choose the model's own masking settings (slimseg calibrate, within SECONDS; "
-        f"default {CALIBRATION_BUDGET_S:g}) and write them into the export as its 'calibrated' "
+        f"default {DEFAULT_BUDGET_S:g}) and write them into the export as its 'calibrated' "
         "preset (raw FP32/FP16 exports; needs slimseg[calibrate] and, for the ORB-SLAM3 "
         "confirmation, slimseg[slam])",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--out", default=None, help="output .onnx (default export/<model>.onnx)")
     p.set_defaults(run=run)
-
-
-#: ``--calibrate-masking``'s default time bound (s): slimseg calibrate's.
-CALIBRATION_BUDGET_S = 300.0
 
 
 def run(args: argparse.Namespace) -> int:

@@ -56,6 +56,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from slimseg.dynamic import match_memo
 from slimseg.dynamic.degrade import support_points
 from slimseg.dynamic.modes import KEYPOINTS
 
@@ -130,9 +131,19 @@ def orb_features(
 
 def match_features(a: OrbFeatures, b: OrbFeatures, ratio: float = RATIO) -> np.ndarray:
     """Ratio-test matches between ``a`` and ``b``: ``int64 [M, 2]`` rows ``(index in a, index
-    in b)``, each ``b`` index used at most once (the closest match wins)."""
+    in b)``, each ``b`` index used at most once (the closest match wins). Inside
+    :func:`~slimseg.dynamic.match_memo.remembered_matches` a pair seen before is answered from
+    memory (read-only rows)."""
     if len(a.descriptors) < 2 or len(b.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
+    memo = match_memo.active()
+    if memo is not None:
+        compute = lambda: _ratio_matches(a, b, ratio)  # noqa: E731
+        return memo.lookup((a.descriptors, b.descriptors), (ratio,), compute)
+    return _ratio_matches(a, b, ratio)
+
+
+def _ratio_matches(a: OrbFeatures, b: OrbFeatures, ratio: float) -> np.ndarray:
     knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(a.descriptors, b.descriptors, k=2)
     rows = [
         (m[0].queryIdx, m[0].trainIdx, m[0].distance)

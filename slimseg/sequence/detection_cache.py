@@ -35,7 +35,7 @@ from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, Mode
 from slimseg.objects import Objects
-from slimseg.sequence.sequence_report import ModeScore, at_keypoints
+from slimseg.sequence.sequence_report import ModeScore, at_keypoints, truth_regions
 from slimseg.sequence.sequence_run import sequence_config
 from slimseg.utils.atomic import write_png
 
@@ -47,7 +47,9 @@ class CachedFrame:
     """One frame: colour ``stamp``, ORB ``features`` (keypoints + descriptors), the model's
     ``objects`` (decreasing score, masks left out) with their masks as tight ``crops`` (None:
     a box-only model), ground-truth dynamic flag per keypoint ``truth bool [N]`` (None: no
-    ``dynamic/`` mask), and the model and preparation (ORB + mask crops) times in ms."""
+    ``dynamic/`` mask), the model and preparation (ORB + mask crops) times in ms, and the
+    ground-truth region under each keypoint ``regions int32 [N]`` (0: static; None: no
+    ``dynamic/`` mask)."""
 
     stamp: float
     features: OrbFeatures
@@ -56,6 +58,7 @@ class CachedFrame:
     truth: np.ndarray | None
     model_ms: float
     prep_ms: float
+    regions: np.ndarray | None = None
 
     def above(self, conf: float) -> Objects:
         """The objects scoring above ``conf``, their masks restored, in the cached order."""
@@ -109,13 +112,14 @@ def build_cache(
         feats = orb_features(rgb, keypoints, corners=True)  # corners: any setting's rule
         crops = pack_masks(objects.masks)
         t2 = time.perf_counter()
-        truth = None
+        truth = regions = None
         gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
         if gt is not None:
             truth = at_keypoints(gt > 0, feats.keypoints)
+            regions = truth_regions(gt > 0, feats.keypoints)
         kept = replace(objects, masks=None)
         ms = (1000 * (t1 - t0), 1000 * (t2 - t1))
-        cache.frames.append(CachedFrame(stamp, feats, kept, crops, truth, *ms))
+        cache.frames.append(CachedFrame(stamp, feats, kept, crops, truth, *ms, regions))
     log.debug("%d frames cached at conf %.3f, %d model calls", len(cache.frames), conf_floor,
              cache.calls)  # fmt: skip
     return cache
@@ -183,6 +187,8 @@ def mask_with(
             masked, static = masked + share, static + kept
             if score is not None:
                 score.add(res.dynamic, f.truth)
+                if f.regions is not None:
+                    score.add_walkers(res.dynamic, f.regions)
     n = max(len(cache.frames), 1)
     logic_ms = 1000 * t_logic / n + cache.prep_ms
     return SettingMasks(score, logic_ms, len(cache.frames), digest.hexdigest(),

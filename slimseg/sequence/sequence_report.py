@@ -13,17 +13,34 @@ import numpy as np
 
 from slimseg.dynamic.threshold import inside
 from slimseg.objects import Objects
-from slimseg.sequence.recall_loss import RecallLoss
+from slimseg.sequence.recall_loss import DROPOUT_COVER, RecallLoss
+
+#: Keypoints a ground-truth dynamic region needs in a frame to count as a walker there (fewer:
+#: a sliver at the frame's edge or behind an occluder, whose miss a SLAM engine barely sees).
+WALKER_MIN_KEYPOINTS = 8
+
+
+def truth_regions(truth_mask: np.ndarray, kps: np.ndarray) -> np.ndarray:
+    """The connected region (8-connected) of ``truth_mask bool [H, W]`` each of ``kps [N, 2]``
+    lies on → ``int32 [N]`` (0: static). Regions stand in for walkers where a sequence has
+    ground-truth masks but no instances (two walkers that touch are one region)."""
+    _, labels = cv2.connectedComponents(np.asarray(truth_mask, np.uint8), connectivity=8)
+    return at_keypoints(labels, kps).astype(np.int32)
 
 
 @dataclass
 class ModeScore:
-    """Keypoint-level confusion counts of one mode against ground-truth dynamic masks."""
+    """Keypoint-level confusion counts of one mode against ground-truth dynamic masks, and
+    walker-frames: ground-truth regions with at least :data:`WALKER_MIN_KEYPOINTS` keypoints
+    in a frame, ``walkers_missed`` of them with under :data:`DROPOUT_COVER` of their
+    keypoints flagged (a walker lost in that frame, whose points all enter the map)."""
 
     tp: int = 0
     fp: int = 0
     fn: int = 0
     tn: int = 0
+    walkers: int = 0
+    walkers_missed: int = 0
 
     def add(self, dynamic: np.ndarray, truth: np.ndarray) -> None:
         """Count one frame: predicted ``dynamic [N]`` vs ground-truth ``truth [N]`` (bool)."""
@@ -32,6 +49,15 @@ class ModeScore:
         self.fn += int((~dynamic & truth).sum())
         self.tn += int((~dynamic & ~truth).sum())
 
+    def add_walkers(self, dynamic: np.ndarray, regions: np.ndarray) -> None:
+        """Count one frame's walker-frames: predicted ``dynamic bool [N]`` against the
+        ground-truth region of each keypoint ``regions int [N]`` (:func:`truth_regions`)."""
+        ids, counts = np.unique(regions[regions > 0], return_counts=True)
+        for rid in ids[counts >= WALKER_MIN_KEYPOINTS]:
+            on = regions == rid
+            self.walkers += 1
+            self.walkers_missed += int(dynamic[on].mean() < DROPOUT_COVER)
+
     @property
     def precision(self) -> float:
         return self.tp / (self.tp + self.fp) if self.tp + self.fp else float("nan")
@@ -39,6 +65,11 @@ class ModeScore:
     @property
     def recall(self) -> float:
         return self.tp / (self.tp + self.fn) if self.tp + self.fn else float("nan")
+
+    @property
+    def walker_recall(self) -> float:
+        """Share of walker-frames not missed (NaN: none counted)."""
+        return 1 - self.walkers_missed / self.walkers if self.walkers else float("nan")
 
 
 @dataclass
