@@ -19,14 +19,15 @@ help:  ## this list: each target with its comment
 demo: $(STAMP)  ## the main job on the embedded default (no download)
 	$(BIN)/slimseg demo
 
-# `make test` is what CI runs: everything, the 25 slowest tests listed at the end.
+# `make test` is what CI runs: everything, the 25 slowest tests listed at the end, in two
+# pytest-xdist workers (a serial run kept one of CI's two cores idle half the time).
 # `make test-fast` is the inner loop: lint, then every test not marked `slow` (pytest.mark.slow:
 # training, export, Ray, notebooks, ...); before a merge run `make test`.
 test: $(STAMP) lint  ## lint, then the whole test suite (slow tests included), 25 slowest listed
-	$(BIN)/python -m pytest -q --durations=25
+	$(BIN)/python -m pytest -q -n 2 --durations=25
 
 test-fast: $(STAMP) lint  ## lint, then the tests not marked slow (-m "not slow"): the inner loop
-	$(BIN)/python -m pytest -q -m "not slow" --durations=10
+	$(BIN)/python -m pytest -q -n 2 -m "not slow" --durations=10
 
 lint: $(STAMP)  ## ruff, and the layer order of docs/architecture.md (import-linter)
 	$(BIN)/ruff check .

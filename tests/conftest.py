@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -17,6 +18,13 @@ from slimseg.models.registry import build_model
 from slimseg.objects import Objects
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (`make test` runs two workers) each worker computes on one thread:
+    two workers on a 2-core machine, not four threads contending for two cores."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        torch.set_num_threads(1)
 
 
 def disc_scene(rng: np.random.Generator, h: int, w: int, discs: int) -> np.ndarray:
