@@ -104,6 +104,12 @@ class Evaluation:
         mean = lambda v: sum(v) / len(v) if v else float("nan")  # noqa: E731
         return mean(p), mean(r)
 
+    def walkers(self, condition: str) -> float:
+        """Mean walker-frame recall over the sequences under ``condition`` (NaN: none)."""
+        r = [c.walker_recall for c in self.cells
+             if c.condition == condition and not math.isnan(c.walker_recall)]  # fmt: skip
+        return sum(r) / len(r) if r else float("nan")
+
     def shares(self, condition: str = "per_frame") -> tuple[float, float]:
         """Mean ``(mask share, static keypoint share)`` over the sequences under
         ``condition``: what the chain expects of this model under these settings."""

@@ -98,9 +98,10 @@ def _row(label: str, t: Trial, result: CalibrationResult) -> str:
     pf, tr = ev.pooled("per_frame"), ev.pooled("track")
     ate = result.ates.get(t.number)
     ates = "–" if ate is None else f"{ate.median:.4f} m"
+    walkers = " / ".join(_pct(ev.walkers(c)) for c in ("per_frame", "track"))
     return (
         f"| {label} | {ev.value():.3f} | {_pct(pf[0])} / {_pct(pf[1])} | "
-        f"{_pct(tr[0])} / {_pct(tr[1])} | {ates} |"
+        f"{_pct(tr[0])} / {_pct(tr[1])} | {walkers} | {ates} |"
     )
 
 
@@ -111,13 +112,13 @@ def report_markdown(result: CalibrationResult, model: Path) -> str:
     lines += [f"Calibrated on: `{json.dumps(on)}`", ""]
     lines += [
         "| settings | objective | per frame precision / recall | track precision / recall "
-        "| ORB-SLAM3 ATE (median) |",
-        "|---|---|---|---|---|",
+        "| walker-frames kept, per frame / track | ORB-SLAM3 ATE (median) |",
+        "|---|---|---|---|---|---|",
     ]
     lines.append(_row("shipped (slimseg)", result.shipped, result))
     lines.append(_row(f"chosen (candidate {result.chosen.number})", result.chosen, result))
     if result.truth_ate is not None:
-        lines.append(f"| ground-truth masks | – | – | – | {result.truth_ate.median:.4f} m |")
+        lines.append(f"| ground-truth masks | – | – | – | – | {result.truth_ate.median:.4f} m |")
     lines += ["", "Chosen settings:", ""]
     lines += [f"- `{k}` = {v}" for k, v in result.settings.as_dict().items()]
     secs = ", ".join(f"{k} {v:.0f} s" for k, v in result.seconds.items())
