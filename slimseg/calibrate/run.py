@@ -233,11 +233,9 @@ def _confirm(
 
 
 def _vocabulary(cache: DetectionCache, out: Path, say: Callable[[str], None]) -> Path:
-    from slimseg.slam.demo_run import VOCAB_IMAGES, VOCAB_K, VOCAB_LEVELS
-    from slimseg.slam.vocab import build_vocabulary
+    from slimseg.slam.vocab import small_vocabulary
 
     frames = [cache.sequence.load(i)[0] for i in range(len(cache.sequence))]
-    frames = frames[:: max(1, len(frames) // VOCAB_IMAGES)]
-    say(f"building a small ORB vocabulary from {len(frames)} calibration frames")
-    build_vocabulary(frames, out, VOCAB_K, VOCAB_LEVELS)
+    say(f"building a small ORB vocabulary from the {len(frames)} calibration frames")
+    small_vocabulary(frames, out)
     return out

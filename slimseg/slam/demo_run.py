@@ -49,7 +49,6 @@ LABELS = {"raw": "raw frames", MODE: "slimseg masks", "gt": "ground-truth masks"
 # ORB-SLAM3 runs per condition: its run-to-run spread needs at least five for a median with a
 # meaningful min-max (docs/slam_eval.md)
 DEMO_RUNS = 5
-VOCAB_K, VOCAB_LEVELS, VOCAB_IMAGES = 10, 4, 40  # slimseg slam vocab's k and L
 
 
 @dataclass(frozen=True)
@@ -140,19 +139,17 @@ def prepare_sequence(folder: Path, s: DemoSlamSettings) -> tuple[Path, bool]:
 
 
 def prepare_vocabulary(folder: Path, seq: Path, s: DemoSlamSettings) -> tuple[Path, bool]:
-    """``s.vocab`` if given, else ``folder/vocab.txt`` (built from up to
-    :data:`VOCAB_IMAGES` of the sequence's frames when absent). Returns it and whether it was
+    """``s.vocab`` if given, else ``folder/vocab.txt`` (built from the sequence's frames by
+    :func:`~slimseg.slam.vocab.small_vocabulary` when absent). Returns it and whether it was
     built now."""
     if s.vocab is not None:
         return s.vocab, False
     vocab = folder / "vocab.txt"
     if vocab.is_file():
         return vocab, False
-    from slimseg.slam.vocab import build_vocabulary
+    from slimseg.slam.vocab import small_vocabulary
 
-    paths = sorted((seq / "rgb").glob("*.png"))
-    paths = paths[:: max(1, len(paths) // VOCAB_IMAGES)]
-    build_vocabulary(paths, vocab, VOCAB_K, VOCAB_LEVELS, seed=s.seed)
+    small_vocabulary(sorted((seq / "rgb").glob("*.png")), vocab, seed=s.seed)
     return vocab, True
 
 

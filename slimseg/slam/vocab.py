@@ -123,6 +123,20 @@ def orb_descriptors(
     return np.concatenate(descs), np.concatenate(owners)
 
 
+#: A short sequence's own vocabulary (the demo's SLAM stage, the calibration's confirmation):
+#: slimseg slam vocab's branching and depth, from at most this many evenly spaced frames.
+SMALL_K, SMALL_LEVELS, SMALL_IMAGES = 10, 4, 40
+
+
+def small_vocabulary(
+    images: list[Path] | list[np.ndarray], out: Path, seed: int = 0
+) -> VocabularyInfo:
+    """The vocabulary of a short sequence from at most :data:`SMALL_IMAGES` of its ``images``
+    (files or frames, evenly spaced), written to ``out``."""
+    images = images[:: max(1, len(images) // SMALL_IMAGES)]
+    return build_vocabulary(images, out, SMALL_K, SMALL_LEVELS, seed=seed)
+
+
 def build_vocabulary(
     paths: list[Path] | list[np.ndarray],
     out: Path,
