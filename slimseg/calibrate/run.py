@@ -42,10 +42,9 @@ log = logging.getLogger(__name__)
 #: Default time bound of a calibration (s) and its cap on candidates.
 DEFAULT_BUDGET_S = 300.0
 DEFAULT_MAX_TRIALS = 200
-#: Rendered calibration sequences by default: two of each preset (with one of each, settings
-#: held the recall floor on a 60-frame rotating-camera sequence and lost 20-30 points on
-#: held-out ones, docs/calibrate.md).
-DEFAULT_SEQUENCES = 2 * len(CALIBRATION_PRESETS)
+#: Rendered calibration sequences by default: one of each preset (two of each left a 300 s
+#: calibration 5 candidates on an idle 2-core machine, docs/calibrate.md; --sequences adds more).
+DEFAULT_SEQUENCES = len(CALIBRATION_PRESETS)
 #: Seconds an ORB-SLAM3 run costs beyond replaying its frames (start, vocabulary, shutdown),
 #: and building the small vocabulary when none is given.
 RUN_OVERHEAD_S = 4.0
@@ -229,7 +228,7 @@ def _confirm(
     )
     result.truth_ate, result.ates = truth, ates
     result.confirmed = [t.number for t in candidates]
-    result.chosen = choose(candidates, truth, ates)
+    result.chosen = choose(candidates, truth, ates, result.shipped)
 
 
 def _vocabulary(cache: DetectionCache, out: Path, say: Callable[[str], None]) -> Path:

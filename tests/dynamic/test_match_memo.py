@@ -30,7 +30,8 @@ def test_remembered_matches_equal_fresh_ones() -> None:
         half = match_features(OrbFeatures(a.keypoints[::2], a.descriptors[::2]), b)
     assert np.array_equal(first, fresh) and np.array_equal(again, fresh)
     assert (memo.hits, memo.misses) == (1, 2)  # the subset is another pair
-    assert np.array_equal(half, match_features(OrbFeatures(a.keypoints[::2], a.descriptors[::2]), b))
+    halved = OrbFeatures(a.keypoints[::2], a.descriptors[::2])
+    assert np.array_equal(half, match_features(halved, b))
     with pytest.raises(ValueError):
         again[0, 0] = 1  # shared rows are read-only
     assert match_memo.active() is None
