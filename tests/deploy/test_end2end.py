@@ -267,8 +267,14 @@ def test_cpp_consumer_reads_end2end_outputs_like_the_raw_ones(example, files, tm
         np.testing.assert_array_equal(got["scores"], py.scores)
         np.testing.assert_allclose(got["boxes"], py.boxes, rtol=0, atol=1e-3)
         np.testing.assert_array_equal(got["masks"] > 0, py.masks)  # same probabilities, same rule
-        for key in ("classes", "scores", "boxes", "masks", "dynamic"):  # raw path in C++
+        for key in ("classes", "scores", "boxes"):  # the raw path in C++
             np.testing.assert_array_equal(got[key], ref[key], err_msg=f"frame {i} {key}")
+        # the graph and the C++ raw path compute the same mask probabilities in another order:
+        # a pixel at the threshold may round either way (1 of 1.5 M once, on a model whose
+        # statistics came from another thread count), and a keypoint on it with it
+        flipped = got["masks"] != ref["masks"]
+        assert flipped.mean() <= 1e-5, f"frame {i}: {flipped.sum()} mask pixels differ"
+        assert (got["dynamic"] != ref["dynamic"]).sum() <= flipped.sum(), f"frame {i}"
     assert total >= 10
 
 
