@@ -77,11 +77,13 @@ def render_calibration_set(
     one core each)."""
     if count < 1:
         raise SlimsegError("a calibration needs at least one sequence")
-    jobs = []
-    for k in range(count):
-        preset = CALIBRATION_PRESETS[k % len(CALIBRATION_PRESETS)]
-        index = FIRST_INDEX["calibrate"] + k
-        jobs.append((root / f"{k:02d}_{preset}", CALIBRATION_SEED, index, frames, size, preset))
+    presets = [CALIBRATION_PRESETS[k % len(CALIBRATION_PRESETS)] for k in range(count)]
+    rendered = [(p, FIRST_INDEX["calibrate"] + k) for k, p in enumerate(presets)]
+    folders = [root / f"{k:02d}_{p}" for k, p in enumerate(presets)]
+    jobs = [
+        (f, CALIBRATION_SEED, i, frames, size, p)
+        for f, (p, i) in zip(folders, rendered, strict=True)
+    ]
     if workers > 1 and count > 1:
         ctx = multiprocessing.get_context("forkserver")
         with ctx.Pool(min(workers, count)) as pool:
@@ -90,9 +92,7 @@ def render_calibration_set(
         for job in jobs:
             _render(*job)
     log.info("rendered %d calibration sequences of %d frames", count, frames)
-    return CalibrationSet(
-        tuple(j[0] for j in jobs), tuple((j[5], j[2]) for j in jobs), frames, size
-    )
+    return CalibrationSet(tuple(folders), tuple(rendered), frames, size)
 
 
 def _render(

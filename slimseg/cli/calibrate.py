@@ -17,6 +17,8 @@ log = logging.getLogger(__name__)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
+    from slimseg.calibrate.confirm import CONFIRM_RUNS
+    from slimseg.calibrate.objective import RECALL_FLOOR, RECALL_TARGET
     from slimseg.calibrate.run import DEFAULT_BUDGET_S, DEFAULT_MAX_TRIALS, DEFAULT_SEQUENCES
     from slimseg.calibrate.search import SEARCHED
 
@@ -27,7 +29,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "indices no training world and no evaluation sequence uses, or your own TUM folders "
         "with ground-truth dynamic/ masks and groundtruth.txt), then search the masking "
         f"knobs ({', '.join(k.key for k in SEARCHED)}) with Optuna's TPE sampler for the "
-        "best keypoint precision at a 95 %% recall floor, per frame and with the track stage; "
+        f"best keypoint precision at a {100 * RECALL_FLOOR:.0f} % recall floor (the "
+        f"{100 * RECALL_TARGET:.0f} % target plus a margin; keypoints and walker-frames), per "
+        "frame and with the track stage; "
         "confirm the best candidates and the shipped preset with ORB-SLAM3's ATE beside the "
         "ground-truth masks; write the chosen settings into a copy of the export as its "
         "'calibrated' preset (what Masker, dynamic, slam-eval and the C++ consumer use by "
@@ -76,8 +80,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--confirm-runs",
         type=count(0),
-        default=3,
-        help="ORB-SLAM3 runs per confirmed candidate (0: no confirmation)",
+        default=CONFIRM_RUNS,
+        help=f"ORB-SLAM3 runs per confirmed candidate (default {CONFIRM_RUNS}; 0: none)",
     )
     p.add_argument(
         "--vocab",

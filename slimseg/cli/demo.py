@@ -301,6 +301,7 @@ def _calibrate(onnx: Path, args: argparse.Namespace) -> Path:
     beside it with its ``calibrated`` preset."""
     import importlib.util
 
+    from slimseg.calibrate.confirm import CONFIRM_RUNS
     from slimseg.calibrate.run import CalibrationPlan
     from slimseg.cli.calibrate import calibrate_model
 
@@ -316,7 +317,7 @@ def _calibrate(onnx: Path, args: argparse.Namespace) -> Path:
         model=onnx,
         budget_s=budget,
         size=tuple(args.slam_size),
-        confirm_runs=min(args.slam_runs, 3),
+        confirm_runs=min(args.slam_runs, CONFIRM_RUNS),
         progress=not args.quiet,
     )
     print(calibrate_model(plan, calibrated, default_report(onnx), print))

@@ -19,8 +19,9 @@ from contextvars import ContextVar
 
 import numpy as np
 
-#: Pairs kept at most (least recently used first out): a calibration's 8 sequences of 60
-#: frames match about 4,000 distinct pairs, some 20 MB of rows.
+#: Pairs kept at most (least recently used first out), about 100 MB of rows (~300 matches of
+#: 16 bytes each); a 60-frame sequence met ~300 new pairs under its first candidate, and most
+#: of them again under every later one.
 CAPACITY = 20_000
 
 

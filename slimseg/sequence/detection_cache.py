@@ -35,7 +35,7 @@ from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
 from slimseg.dynamic.masking_settings import MaskingSettings
 from slimseg.dynamic.modes import KEYPOINTS, Mode
 from slimseg.objects import Objects
-from slimseg.sequence.sequence_report import ModeScore, at_keypoints, truth_regions
+from slimseg.sequence.sequence_report import ModeScore, truth_regions
 from slimseg.sequence.sequence_run import sequence_config
 from slimseg.utils.atomic import write_png
 
@@ -115,8 +115,8 @@ def build_cache(
         truth = regions = None
         gt = decode_file(gt_dir / mask_name(stamp), cv2.IMREAD_GRAYSCALE)
         if gt is not None:
-            truth = at_keypoints(gt > 0, feats.keypoints)
             regions = truth_regions(gt > 0, feats.keypoints)
+            truth = regions > 0
         kept = replace(objects, masks=None)
         ms = (1000 * (t1 - t0), 1000 * (t2 - t1))
         cache.frames.append(CachedFrame(stamp, feats, kept, crops, truth, *ms, regions))
