@@ -4,8 +4,9 @@ The keypoint objective is fast and needs no SLAM engine; what the papers judge b
 trajectory. The best few candidates (and the shipped preset) are tracked a few times on a
 calibration sequence, beside the sequence's ground-truth masks. ORB-SLAM3 varies from run to
 run, so a candidate whose median ATE is within the ground-truth masks' run spread counts as
-reaching them, and among those the keypoint objective decides; a candidate beyond it loses to
-one within it, and one worse than the shipped preset is never chosen (:func:`choose`).
+reaching them, and among those what the keypoint objective earns over the shipped preset
+decides; a candidate beyond it loses to one within it, and one worse than the shipped preset is
+never chosen (:func:`choose`).
 """
 
 from __future__ import annotations
@@ -105,9 +106,10 @@ def confirm(
 def choose(candidates: list[Trial], truth: Ate, ates: dict[int, Ate], shipped: Trial) -> Trial:
     """The candidate to ship (``shipped``, the shipped preset, is one of ``candidates``):
     among those whose median ATE is within the ground-truth masks' run spread (at most their
-    worst run) and that lose no more frames than they do, the best by the keypoint objective;
-    if none is, the best by the objective among those no worse than the shipped preset (median
-    ATE at most its worst run, no more frames lost). A few runs on one short sequence cannot
+    worst run) and that lose no more frames than they do, the one that earns most over the
+    shipped preset by the keypoint objective (:meth:`Trial.earned`); if none is, the same
+    among those no worse than the shipped preset (median ATE at most its worst run, no more
+    frames lost). A few runs on one short sequence cannot
     rank candidates finer than their spread, so the ATE vetoes and the objective chooses (the
     first calibrations shipped a candidate of 41 % precision for a lowest ATE within the
     noise)."""
@@ -117,8 +119,9 @@ def choose(candidates: list[Trial], truth: Ate, ates: dict[int, Ate], shipped: T
         for t in candidates
         if ates[t.number].median <= worst and ates[t.number].lost <= truth.lost
     ]
+    gain = lambda t: t.earned(shipped)  # noqa: E731
     if within:
-        return max(within, key=lambda t: t.value)
+        return max(within, key=gain)
     base = ates[shipped.number]
     no_worse = [
         t
@@ -126,4 +129,4 @@ def choose(candidates: list[Trial], truth: Ate, ates: dict[int, Ate], shipped: T
         if ates[t.number].median <= max(base.ates, default=float("inf"))
         and ates[t.number].lost <= base.lost
     ]
-    return max(no_worse, key=lambda t: t.value) if no_worse else shipped
+    return max(no_worse, key=gain) if no_worse else shipped

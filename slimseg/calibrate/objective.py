@@ -17,6 +17,15 @@ few short sequences and judged on others, where the model scores its walkers low
 chosen at the target's edge lost 5-30 recall points on held-out rotating-camera sequences,
 docs/calibrate.md).
 
+A candidate is chosen by what it *earns* over the shipped preset, not by its objective alone
+(:meth:`Evaluation.earned`): the objective is a mean over cells, so it is a mean of per-cell
+contributions, and a candidate's paired gains over the shipped preset cell by cell give a
+mean and a standard error. What it earns is the mean less :data:`EARN_SE` standard errors: a
+candidate that gains on one sequence and loses on another earns less than one that gains a
+little on each, and the shipped preset earns 0. On four 60-frame sequences, settings chosen
+for a gain on some cells paid for it on held-out sequences (a 12-px dilation's precision, an
+Eq. 1 step that gave walkers up under a rotating camera; docs/calibrate.md).
+
 The model runs once per frame (:class:`~slimseg.sequence.detection_cache.DetectionCache`, at
 the lowest score threshold any candidate or the track stage asks for); a candidate costs the
 masking logic only.
@@ -43,6 +52,9 @@ RECALL_FLOOR = RECALL_TARGET + RECALL_MARGIN
 #: Precision points one point of recall below the floor costs: a missed walker costs a SLAM
 #: system far more than a few static keypoints dropped.
 RECALL_WEIGHT = 5.0
+#: Standard errors of the per-cell gains a candidate's mean gain over the shipped preset must
+#: clear before it counts (one: a gain the cells agree on, not one a single cell carries).
+EARN_SE = 1.0
 #: The two conditions a candidate is scored under: the model on every frame, and the track
 #: stage a robot runs (its shipped preset) carrying masks across frames.
 CONDITIONS: dict[str, TrackPlan] = {
@@ -95,6 +107,33 @@ class Evaluation:
         ``RECALL_WEIGHT`` times the sum of their shortfalls."""
         precision = sum(c.kept_precision for c in self.cells) / max(len(self.cells), 1)
         return precision - RECALL_WEIGHT * sum(c.shortfall(floor) for c in self.cells)
+
+    def contributions(self, floor: float = RECALL_FLOOR) -> tuple[float, ...]:
+        """Each cell's share of :meth:`value` times the number of cells (their mean is the
+        objective): ``precision - RECALL_WEIGHT * n_cells * shortfall``."""
+        n = len(self.cells)
+        return tuple(c.kept_precision - RECALL_WEIGHT * n * c.shortfall(floor)
+                     for c in self.cells)  # fmt: skip
+
+    def earned(self, base: Evaluation, floor: float = RECALL_FLOOR) -> float:
+        """What these settings earn over ``base`` (scored on the same cells, in the same
+        order): the mean of the paired per-cell gains in :meth:`contributions` less
+        :data:`EARN_SE` of their standard errors (0 against itself; one cell: its gain)."""
+        if [(c.sequence, c.condition) for c in self.cells] != [
+            (c.sequence, c.condition) for c in base.cells
+        ]:
+            raise ValueError("earned(): the two evaluations were scored on different cells")
+        gains = [
+            a - b for a, b in zip(self.contributions(floor), base.contributions(floor), strict=True)
+        ]
+        n = len(gains)
+        if n == 0:
+            return 0.0
+        mean = sum(gains) / n
+        if n == 1:
+            return mean
+        var = sum((g - mean) ** 2 for g in gains) / (n - 1)
+        return mean - EARN_SE * math.sqrt(var / n)
 
     def pooled(self, condition: str) -> tuple[float, float]:
         """``(precision, recall)`` over every sequence under ``condition`` (mean of cells)."""

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from slimseg.calibrate.objective import (
+    EARN_SE,
     RECALL_FLOOR,
     RECALL_TARGET,
     RECALL_WEIGHT,
@@ -53,6 +54,7 @@ def report_dict(result: CalibrationResult, model: Path) -> dict[str, Any]:
             "origin": t.origin,
             "finished_s": round(t.finished_s, 2),
             "settings": {k.key: t.evaluation.settings.as_dict()[k.key] for k in SEARCHED},
+            "earned": _num(max(t.earned(result.shipped), -1e9)),
             **_scores(t.evaluation),
         }
         for t in result.trials
@@ -71,6 +73,7 @@ def report_dict(result: CalibrationResult, model: Path) -> dict[str, Any]:
             "recall_floor": RECALL_FLOOR,
             "recall_weight": RECALL_WEIGHT,
             "shortfall": "sum over cells of max(0, floor - min(recall, walker_recall))",
+            "earned": f"mean paired per-cell gain over the shipped preset - {EARN_SE:g} SE",
             "conditions": ["per_frame", "track"],
         },
         "searched": [k.key for k in SEARCHED],
@@ -100,8 +103,8 @@ def _row(label: str, t: Trial, result: CalibrationResult) -> str:
     ates = "–" if ate is None else f"{ate.median:.4f} m"
     walkers = " / ".join(_pct(ev.walkers(c)) for c in ("per_frame", "track"))
     return (
-        f"| {label} | {ev.value():.3f} | {_pct(pf[0])} / {_pct(pf[1])} | "
-        f"{_pct(tr[0])} / {_pct(tr[1])} | {walkers} | {ates} |"
+        f"| {label} | {ev.value():.3f} | {t.earned(result.shipped):.3f} | "
+        f"{_pct(pf[0])} / {_pct(pf[1])} | {_pct(tr[0])} / {_pct(tr[1])} | {walkers} | {ates} |"
     )
 
 
@@ -111,16 +114,22 @@ def report_markdown(result: CalibrationResult, model: Path) -> str:
     on = result.calibration_set.describe()
     lines += [f"Calibrated on: `{json.dumps(on)}`", ""]
     lines += [
-        "| settings | objective | per frame precision / recall | track precision / recall "
-        "| walker-frames kept, per frame / track | ORB-SLAM3 ATE (median) |",
-        "|---|---|---|---|---|---|",
+        "| settings | objective | earned over shipped | per frame precision / recall "
+        "| track precision / recall | walker-frames kept, per frame / track "
+        "| ORB-SLAM3 ATE (median) |",
+        "|---|---|---|---|---|---|---|",
     ]
     lines.append(_row("shipped (slimseg)", result.shipped, result))
     lines.append(_row(f"chosen (candidate {result.chosen.number})", result.chosen, result))
     if result.truth_ate is not None:
-        lines.append(f"| ground-truth masks | – | – | – | – | {result.truth_ate.median:.4f} m |")
+        lines.append(
+            f"| ground-truth masks | – | – | – | – | – | {result.truth_ate.median:.4f} m |"
+        )
     lines += ["", "Chosen settings:", ""]
     lines += [f"- `{k}` = {v}" for k, v in result.settings.as_dict().items()]
+    moved = [k.key for k in SEARCHED if result.settings.as_dict()[k.key]
+             != result.shipped.evaluation.settings.as_dict()[k.key]]  # fmt: skip
+    lines += ["", f"Knobs moved from the shipped preset: {', '.join(moved) or 'none'}."]
     secs = ", ".join(f"{k} {v:.0f} s" for k, v in result.seconds.items())
     lines += ["", f"{len(result.trials)} candidates; time: {secs}.", ""]
     return "\n".join(lines)

@@ -205,16 +205,21 @@ def _confirm(
     work: Path,
     say: Callable[[str], None],
 ) -> None:
-    """Track the best candidates and the shipped preset; choose (:func:`confirm.choose`)."""
-    ranked = sorted(result.trials, key=lambda t: -t.value)
-    seen, picked = set(), []
+    """Track the candidates that earn most over the shipped preset, and the shipped preset;
+    choose (:func:`confirm.choose`). None earning anything: the shipped preset, untracked."""
+    ranked = sorted(result.trials, key=lambda t: -t.earned(result.shipped))
+    seen, picked = {tuple(sorted(result.shipped.evaluation.settings.as_dict().items()))}, []
     for t in ranked:
         key = tuple(sorted(t.evaluation.settings.as_dict().items()))
-        if key not in seen and t.origin != "slimseg":
+        if key not in seen and t.earned(result.shipped) > 0:
             seen.add(key)
             picked.append(t)
         if len(picked) == CONFIRM_CANDIDATES:
             break
+    if not picked:
+        say("no candidate earns anything over the shipped preset: the shipped preset stays")
+        result.chosen = result.shipped
+        return
     candidates = [*picked, result.shipped]
     name, cache = next(iter(caches.items()))
     vocab = plan.vocab or _vocabulary(cache, work / "vocab.txt", say)

@@ -17,9 +17,23 @@ from conftest import open_class_bias
 
 import slimseg
 from slimseg.calibrate.confirm import Ate, choose
-from slimseg.calibrate.objective import RECALL_FLOOR, RECALL_WEIGHT, CellScore, Evaluation
+from slimseg.calibrate.objective import (
+    EARN_SE,
+    RECALL_FLOOR,
+    RECALL_WEIGHT,
+    CellScore,
+    Evaluation,
+)
 from slimseg.calibrate.run import DEFAULT_SEQUENCES
-from slimseg.calibrate.search import SEARCHED, Trial, clipped, run_search
+from slimseg.calibrate.search import (
+    PERTURBED_KNOBS,
+    SEARCHED,
+    Trial,
+    best,
+    clipped,
+    nearby,
+    run_search,
+)
 from slimseg.calibrate.sequences import CALIBRATION_PRESETS
 from slimseg.cli.main import main
 from slimseg.data.synth.sequence import write_sequence
@@ -83,6 +97,49 @@ def test_objective_by_hand() -> None:
     assert many.value() == pytest.approx((0.8 + 7 * 0.6) / 8 - 5 * 0.07)
     assert not ev.floor_met() and Evaluation(DEFAULT, (met,)).floor_met()
     assert ev.pooled("track") == (pytest.approx(0.8), pytest.approx(0.9))
+
+
+def test_earned_by_hand() -> None:
+    """A candidate earns its mean paired per-cell gain over the shipped preset less one
+    standard error: a gain the cells agree on beats an equal mean gain one cell carries; a
+    recall shortfall enters a cell at the objective's weight times the number of cells."""
+    assert EARN_SE == 1.0
+
+    def ev(*cells: tuple[float, float]) -> Evaluation:
+        return Evaluation(DEFAULT, tuple(CellScore(f"s{i}", "per_frame", p, r, 1.0)
+                                         for i, (p, r) in enumerate(cells)))  # fmt: skip
+
+    shipped = ev((0.5, 0.98), (0.5, 0.98), (0.5, 0.98))
+    assert shipped.earned(shipped) == 0.0
+    even = ev((0.6, 0.98), (0.6, 0.98), (0.6, 0.98))  # +0.1 on each: no spread
+    assert even.earned(shipped) == pytest.approx(0.1)
+    lopsided = ev((0.8, 0.98), (0.5, 0.98), (0.5, 0.98))  # gains +0.3, 0, 0: mean 0.1
+    se = math.sqrt(((0.2**2) + 2 * (0.1**2)) / 2 / 3)
+    assert lopsided.earned(shipped) == pytest.approx(0.1 - se)
+    assert lopsided.value() == pytest.approx(even.value())  # the objective cannot tell them
+    short = ev((0.9, 0.95), (0.9, 0.98), (0.9, 0.98))  # 2 recall points short on one cell
+    assert short.contributions()[0] == pytest.approx(0.9 - 5 * 3 * 0.02)
+    assert sum(short.contributions()) / 3 == pytest.approx(short.value())
+    with pytest.raises(ValueError, match="different cells"):
+        ev((0.5, 0.98)).earned(shipped)
+
+
+def test_nearby_moves_a_few_knobs() -> None:
+    """The search's start: the shipped preset with PERTURBED_KNOBS knobs drawn anew, each
+    value valid for its knob and inside its span."""
+    import random
+
+    rng = random.Random(0)
+    base = clipped(DEFAULT.as_dict())
+    for _ in range(200):
+        near = nearby(rng, DEFAULT.as_dict())
+        moved = [k for k in SEARCHED if near[k.key] != base[k.key]]
+        assert 1 <= len(moved) <= PERTURBED_KNOBS
+        for k in moved:
+            k.check(near[k.key])
+            assert type(near[k.key]) is type(base[k.key]), k.key
+            assert k.choices or k.search[0] <= near[k.key] <= k.search[1], k.key
+    assert DEFAULT.with_values(**near)  # a valid setting
 
 
 def test_walker_frames_by_hand() -> None:
@@ -159,10 +216,14 @@ def test_search_on_ground_truth_instances(sequence: Path) -> None:
     source = AnnotationInstances(sequence, Dropout(0.3, 2, seed=1))
     caches = {"s": build_cache(source, seq, 0.0, progress=False)}
     one = run_search(caches, DEFAULT, 1e9, 5, workers=1, seed=3)
-    assert [t.origin for t in one[:2]] == ["slimseg", "papers"] and len(one) == 5
+    assert [t.origin for t in one] == ["slimseg", "papers", "near", "near", "near"]
+    shipped_values = clipped(DEFAULT.as_dict())
+    for t in one[2:]:  # the start: the shipped preset with a few knobs moved
+        values = clipped(t.evaluation.settings.as_dict())
+        assert 0 < sum(values[k] != v for k, v in shipped_values.items()) <= PERTURBED_KNOBS
     assert all(len(t.evaluation.cells) == 2 for t in one)
     shipped = one[0]
-    assert max(t.value for t in one) >= shipped.value
+    assert best(one).earned(shipped) >= shipped.earned(shipped) == 0.0
     dropped = shipped.evaluation.cells[0]  # per frame: 30 % of the instances dropped
     assert 0.0 < dropped.walker_recall < 1.0
     two = run_search(caches, DEFAULT, 1e9, 3, workers=2, seed=3)
