@@ -98,16 +98,24 @@ def nearby(
 ) -> dict[str, Value]:
     """``base``'s searched values (clipped into their spans) with ``moved`` knobs drawn anew:
     uniformly in the span (log-uniformly for a ``log`` knob; whole numbers for an int knob),
-    or another of a knob's ``choices``."""
-    out = clipped(base)
-    for k in rng.sample(SEARCHED, min(moved, len(SEARCHED))):
-        if k.choices:
-            out[k.key] = rng.choice([c for c in k.choices if c != out[k.key]] or list(k.choices))
-            continue
-        lo, hi = float(k.search[0]), float(k.search[1])
-        v = math.exp(rng.uniform(math.log(lo), math.log(hi))) if k.log else rng.uniform(lo, hi)
-        out[k.key] = min(max(round(v), int(lo)), int(hi)) if k.kind is int else tidy(v)
-    return out
+    or another of a knob's ``choices``. Every knob moved acts under the result's ``rule`` (a
+    step of Eq. 1 moved under the degrading rule would score exactly as the preset does)."""
+    start = clipped(base)
+    while True:
+        out = dict(start)
+        picked = rng.sample(SEARCHED, min(moved, len(SEARCHED)))
+        for k in picked:
+            out[k.key] = _draw(rng, k, out[k.key])
+        if all(k.rule is None or k.rule == out["rule"] for k in picked):
+            return out
+
+
+def _draw(rng: random.Random, k: Knob, current: Value) -> Value:
+    if k.choices:
+        return rng.choice([c for c in k.choices if c != current] or list(k.choices))
+    lo, hi = float(k.search[0]), float(k.search[1])
+    v = math.exp(rng.uniform(math.log(lo), math.log(hi))) if k.log else rng.uniform(lo, hi)
+    return min(max(round(v), int(lo)), int(hi)) if k.kind is int else tidy(v)
 
 
 _WORKER: dict[str, object] = {}

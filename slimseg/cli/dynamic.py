@@ -312,6 +312,8 @@ def _print_recall_loss(report: SequenceReport) -> None:
         f"instance-frames, run lengths {{{hist}}}; ghosts (false dynamic keypoints on coasted "
         f"masks only) {_num(s['ghost_pct'])} % of dynamic keypoints"
     )
+    if report.precision_loss is not None:
+        print(f"where precision is lost: {report.precision_loss.describe()}")
 
 
 def _num(v: float) -> str:

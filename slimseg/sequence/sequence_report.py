@@ -13,6 +13,7 @@ import numpy as np
 
 from slimseg.dynamic.threshold import inside
 from slimseg.objects import Objects
+from slimseg.sequence.precision_loss import PrecisionLoss
 from slimseg.sequence.recall_loss import DROPOUT_COVER, RecallLoss
 
 #: Keypoints a ground-truth dynamic region needs in a frame to count as a walker there (fewer:
@@ -84,6 +85,9 @@ class SequenceReport:
     recall_loss: RecallLoss | None = None
     """the chosen mode's missed keypoints split by dropout vs partial cover, ghosts
     (sequences with ``annotations.json`` and ``dynamic/``)"""
+    precision_loss: PrecisionLoss | None = None
+    """the chosen mode's false dynamic keypoints by what they lie on: a static instance's
+    class or the background (the same sequences)"""
     model_frames: int = 0
     """frames the model ran on (``--rate N``: about frames / N)"""
     coasted: int = 0

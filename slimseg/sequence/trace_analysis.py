@@ -31,6 +31,7 @@ from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, Mode
 from slimseg.dynamic.occupancy import MotionLayers
 from slimseg.dynamic.pipeline import FrameResult, FrameRules, apply_rules
 from slimseg.objects import Objects
+from slimseg.sequence.precision_loss import PrecisionLoss
 from slimseg.sequence.recall_loss import RecallLoss
 from slimseg.sequence.sequence_report import SequenceReport, at_keypoints, coasted_only, overlay
 from slimseg.utils.atomic import write_png
@@ -59,6 +60,7 @@ class TraceAnalysis:
         self.gt_dir = seq.root / "dynamic"
         ann = (seq.root / "annotations.json").is_file()
         self.losses = RecallLoss() if self.gt_dir.is_dir() and ann else None
+        self.false = PrecisionLoss() if self.losses is not None else None
         self.instances = _instances(gt_instances, seq.root) if self.losses is not None else None
         self.every = max(len(seq.frames) // PANELS, 1)
         self.panels: list[np.ndarray] = []
@@ -84,6 +86,7 @@ class TraceAnalysis:
         self.kept = []
         if self.losses is not None:
             self.report.recall_loss = self.losses.finish()
+            self.report.precision_loss = self.false
         if self.panels:
             write_png(out / "overlay.png", tile(self.panels, 3))
 
@@ -102,6 +105,8 @@ class TraceAnalysis:
                 if self.losses is not None:
                     self.losses.add(self.instances, stamp, kps, result.dynamic, truth,
                                     result.mask > 0, only)  # fmt: skip
+                if self.false is not None:
+                    self.false.add(self.instances, stamp, kps, result.dynamic, truth)
         self.stamps.append(stamp)
         self._tally(f, results)
         if f.index % self.every == 0 and len(self.panels) < PANELS:

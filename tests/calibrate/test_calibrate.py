@@ -126,7 +126,7 @@ def test_earned_by_hand() -> None:
 
 def test_nearby_moves_a_few_knobs() -> None:
     """The search's start: the shipped preset with PERTURBED_KNOBS knobs drawn anew, each
-    value valid for its knob and inside its span."""
+    value valid for its knob and inside its span, each knob one that acts under the rule."""
     import random
 
     rng = random.Random(0)
@@ -136,6 +136,7 @@ def test_nearby_moves_a_few_knobs() -> None:
         moved = [k for k in SEARCHED if near[k.key] != base[k.key]]
         assert 1 <= len(moved) <= PERTURBED_KNOBS
         for k in moved:
+            assert k.rule is None or k.rule == near["rule"], k.key  # it acts
             k.check(near[k.key])
             assert type(near[k.key]) is type(base[k.key]), k.key
             assert k.choices or k.search[0] <= near[k.key] <= k.search[1], k.key

@@ -308,6 +308,7 @@ def test_cli_dynamic_track_and_errors(sequence: Path, tmp_path: Path, capsys) ->
                "--quiet"])  # fmt: skip
     text = capsys.readouterr().out
     assert rc == 0 and "max_coast 5" in text and "where recall is lost" in text
+    assert "where precision is lost: " in text
     assert (out / "tracks.csv").read_text().startswith("timestamp,track_id")
     for bad, msg in (
         (["--rate", "2"], "needs the track stage"),
