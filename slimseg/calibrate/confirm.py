@@ -104,29 +104,22 @@ def confirm(
 
 
 def choose(candidates: list[Trial], truth: Ate, ates: dict[int, Ate], shipped: Trial) -> Trial:
-    """The candidate to ship (``shipped``, the shipped preset, is one of ``candidates``):
-    among those whose median ATE is within the ground-truth masks' run spread (at most their
-    worst run) and that lose no more frames than they do, the one that earns most over the
-    shipped preset by the keypoint objective (:meth:`Trial.earned`); if none is, the same
-    among those no worse than the shipped preset (median ATE at most its worst run, no more
-    frames lost). A few runs on one short sequence cannot
-    rank candidates finer than their spread, so the ATE vetoes and the objective chooses (the
-    first calibrations shipped a candidate of 41 % precision for a lowest ATE within the
-    noise)."""
+    """The candidate to ship from ``candidates``, in order of preference
+    (:func:`~slimseg.calibrate.search.preferred`; ``shipped``, the shipped preset, among
+    them): the first whose median ATE is within the ground-truth masks' run spread (at most
+    their worst run) and that loses no more frames than they do; if none is, the first no
+    worse than the shipped preset (median ATE at most its worst run, no more frames lost).
+    A few runs on one short sequence cannot rank candidates finer than their spread, so the
+    ATE vetoes and the keypoint objective's order chooses (the first calibrations shipped a
+    candidate of 41 % precision for a lowest ATE within the noise)."""
     worst = max(truth.ates, default=float("inf"))
-    within = [
-        t
-        for t in candidates
-        if ates[t.number].median <= worst and ates[t.number].lost <= truth.lost
-    ]
-    gain = lambda t: t.earned(shipped)  # noqa: E731
-    if within:
-        return max(within, key=gain)
+    for t in candidates:
+        if ates[t.number].median <= worst and ates[t.number].lost <= truth.lost:
+            return t
     base = ates[shipped.number]
-    no_worse = [
-        t
-        for t in candidates
-        if ates[t.number].median <= max(base.ates, default=float("inf"))
-        and ates[t.number].lost <= base.lost
-    ]
-    return max(no_worse, key=gain) if no_worse else shipped
+    for t in candidates:
+        if ates[t.number].median <= max(base.ates, default=float("inf")) and (
+            ates[t.number].lost <= base.lost
+        ):
+            return t
+    return shipped

@@ -24,7 +24,9 @@ mean and a standard error. What it earns is the mean less :data:`EARN_SE` standa
 candidate that gains on one sequence and loses on another earns less than one that gains a
 little on each, and the shipped preset earns 0. On four 60-frame sequences, settings chosen
 for a gain on some cells paid for it on held-out sequences (a 12-px dilation's precision, an
-Eq. 1 step that gave walkers up under a rotating camera; docs/calibrate.md).
+Eq. 1 step that gave walkers up under a rotating camera; docs/calibrate.md). Among the
+candidates that earn something, the one-standard-error rule prefers the fewest knobs moved
+(:func:`slimseg.calibrate.search.preferred`).
 
 The model runs once per frame (:class:`~slimseg.sequence.detection_cache.DetectionCache`, at
 the lowest score threshold any candidate or the track stage asks for); a candidate costs the
@@ -115,25 +117,28 @@ class Evaluation:
         return tuple(c.kept_precision - RECALL_WEIGHT * n * c.shortfall(floor)
                      for c in self.cells)  # fmt: skip
 
-    def earned(self, base: Evaluation, floor: float = RECALL_FLOOR) -> float:
-        """What these settings earn over ``base`` (scored on the same cells, in the same
-        order): the mean of the paired per-cell gains in :meth:`contributions` less
-        :data:`EARN_SE` of their standard errors (0 against itself; one cell: its gain)."""
+    def gain(self, base: Evaluation, floor: float = RECALL_FLOOR) -> tuple[float, float]:
+        """``(mean, standard error)`` of the paired per-cell gains in :meth:`contributions`
+        over ``base`` (scored on the same cells, in the same order; one cell: SE 0)."""
         if [(c.sequence, c.condition) for c in self.cells] != [
             (c.sequence, c.condition) for c in base.cells
         ]:
-            raise ValueError("earned(): the two evaluations were scored on different cells")
-        gains = [
-            a - b for a, b in zip(self.contributions(floor), base.contributions(floor), strict=True)
-        ]
+            raise ValueError("gain(): the two evaluations were scored on different cells")
+        gains = [a - b for a, b in zip(self.contributions(floor), base.contributions(floor),
+                                       strict=True)]  # fmt: skip
         n = len(gains)
         if n == 0:
-            return 0.0
+            return 0.0, 0.0
         mean = sum(gains) / n
         if n == 1:
-            return mean
-        var = sum((g - mean) ** 2 for g in gains) / (n - 1)
-        return mean - EARN_SE * math.sqrt(var / n)
+            return mean, 0.0
+        return mean, math.sqrt(sum((g - mean) ** 2 for g in gains) / (n - 1) / n)
+
+    def earned(self, base: Evaluation, floor: float = RECALL_FLOOR) -> float:
+        """What these settings earn over ``base``: the mean paired per-cell gain less
+        :data:`EARN_SE` standard errors (:meth:`gain`; 0 against itself)."""
+        mean, se = self.gain(base, floor)
+        return mean - EARN_SE * se
 
     def pooled(self, condition: str) -> tuple[float, float]:
         """``(precision, recall)`` over every sequence under ``condition`` (mean of cells)."""

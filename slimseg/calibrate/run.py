@@ -23,7 +23,7 @@ from slimseg.calibrate.confirm import (
     confirm,
 )
 from slimseg.calibrate.objective import conf_floor
-from slimseg.calibrate.search import SEARCHED, Trial, best, run_search
+from slimseg.calibrate.search import SEARCHED, Trial, best, preferred, run_search
 from slimseg.calibrate.sequences import (
     CALIBRATION_FRAMES,
     CALIBRATION_PRESETS,
@@ -205,13 +205,13 @@ def _confirm(
     work: Path,
     say: Callable[[str], None],
 ) -> None:
-    """Track the candidates that earn most over the shipped preset, and the shipped preset;
-    choose (:func:`confirm.choose`). None earning anything: the shipped preset, untracked."""
-    ranked = sorted(result.trials, key=lambda t: -t.earned(result.shipped))
+    """Track the preferred candidates (:func:`~slimseg.calibrate.search.preferred`) and the
+    shipped preset; choose (:func:`confirm.choose`). None earning anything: the shipped
+    preset, untracked."""
     seen, picked = {tuple(sorted(result.shipped.evaluation.settings.as_dict().items()))}, []
-    for t in ranked:
+    for t in preferred(result.trials, result.shipped):
         key = tuple(sorted(t.evaluation.settings.as_dict().items()))
-        if key not in seen and t.earned(result.shipped) > 0:
+        if key not in seen:
             seen.add(key)
             picked.append(t)
         if len(picked) == CONFIRM_CANDIDATES:

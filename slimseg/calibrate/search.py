@@ -9,7 +9,8 @@ the whole space but the shipped preset with :data:`PERTURBED_KNOBS` knobs moved 
 (:func:`nearby`): a 300-s calibration scores 11-20 candidates, and random points of 13
 dimensions all leave every knob's shipped value, so the one chosen moved knobs that the few
 calibration frames never tested (docs/calibrate.md, round 3). Candidates are ranked by what
-they earn over the shipped preset (:meth:`~slimseg.calibrate.objective.Evaluation.earned`).
+they earn over the shipped preset and, among those the cells cannot tell apart, by how few
+knobs they move (:func:`preferred`).
 
 Candidates are scored by :func:`slimseg.calibrate.objective.evaluate` in worker processes
 (started by a fork server, so no worker copies this process's threads) that receive the
@@ -211,10 +212,42 @@ def run_search(
     return trials
 
 
+def moved(trial: Trial, shipped: Trial) -> int:
+    """How many searched knobs ``trial`` moves from ``shipped``'s values, counting only knobs
+    that act under its rule."""
+    mine = clipped(trial.evaluation.settings.as_dict())
+    base = clipped(shipped.evaluation.settings.as_dict())
+    return sum(
+        mine[k.key] != base[k.key] and (k.rule is None or k.rule == mine["rule"]) for k in SEARCHED
+    )
+
+
+def preferred(trials: list[Trial], shipped: Trial) -> list[Trial]:
+    """``trials`` that earn anything over ``shipped`` (:meth:`Trial.earned` > 0), in order
+    of preference; then ``shipped``. The one-standard-error rule of model selection: the
+    candidates whose mean gain is within one standard error of the best mean gain
+    (:meth:`~slimseg.calibrate.objective.Evaluation.gain`) cannot be told apart on these
+    cells, so among them the fewest knobs moved comes first (the most earned on a tie); the
+    others follow by what they earn. A calibration's eight cells put a standard error of
+    0.2-0.6 on the gains, and a candidate of TPE's that moved all twelve knobs led one of the
+    start's that moved three by 0.03 (docs/calibrate.md, round 4)."""
+    gains = {t.number: t.evaluation.gain(shipped.evaluation) for t in trials}
+    earning = [t for t in trials if t.earned(shipped) > 0 and t.number != shipped.number]
+    if not earning:
+        return [shipped]
+    top = max(earning, key=lambda t: gains[t.number][0])
+    bar = gains[top.number][0] - gains[top.number][1]
+    level = [t for t in earning if gains[t.number][0] >= bar]
+    rest = [t for t in earning if gains[t.number][0] < bar]
+    level.sort(key=lambda t: (moved(t, shipped), -t.earned(shipped), t.number))
+    rest.sort(key=lambda t: (-t.earned(shipped), t.number))
+    return [*level, *rest, shipped]
+
+
 def best(trials: list[Trial]) -> Trial:
-    """The trial that earns most over the shipped preset's (the earliest on a tie; without
-    the shipped preset among ``trials``: the highest objective)."""
+    """The preferred trial (:func:`preferred`); without the shipped preset among ``trials``:
+    the highest objective (the earliest on a tie)."""
     shipped = next((t for t in trials if t.origin == "slimseg"), None)
     if shipped is None:
         return max(trials, key=lambda t: (t.value, -t.number) if not math.isnan(t.value) else -1e9)
-    return max(trials, key=lambda t: (t.earned(shipped), -t.number))
+    return preferred(trials, shipped)[0]

@@ -4,6 +4,7 @@ its use by default (dynamic, slam-eval's settings, Masker), and the CLI's refusa
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import warnings
@@ -31,7 +32,9 @@ from slimseg.calibrate.search import (
     Trial,
     best,
     clipped,
+    moved,
     nearby,
+    preferred,
     run_search,
 )
 from slimseg.calibrate.sequences import CALIBRATION_PRESETS
@@ -120,8 +123,31 @@ def test_earned_by_hand() -> None:
     short = ev((0.9, 0.95), (0.9, 0.98), (0.9, 0.98))  # 2 recall points short on one cell
     assert short.contributions()[0] == pytest.approx(0.9 - 5 * 3 * 0.02)
     assert sum(short.contributions()) / 3 == pytest.approx(short.value())
+    assert lopsided.gain(shipped) == (pytest.approx(0.1), pytest.approx(se))
     with pytest.raises(ValueError, match="different cells"):
         ev((0.5, 0.98)).earned(shipped)
+
+
+def test_preferred_is_the_one_standard_error_rule() -> None:
+    """Candidates that earn something come first; among those whose mean gain is within one
+    standard error of the best mean gain, the fewest knobs moved; the shipped preset last."""
+
+    def trial(n: int, gains: tuple[float, ...], **moved: object) -> Trial:
+        cells = tuple(CellScore(f"s{i}", "per_frame", 0.5 + g, 0.98, 1.0)
+                      for i, g in enumerate(gains))  # fmt: skip
+        return Trial(n, "search", Evaluation(DEFAULT.with_values(**moved), cells), 0.0)
+
+    shipped = dataclasses.replace(trial(0, (0.0, 0.0, 0.0)), origin="slimseg")
+    wide = trial(1, (0.30, 0.10, 0.20), conf=0.3, dilation_px=9, t_o=0.5)  # mean 0.2, SE .058
+    near = trial(2, (0.18, 0.14, 0.16), conf=0.2)  # mean 0.16: within one SE of wide's
+    far = trial(3, (0.05, 0.05, 0.05), dilation_px=2)  # earns, but far below
+    worse = trial(4, (0.2, -0.3, 0.0), dilation_px=3)  # mean < 0: earns nothing
+    inert = trial(5, (0.19, 0.15, 0.17), m_th_step=0.2)  # acts under eq1 only: moves 0
+    order = preferred([shipped, wide, near, far, worse, inert], shipped)
+    assert [t.number for t in order] == [5, 2, 1, 3, 0]
+    assert moved(inert, shipped) == 0 and moved(wide, shipped) == 3
+    assert best([shipped, wide, near, far]).number == 2
+    assert preferred([shipped, worse], shipped) == [shipped]
 
 
 def test_nearby_moves_a_few_knobs() -> None:
