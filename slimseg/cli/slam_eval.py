@@ -16,6 +16,7 @@ from slimseg.cli.settings_args import add_settings_args, settings_from_args
 from slimseg.cli.track_args import add_dropout_arg, dropout_from_args
 from slimseg.dynamic.modes import KEYPOINTS, MAX_KEYPOINTS, MODES
 from slimseg.errors import SlimsegError
+from slimseg.slam.diagnostic import DIAGNOSTIC
 from slimseg.utils.atomic import staged_dir
 from slimseg.utils.extras import install_command
 
@@ -67,7 +68,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help=f"comma list of conditions: raw, gt, oracle and mask modes {', '.join(MODES)} "
         f"(default: {DEFAULT_MODES} with --model, raw,gt,oracle,masks with --masks, else "
-        "raw,gt,oracle; gt/oracle are skipped where the sequence lacks dynamic/ or background/)",
+        "raw,gt,oracle; gt/oracle are skipped where the sequence lacks dynamic/ or "
+        f"background/); with --masks also {' and '.join(DIAGNOSTIC)}: the masks at perfect "
+        "precision and at perfect recall (docs/slam_eval.md): which of the two closes the gap to "
+        "gt says where the masks' ATE is lost",
     )
     p.add_argument(
         "--restore",
@@ -127,7 +131,7 @@ def parse_modes(text: str | None, have_model: bool, have_masks: bool) -> list[st
         text = DEFAULT_MODES if have_model else ("raw,gt,oracle,masks" if have_masks else
                                                  "raw,gt,oracle")  # fmt: skip
     names = list(dict.fromkeys(t.strip() for t in text.split(",") if t.strip()))
-    valid = (*SPECIAL, *MODES, "masks")
+    valid = (*SPECIAL, *MODES, "masks", *DIAGNOSTIC)
     bad = [n for n in names if n not in valid]
     if bad:
         raise SlimsegError(f"--modes: unknown {', '.join(bad)}; valid: {', '.join(valid)}")
@@ -137,8 +141,9 @@ def parse_modes(text: str | None, have_model: bool, have_masks: bool) -> list[st
             f"--modes {','.join(wants_model)} need --model X.onnx or --gt-instances (or read "
             "masks with --masks)"
         )
-    if "masks" in names and not have_masks:
-        raise SlimsegError("--modes masks needs --masks DIR")
+    read = [n for n in names if n == "masks" or n in DIAGNOSTIC]
+    if read and not have_masks:
+        raise SlimsegError(f"--modes {','.join(read)} needs --masks DIR")
     if not names:
         raise SlimsegError("--modes is empty")
     return names
@@ -146,7 +151,7 @@ def parse_modes(text: str | None, have_model: bool, have_masks: bool) -> list[st
 
 def _restore_list(text: str | None, names: list[str]) -> tuple[str, ...]:
     """Masked conditions to restore: ``all`` of them, or the listed ones (each requested)."""
-    masked = [n for n in names if n not in ("raw", "oracle")]
+    masked = [n for n in names if n not in ("raw", "oracle", *DIAGNOSTIC)]
     if text is None:
         return ()
     if text == "all":

@@ -10,6 +10,13 @@ Kinds of condition:
   gets the complement as its valid-pixel mask. The mask is first dilated by the condition's
   ``dilation_px``: the masking settings' dilation for ground-truth masks, 0 for masks that
   already carry it (made by a mode, or by ``slimseg dynamic`` and read with ``--masks``);
+  A masked condition may ``combine`` its masks with the ground-truth ``dynamic/`` ones
+  (:mod:`slimseg.slam.diagnostic`), to say where a mask's ATE gap comes from: ``within``
+  keeps only the mask pixels near a dynamic pixel (the masks at perfect precision, their
+  recall unchanged); ``plus`` adds the ground truth (the masks at perfect recall, their false
+  positives kept). On held-out walking_xyz s131, a model's masks at 9x the ground-truth
+  masks' ATE came to 1.1x within the truth and stayed 9x plus it: their gap was precision
+  (docs/calibrate.md, round 4);
 - ``replaced``: whole replacement frames, e.g. ``restored/rgb/<ts>.png`` +
   ``restored/depth/<ts>.png`` from ``slimseg dynamic --restore``, or a synthetic sequence's
   true static ``background/`` (the oracle).
@@ -31,6 +38,7 @@ from slimseg.data.tum import depth_metres, mask_name
 from slimseg.dynamic.remove_region import remove_dynamic
 from slimseg.dynamic.seg_box import dilate
 from slimseg.errors import SlimsegError
+from slimseg.slam.diagnostic import NEAR_TRUTH_PX
 from slimseg.slam.engines import EngineFrame
 
 PathsFor = Callable[[int], tuple[Path, Path]]
@@ -42,7 +50,9 @@ class Condition:
     ``<rgb ts>.png`` masks (masked); ``frames``: ``i → (rgb path, depth path)`` of the
     replacement frames (replaced); ``masking_ms``: time per frame to make the masks or frames
     (None: given, e.g. ground truth); ``note``: how they were made; ``dilation_px``: pixels
-    added around the masks before the region is removed (masked)."""
+    added around the masks before the region is removed (masked); ``truth``: the
+    ground-truth ``dynamic/`` folder the masks are combined with, and ``combine``: how
+    (``within`` or ``plus``, :mod:`slimseg.slam.diagnostic`; empty: not)."""
 
     name: str
     kind: str
@@ -51,6 +61,8 @@ class Condition:
     masking_ms: float | None = None
     note: str = ""
     dilation_px: int = 0
+    truth: Path | None = None
+    combine: str = ""
 
 
 def check_masks(seq: FrameSource, folder: Path) -> None:
@@ -103,12 +115,29 @@ def condition_frames(
             if m.shape != rgb.shape[:2]:
                 raise SlimsegError(f"mask {path} is {m.shape[::-1]}, frames are {rgb.shape[1::-1]}")
             region = dilate(m > 0, cond.dilation_px).astype(bool)
+            if cond.combine:
+                region = _combined(region, cond, stamp)
             rgb, depth = remove_dynamic(rgb, depth, region)
             static = np.where(region, 0, 255).astype(np.uint8)
         elif cond.kind == "replaced":
             rgb, depth = _replacement(seq, cond.frames(i), rgb.shape[:2])
         out.append(EngineFrame(rgb, depth.astype(np.float32), stamp, static))
     return out
+
+
+def _combined(region: np.ndarray, cond: Condition, stamp: float) -> np.ndarray:
+    """``region bool [H, W]`` combined with the frame's ground-truth mask as ``cond.combine``
+    says (module docstring)."""
+    path = cond.truth / mask_name(stamp)
+    t = decode_file(path, cv2.IMREAD_GRAYSCALE)
+    if t is None:
+        raise SlimsegError(f"missing or unreadable ground-truth mask {path}")
+    if t.shape != region.shape:
+        raise SlimsegError(f"ground-truth mask {path} is {t.shape[::-1]}, frames are "
+                           f"{region.shape[::-1]}")  # fmt: skip
+    if cond.combine == "within":
+        return region & dilate(t > 0, NEAR_TRUTH_PX).astype(bool)
+    return region | (t > 0)
 
 
 def _replacement(seq: FrameSource, paths: tuple[Path, Path], hw: tuple[int, int]):

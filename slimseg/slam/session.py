@@ -36,6 +36,7 @@ from slimseg.slam.conditions import (
     oracle_paths,
     restored_paths,
 )
+from slimseg.slam.diagnostic import DIAGNOSTIC, NOTES
 from slimseg.slam.metrics import still_floor
 from slimseg.slam.orbslam3_config import OrbSlam3Config, write_settings
 from slimseg.slam.report import RunInfo, write_report
@@ -127,6 +128,19 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
             check_masks(seq, folder)
             conds[name] = Condition(f"masks ({plan.masks.name})", "masked", masks=folder,
                                     note=f"read from {folder}")  # fmt: skip
+        elif name in DIAGNOSTIC:
+            truth = seq.root / "dynamic"
+            if not truth.is_dir():
+                say(f"{name}: skipped, {truth} does not exist (it combines the masks with it)")
+                continue
+            folder = plan.masks / "masks" if (plan.masks / "masks").is_dir() else plan.masks
+            check_masks(seq, folder)
+            check_masks(seq, truth)
+            how = DIAGNOSTIC[name]
+            conds[name] = Condition(
+                f"masks ({plan.masks.name}) {how} gt", "masked", masks=folder, truth=truth,
+                combine=how, note=NOTES[how],
+            )  # fmt: skip
         elif name not in ("raw", "oracle"):
             if predictor is None:
                 predictor = make_predictor(plan.model, plan.gt_instances, seq.root, plan.threads,
