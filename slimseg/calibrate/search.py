@@ -48,8 +48,8 @@ PERTURBED_KNOBS = 3
 class Trial:
     """One candidate: its ``number`` (the order it finished in), ``origin`` (``slimseg`` or
     ``papers``: a preset; ``near``: the shipped preset with a few knobs moved; ``search``: the
-    sampler's), the settings' scores and the wall
-    seconds since the search began when it finished."""
+    sampler's), the settings' scores and the wall seconds since the search began when it
+    finished."""
 
     number: int
     origin: str
