@@ -1,7 +1,8 @@
 """The calibration's report: ``report.json`` (every candidate's settings and scores, the
 confirmation's ATEs, the timings), ``report.md`` (the tables a reader wants) and
-``report.png`` (the objective per candidate over time; precision against recall per
-candidate, the shipped and chosen settings marked; the confirmation's ATEs).
+``report.png`` (what each candidate earned over the shipped preset, over time; precision
+against recall per candidate, the shipped and chosen settings marked; the confirmation's
+ATEs).
 
 :func:`digest` of ``report.json`` is what the calibrated export's metadata records, so a model
 names the report its settings came from.
@@ -136,28 +137,33 @@ def report_markdown(result: CalibrationResult, model: Path) -> str:
 
 
 def write_plot(result: CalibrationResult, path: Path) -> Path:
-    """``report.png``: objective over time, precision vs recall, confirmation ATEs."""
+    """``report.png``: what each candidate earned over time, precision vs recall, the
+    confirmation's ATEs."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(15, 4.8), dpi=100)
     FigureCanvasAgg(fig)
     over, pr, bars = fig.subplots(1, 3)
-    xs = [t.finished_s for t in result.trials]
-    ys = [max(t.value, -1.0) for t in result.trials]
-    over.scatter(xs, ys, s=14, color="tab:blue", label="candidate")
-    lead, run = [], -math.inf
-    for t in result.trials:
-        run = max(run, t.value)
-        lead.append(max(run, -1.0))
-    over.step(xs, lead, where="post", color="k", lw=1.2, label="best so far")
-    over.axhline(result.shipped.value, color="tab:orange", ls="--", lw=1, label="shipped preset")
+    shipped = result.shipped
+    for origin, color, label in (
+        ("near", "tab:purple", "the shipped preset, 3 knobs moved"),
+        ("search", "tab:blue", "TPE's candidate"),
+        ("papers", "tab:red", "the papers' preset"),
+    ):
+        mine = [t for t in result.trials if t.origin == origin]
+        over.scatter([t.finished_s for t in mine], [max(t.earned(shipped), -1.0) for t in mine],
+                     s=14, color=color, label=label)  # fmt: skip
+    chosen = result.chosen
+    over.scatter([chosen.finished_s], [max(chosen.earned(shipped), -1.0)], s=90,
+                 facecolor="none", edgecolor="tab:green", lw=2, label="chosen")  # fmt: skip
+    over.axhline(0.0, color="tab:orange", ls="--", lw=1, label="shipped preset (earns 0)")
     over.set(
         xlabel="search time (s)",
-        ylabel="objective (precision − penalty)",
-        title="objective per candidate",
+        ylabel="earned over the shipped preset",
+        title="what each candidate earns (mean gain − 1 SE)",
     )
-    over.legend(fontsize=8)
+    over.legend(fontsize=7)
     for cond, marker in (("per_frame", "o"), ("track", "^")):
         pts = [t.evaluation.pooled(cond) for t in result.trials]
         pr.scatter(
