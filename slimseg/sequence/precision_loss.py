@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slimseg.dynamic.annotations import AnnotationInstances
+from slimseg.dynamic.threshold import inside
+from slimseg.sequence.recall_loss import FrameInstances
 
 #: What a false dynamic keypoint on no static instance is charged to.
 BACKGROUND = "background"
@@ -37,29 +38,25 @@ class PrecisionLoss:
 
     def add(
         self,
-        instances: AnnotationInstances,
-        stamp: float,
+        frame: FrameInstances,
         keypoints: np.ndarray,
         dynamic: np.ndarray,
         truth: np.ndarray,
     ) -> None:
-        """One frame: ``keypoints float [N, 2]`` (x, y) px, the output's ``dynamic bool [N]``
-        and the ground truth's ``truth bool [N]``."""
+        """One frame: its ground-truth instances ``frame``, ``keypoints float [N, 2]`` (x, y)
+        px, the output's ``dynamic bool [N]`` and the ground truth's ``truth bool [N]``."""
         false = np.flatnonzero(np.asarray(dynamic, bool) & ~np.asarray(truth, bool))
         if not len(false):
             return
         self.false_dynamic += len(false)
-        pred = instances.for_stamp(stamp)
-        moving = instances.moving(stamp)
-        h, w = pred.masks.shape[1:] if pred.masks is not None else (0, 0)
         left = np.ones(len(false), bool)
-        if h and w:
-            x = np.clip(np.round(keypoints[false, 0]).astype(int), 0, w - 1)
-            y = np.clip(np.round(keypoints[false, 1]).astype(int), 0, h - 1)
-            for k in np.flatnonzero(~np.asarray(moving, bool)):
-                hit = left & pred.masks[k][y, x]
+        if frame.pred.masks is not None:
+            static = np.flatnonzero(~np.asarray(frame.moving, bool))
+            for k, on in zip(static, inside(keypoints[false], frame.pred.masks[static]),
+                             strict=True):  # fmt: skip
+                hit = left & on
                 if hit.any():
-                    self.on[pred.names[k]] += int(hit.sum())
+                    self.on[frame.pred.names[k]] += int(hit.sum())
                     left &= ~hit
         if left.any():
             self.on[BACKGROUND] += int(left.sum())

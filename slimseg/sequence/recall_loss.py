@@ -22,7 +22,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from slimseg.detections import Prediction
 from slimseg.dynamic.annotations import AnnotationInstances
+
+
+@dataclass(frozen=True)
+class FrameInstances:
+    """A frame's ground-truth instances, decoded once for every tally of the frame: ``pred``
+    (boxes, classes, names, ``masks bool [N, H, W]``), their ``moving bool [N]`` flags and
+    ``ids int64 [N]`` track ids."""
+
+    pred: Prediction
+    moving: np.ndarray
+    ids: np.ndarray
+
+    @classmethod
+    def of(cls, instances: AnnotationInstances, stamp: float) -> FrameInstances:
+        """The instances of ``instances`` at ``stamp``."""
+        return cls(instances.for_stamp(stamp), instances.moving(stamp),
+                   instances.track_ids(stamp))  # fmt: skip
+
 
 DROPOUT_COVER = 0.2  # an instance less covered than this is "missed entirely" in that frame
 AFTER_EXIT_FRAMES = 10  # frames after an instance's last appearance that count as "after exit"
@@ -51,20 +70,18 @@ class RecallLoss:
 
     def add(
         self,
-        instances: AnnotationInstances,
-        stamp: float,
+        frame: FrameInstances,
         keypoints: np.ndarray,
         dynamic: np.ndarray,
         truth: np.ndarray,
         region: np.ndarray,
         coasted_only: np.ndarray | None = None,
     ) -> None:
-        """One frame: ``keypoints [N, 2]``, the output's ``dynamic [N]`` and ``truth [N]``
-        flags, the output ``region bool [H, W]`` (the dynamic mask written), and
-        ``coasted_only bool [H, W]`` (pixels covered by coasted masks and no detection)."""
-        pred = instances.for_stamp(stamp)
-        moving = instances.moving(stamp)
-        ids = instances.track_ids(stamp)
+        """One frame: its ground-truth instances ``frame``, ``keypoints [N, 2]``, the
+        output's ``dynamic [N]`` and ``truth [N]`` flags, the output ``region bool [H, W]``
+        (the dynamic mask written), and ``coasted_only bool [H, W]`` (pixels covered by coasted
+        masks and no detection)."""
+        pred, moving, ids = frame.pred, frame.moving, frame.ids
         x = np.clip(np.round(keypoints[:, 0]).astype(int), 0, region.shape[1] - 1)
         y = np.clip(np.round(keypoints[:, 1]).astype(int), 0, region.shape[0] - 1)
         miss = truth & ~dynamic

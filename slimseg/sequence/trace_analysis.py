@@ -32,7 +32,7 @@ from slimseg.dynamic.occupancy import MotionLayers
 from slimseg.dynamic.pipeline import FrameResult, FrameRules, apply_rules
 from slimseg.objects import Objects
 from slimseg.sequence.precision_loss import PrecisionLoss
-from slimseg.sequence.recall_loss import RecallLoss
+from slimseg.sequence.recall_loss import FrameInstances, RecallLoss
 from slimseg.sequence.sequence_report import SequenceReport, at_keypoints, coasted_only, overlay
 from slimseg.utils.atomic import write_png
 
@@ -102,11 +102,10 @@ class TraceAnalysis:
                 truth = at_keypoints(gt > 0, kps)
                 for m, res in results.items():
                     report.scores[m].add(res.dynamic, truth)
-                if self.losses is not None:
-                    self.losses.add(self.instances, stamp, kps, result.dynamic, truth,
-                                    result.mask > 0, only)  # fmt: skip
-                if self.false is not None:
-                    self.false.add(self.instances, stamp, kps, result.dynamic, truth)
+                if self.losses is not None:  # the frame's instances decoded once for both
+                    frame = FrameInstances.of(self.instances, stamp)
+                    self.losses.add(frame, kps, result.dynamic, truth, result.mask > 0, only)
+                    self.false.add(frame, kps, result.dynamic, truth)
         self.stamps.append(stamp)
         self._tally(f, results)
         if f.index % self.every == 0 and len(self.panels) < PANELS:

@@ -14,9 +14,9 @@ Kinds of condition:
   (:mod:`slimseg.slam.diagnostic`), to say where a mask's ATE gap comes from: ``within``
   keeps only the mask pixels near a dynamic pixel (the masks at perfect precision, their
   recall unchanged); ``plus`` adds the ground truth (the masks at perfect recall, their false
-  positives kept). On held-out walking_xyz s131, a model's masks at 9x the ground-truth
-  masks' ATE came to 1.1x within the truth and stayed 9x plus it: their gap was precision
-  (docs/calibrate.md, round 4);
+  positives kept). On held-out walking_xyz s131, a model's masks at 8x the ground-truth
+  masks' ATE came to 1.02x within the truth and 6.4x plus it: their gap was precision
+  (docs/slam_eval.md);
 - ``replaced``: whole replacement frames, e.g. ``restored/rgb/<ts>.png`` +
   ``restored/depth/<ts>.png`` from ``slimseg dynamic --restore``, or a synthetic sequence's
   true static ``background/`` (the oracle).

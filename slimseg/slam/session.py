@@ -124,7 +124,7 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
             conds[name] = Condition("gt", "masked", masks=folder, dilation_px=d,
                                     note=f"ground-truth dynamic/, dilated {d} px")  # fmt: skip
         elif name == "masks":
-            folder = plan.masks / "masks" if (plan.masks / "masks").is_dir() else plan.masks
+            folder = _read_masks(plan)
             check_masks(seq, folder)
             conds[name] = Condition(f"masks ({plan.masks.name})", "masked", masks=folder,
                                     note=f"read from {folder}")  # fmt: skip
@@ -133,7 +133,7 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
             if not truth.is_dir():
                 say(f"{name}: skipped, {truth} does not exist (it combines the masks with it)")
                 continue
-            folder = plan.masks / "masks" if (plan.masks / "masks").is_dir() else plan.masks
+            folder = _read_masks(plan)
             check_masks(seq, folder)
             check_masks(seq, truth)
             how = DIAGNOSTIC[name]
@@ -147,6 +147,13 @@ def mask_conditions(plan: Plan, out: Path, say: Callable[[str], None]) -> dict[s
                                            plan.dropout)  # fmt: skip
             conds[name] = _mode_condition(plan, predictor, name, out, say)
     return conds
+
+
+def _read_masks(plan: Plan) -> Path:
+    """The folder of ``--masks``' PNGs: its ``masks/`` (a ``slimseg dynamic`` output) or
+    itself."""
+    inner = plan.masks / "masks"
+    return inner if inner.is_dir() else plan.masks
 
 
 def make_predictor(

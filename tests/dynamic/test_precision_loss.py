@@ -8,21 +8,18 @@ import pytest
 
 from slimseg.detections import Prediction
 from slimseg.sequence.precision_loss import BACKGROUND, PrecisionLoss
+from slimseg.sequence.recall_loss import FrameInstances
 
 
-class _Instances:
+def _frame() -> FrameInstances:
     """Two instances on a 10x20 frame: a moving person (x 0-4) and a standing one (x 10-14)."""
-
-    def for_stamp(self, stamp: float) -> Prediction:
-        masks = np.zeros((2, 10, 20), bool)
-        masks[0, :, 0:5] = masks[1, :, 10:15] = True
-        boxes = np.array([[0, 0, 5, 10], [10, 0, 15, 10]], np.float32)
-        return Prediction(boxes=boxes, scores=np.ones(2, np.float32),
-                          classes=np.zeros(2, np.int64), names=["person", "person"],
-                          mobility=[1.0, 1.0], masks=masks, image_hw=(10, 20))  # fmt: skip
-
-    def moving(self, stamp: float) -> np.ndarray:
-        return np.array([True, False])
+    masks = np.zeros((2, 10, 20), bool)
+    masks[0, :, 0:5] = masks[1, :, 10:15] = True
+    boxes = np.array([[0, 0, 5, 10], [10, 0, 15, 10]], np.float32)
+    pred = Prediction(boxes=boxes, scores=np.ones(2, np.float32), classes=np.zeros(2, np.int64),
+                      names=["person", "person"], mobility=[1.0, 1.0], masks=masks,
+                      image_hw=(10, 20))  # fmt: skip
+    return FrameInstances(pred, np.array([True, False]), np.array([1, 2]))
 
 
 def test_false_dynamic_keypoints_by_what_they_lie_on() -> None:
@@ -30,8 +27,8 @@ def test_false_dynamic_keypoints_by_what_they_lie_on() -> None:
     truth = np.array([True, True, False, False, False, False, False])
     dynamic = np.array([True, False, True, True, True, True, False])  # 4 false, 1 true
     loss = PrecisionLoss()
-    loss.add(_Instances(), 0.0, kps, dynamic, truth)  # type: ignore[arg-type]
-    loss.add(_Instances(), 0.1, kps, truth, truth)  # a perfect frame adds nothing
+    loss.add(_frame(), kps, dynamic, truth)
+    loss.add(_frame(), kps, truth, truth)  # a perfect frame adds nothing
     assert loss.false_dynamic == 4
     assert loss.on == {"person": 3, BACKGROUND: 1}
     s = loss.summary()
