@@ -24,7 +24,7 @@ from slimseg.calibrate.objective import (
     Evaluation,
 )
 from slimseg.calibrate.run import CalibrationResult
-from slimseg.calibrate.search import SEARCHED, Trial
+from slimseg.calibrate.search import SEARCHED, Trial, moved_keys
 from slimseg.utils.atomic import atomic_path, write_text
 
 
@@ -128,8 +128,7 @@ def report_markdown(result: CalibrationResult, model: Path) -> str:
         )
     lines += ["", "Chosen settings:", ""]
     lines += [f"- `{k}` = {v}" for k, v in result.settings.as_dict().items()]
-    moved = [k.key for k in SEARCHED if result.settings.as_dict()[k.key]
-             != result.shipped.evaluation.settings.as_dict()[k.key]]  # fmt: skip
+    moved = moved_keys(result.chosen, result.shipped)
     lines += ["", f"Knobs moved from the shipped preset: {', '.join(moved) or 'none'}."]
     secs = ", ".join(f"{k} {v:.0f} s" for k, v in result.seconds.items())
     lines += ["", f"{len(result.trials)} candidates; time: {secs}.", ""]

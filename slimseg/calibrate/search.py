@@ -212,14 +212,19 @@ def run_search(
     return trials
 
 
-def moved(trial: Trial, shipped: Trial) -> int:
-    """How many searched knobs ``trial`` moves from ``shipped``'s values, counting only knobs
-    that act under its rule."""
+def moved_keys(trial: Trial, shipped: Trial) -> list[str]:
+    """The searched knobs ``trial`` moves from ``shipped``'s values, only those that act
+    under its rule (a knob of the other rule changes nothing)."""
     mine = clipped(trial.evaluation.settings.as_dict())
     base = clipped(shipped.evaluation.settings.as_dict())
-    return sum(
-        mine[k.key] != base[k.key] and (k.rule is None or k.rule == mine["rule"]) for k in SEARCHED
-    )
+    acts = [k for k in SEARCHED if k.rule is None or k.rule == mine["rule"]]
+    return [k.key for k in acts if mine[k.key] != base[k.key]]
+
+
+def moved(trial: Trial, shipped: Trial) -> int:
+    """How many searched knobs ``trial`` moves from ``shipped``'s values
+    (:func:`moved_keys`)."""
+    return len(moved_keys(trial, shipped))
 
 
 def preferred(trials: list[Trial], shipped: Trial) -> list[Trial]:
