@@ -193,6 +193,7 @@ class FrameMasker:
         self._rng = np.random.default_rng(0)  # depth-RANSAC's sampling
         # the last frames' features (and depth): the previous one, the stillness test's
         self._history: deque[PreviousFrame] = deque(maxlen=max(1, config.masking.still_frames))
+        self._still_masks: np.ndarray | None = None  # the masks found still the frame before
         self._hw: tuple[int, int] | None = None
         self._closed = False
         self._busy = threading.Lock()  # held by the step in progress: overlapping calls refused
@@ -298,10 +299,13 @@ class FrameMasker:
     def _stillness(self, inputs: FrameInputs) -> FrameInputs:
         """The stillness test against the frames ``still_frames`` and half as many back."""
         earlier = compared_frames(self._history, self.config.masking.still_frames)
-        if not earlier:
-            return inputs
-        return replace(inputs, still=find_still(inputs, earlier,
-                                                inputs.objects.priors(self.mobility)))  # fmt: skip
+        still = None
+        if earlier:
+            still = find_still(inputs, earlier, inputs.objects.priors(self.mobility),
+                               self._still_masks)  # fmt: skip
+        masks = inputs.objects.masks
+        self._still_masks = None if still is None or masks is None else masks[still]
+        return inputs if still is None else replace(inputs, still=still)
 
     def _remember(self, features: OrbFeatures, depth_m: np.ndarray | None) -> None:
         """This frame as the next one's previous (with its depth where the camera is known:

@@ -153,6 +153,8 @@ MULTI_FRAME: tuple[tuple[str, object, str], ...] = (
     ("kMotionFeatures", occupancy, "MOTION_FEATURES"),
     ("kStillFraction", stillness, "STILL_FRACTION"),
     ("kMinTested", stillness, "MIN_TESTED"),
+    ("kStillKeepFraction", stillness, "STILL_KEEP_FRACTION"),
+    ("kStillMatchIou", stillness, "STILL_MATCH_IOU"),
 )
 
 

@@ -13,9 +13,11 @@ from slimseg.dynamic.masking_settings import DEFAULT, PAPERS
 from slimseg.dynamic.modes import Mode
 from slimseg.dynamic.stillness import (
     STILL_FRACTION,
+    STILL_KEEP_FRACTION,
     changed_fractions,
     compared_frames,
     depth_span,
+    grid_iou,
     still_objects,
 )
 from slimseg.objects import Objects
@@ -127,6 +129,42 @@ def test_still_objects_needs_a_pose_and_only_judges_candidates() -> None:
     assert not still_objects(now, current, [_earlier(before)], masks, np.zeros(2, bool)).any()
     other = orb_features(np.random.default_rng(5).integers(0, 256, (*HW, 3), np.uint8), 500)
     assert not still_objects(now, other, [_earlier(before)], masks, both).any()  # no pose
+
+
+def test_grid_iou_counts_every_second_pixel() -> None:
+    a = np.zeros((2, 8, 8), bool)
+    a[0, 0:4, 0:4] = True  # 4 grid px
+    a[1, 1:2, 1:8] = True  # an odd row: no grid px
+    b = np.zeros((1, 8, 8), bool)
+    b[0, 0:4, 2:8] = True  # 6 grid px, 2 shared with a[0]
+    np.testing.assert_allclose(grid_iou(a, b), [[2 / 8], [0.0]])
+
+
+def test_a_statue_found_still_stays_still_while_a_walker_brushes_it() -> None:
+    """Something nearer over a fifth of the statue now: not still on its own, still when its
+    mask matches one found still the frame before; two fifths is too much even then; too
+    few pixels tested keeps a remembered verdict."""
+    before, masks = _render(0.0)
+    current = orb_features(_texture(), 500)
+    brushed = before.copy()
+    brushed[20:36][masks[0][20:36]] = STATUE - 0.5  # 16 of the statue's 80 rows
+    frac = changed_fractions(brushed, _earlier(before), _pose(0.0), masks[:1])[0]
+    assert STILL_FRACTION < frac <= STILL_KEEP_FRACTION
+    statue = masks[:1]
+    one = np.ones(1, bool)
+    assert not still_objects(brushed, current, [_earlier(before)], statue, one)[0]
+    assert still_objects(brushed, current, [_earlier(before)], statue, one, before=statue)[0]
+    shifted = np.roll(statue, 40, axis=2)  # no overlap: not the same object
+    assert not still_objects(brushed, current, [_earlier(before)], statue, one, shifted)[0]
+    crossed = before.copy()
+    crossed[20:56][masks[0][20:56]] = STATUE - 0.5  # 36 of 80 rows
+    assert not still_objects(crossed, current, [_earlier(before)], statue, one, statue)[0]
+    covered = before.copy()
+    covered[masks[0]] = 1.0  # a walker in front of all of it then: hidden, nothing tested
+    frames = [_earlier(before), _earlier(covered)]
+    assert np.isnan(changed_fractions(before, frames[1], _pose(0.0), statue)[0])
+    assert still_objects(before, current, frames, statue, one, statue)[0]  # the verdict stands
+    assert not still_objects(before, current, frames, statue, one)[0]  # undecided: dynamic
 
 
 @pytest.mark.parametrize("still_frames", [20, 0])

@@ -50,11 +50,21 @@ std::vector<std::uint8_t> FrameChain::find_still(const Objects& objects, const D
     if (sf <= 0 || n < (sf + 1) / 2 || !objects.has_masks || !depth.d || !camera_) return still;
     const int size = static_cast<int>(history_.size());
     const Past* earlier[2] = {&history_[size - std::max(n / 2, 1)], &history_[size - n]};
-    for (size_t k = 0; k < m; ++k) still[k] = base[k] > 0;
+    // stillness.still_objects: an object overlapping a mask found still the frame before is
+    // still while at most kStillKeepFraction changed (undecided: the verdict stands)
+    std::vector<std::uint8_t> known(m, 0);
+    std::vector<double> limit(m, mf::kStillFraction), frac(m, INFINITY);
+    for (size_t k = 0; k < m; ++k) {
+        if (!(base[k] > 0)) continue;
+        frac[k] = 0.0;
+        for (const WindowMask& b : still_masks_)
+            if (grid_iou(objects.masks[k], b) >= mf::kStillMatchIou) known[k] = 1;
+        if (known[k]) limit[k] = mf::kStillKeepFraction;
+    }
     for (const Past* frame : earlier) {
         std::vector<size_t> pick;
         for (size_t k = 0; k < m; ++k)
-            if (still[k]) pick.push_back(k);
+            if (frac[k] <= limit[k]) pick.push_back(k);
         if (pick.empty()) break;
         Pose pose;
         if (frame->depth.empty() ||
@@ -64,10 +74,15 @@ std::vector<std::uint8_t> FrameChain::find_still(const Objects& objects, const D
         std::vector<const WindowMask*> masks;
         for (size_t k : pick) masks.push_back(&objects.masks[k]);
         const DepthImage then{frame->depth.data(), depth.h, depth.w};
-        const std::vector<double> frac = changed_fractions(depth, then, *camera_, pose, masks);
-        for (size_t j = 0; j < pick.size(); ++j)
-            still[pick[j]] = frac[j] <= mf::kStillFraction;  // NaN: undecided, stays dynamic
+        const std::vector<double> f = changed_fractions(depth, then, *camera_, pose, masks);
+        for (size_t j = 0; j < pick.size(); ++j) {
+            const size_t k = pick[j];
+            // NaN: undecided, dynamic; a remembered object keeps its verdict
+            const double v = std::isnan(f[j]) ? (known[k] ? 0.0 : INFINITY) : f[j];
+            frac[k] = std::max(frac[k], v);
+        }
     }
+    for (size_t k = 0; k < m; ++k) still[k] = frac[k] <= limit[k];
     return still;
 }
 
@@ -111,6 +126,9 @@ DynamicResult FrameChain::step(const Objects& objects, int h, int w, const Featu
     }
     const DepthImage depth{depth_m, h, w};
     still_ = find_still(objects, depth, features, base);
+    still_masks_.clear();  // the masks found still: the next frame's memory (none untested)
+    for (size_t k = 0; k < m; ++k)
+        if (still_[k]) still_masks_.push_back(objects.masks[k]);
     std::vector<float> mob = base;
     for (size_t k = 0; k < m; ++k)
         if (still_[k]) mob[k] = 0.0f;  // standing still: static structure

@@ -50,4 +50,23 @@ std::vector<double> changed_fractions(const DepthImage& depth, const DepthImage&
     return out;
 }
 
+double grid_iou(const WindowMask& a, const WindowMask& b) {
+    const int s = mf::kStride;
+    std::int64_t na = 0, nb = 0, both = 0;
+    auto count = [s](const WindowMask& m) {
+        std::int64_t n = 0;
+        for (int y = m.y0 + (s - m.y0 % s) % s; y < m.y0 + m.h; y += s)
+            for (int x = m.x0 + (s - m.x0 % s) % s; x < m.x0 + m.w; x += s) n += m.at(y, x);
+        return n;
+    };
+    na = count(a);
+    nb = count(b);
+    const int y0 = std::max(a.y0, b.y0), y1 = std::min(a.y0 + a.h, b.y0 + b.h);
+    const int x0 = std::max(a.x0, b.x0), x1 = std::min(a.x0 + a.w, b.x0 + b.w);
+    for (int y = y0 + (s - y0 % s) % s; y < y1; y += s)
+        for (int x = x0 + (s - x0 % s) % s; x < x1; x += s) both += a.at(y, x) && b.at(y, x);
+    const std::int64_t uni = na + nb - both;
+    return uni > 0 ? static_cast<double>(both) / static_cast<double>(uni) : 0.0;
+}
+
 }  // namespace slimseg

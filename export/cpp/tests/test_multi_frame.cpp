@@ -198,7 +198,8 @@ void test_stillness_and_layers() {
 }
 
 // The chain keeps its history: frame sizes are checked, a still object goes to mobility 0
-// once still_frames / 2 frames are held, and a setting without what it needs is named.
+// once still_frames / 2 frames are held and stays still while a little of it changes, and a
+// setting without what it needs is named.
 void test_chain() {
     const int h = 40, w = 60;
     Rules rules;
@@ -231,6 +232,33 @@ void test_chain() {
     chain.step(o, h, w, f, depth.data());
     CHECK_EQ(int(chain.still()[0]), 1);  // its depth has not changed: still
     CHECK_EQ(chain.mobility()[0], 0.0f);
+    // something nearer over a fifth of it now (rows 5-10 of 5-34): found still the frame
+    // before, it stays still (at most kStillKeepFraction changed); a chain that never found
+    // it still does not; two fifths changed is too much even remembered
+    std::vector<float> brushed = depth;
+    for (int y = 5; y < 11; ++y)
+        for (int x = 10; x < 50; ++x) brushed[y * w + x] = 1.0f;
+    FrameChain fresh(rules, Camera{50, 50, 30, 20});
+    fresh.step(o, h, w, f, depth.data());
+    fresh.step(o, h, w, f, brushed.data());
+    CHECK_EQ(int(fresh.still()[0]), 0);
+    chain.step(o, h, w, f, brushed.data());
+    CHECK_EQ(int(chain.still()[0]), 1);
+    FrameChain again(rules, Camera{50, 50, 30, 20});
+    again.step(o, h, w, f, depth.data());
+    again.step(o, h, w, f, depth.data());
+    std::vector<float> crossed = depth;
+    for (int y = 5; y < 17; ++y)
+        for (int x = 10; x < 50; ++x) crossed[y * w + x] = 1.0f;
+    again.step(o, h, w, f, crossed.data());
+    CHECK_EQ(int(again.still()[0]), 0);
+    // grid_iou: counted on every 2nd pixel (frame coordinates)
+    WindowMask half = m;
+    half.w = 20, half.pixels.assign(half.w * half.h, 1);
+    CHECK_NEAR(grid_iou(m, half), 0.5, 1e-12);
+    WindowMask apart = m;
+    apart.x0 = 100;
+    CHECK_NEAR(grid_iou(m, apart), 0.0, 0.0);
     CHECK_ERROR(chain.step(o, 20, 30, f, nullptr),
                 "frame 20x30: the first was 40x60; a chain serves one camera stream");
     Features bad = f;

@@ -3,7 +3,9 @@
 // SLAM system has (the frame's objects, its ORB keypoints and descriptors, its depth, the
 // intrinsics); the chain keeps the history itself. Per frame:
 //   stillness   an object whose depth has not changed against the frames still_frames and
-//               half as many back gets mobility 0 (slimseg.dynamic.stillness)
+//               half as many back gets mobility 0; one overlapping a mask found still the
+//               frame before stays still while at most kStillKeepFraction of it changed
+//               (slimseg.dynamic.stillness)
 //   motion odds the epipolar check on the objects of uncertain mobility (0 < p < 1) weighs
 //               their odds by motion_odds (slimseg.dynamic.mobility, motion_evidence)
 //   rules       Eq. 1/3/4 and the depth cut, which keeps each object's motion layer: what
@@ -68,6 +70,7 @@ private:
     int h_ = -1, w_ = -1;
     std::vector<float> mobility_;
     std::vector<std::uint8_t> still_;
+    std::vector<WindowMask> still_masks_;  // the masks found still the frame before
 };
 
 }  // namespace slimseg

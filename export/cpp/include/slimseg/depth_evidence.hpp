@@ -37,6 +37,10 @@ std::vector<float> max_filter(const std::vector<float>& d, int h, int w, int rad
 // d with NaN, +inf and values <= 0 as 0 (what the filters take)
 std::vector<float> zero_invalid(const DepthImage& depth);
 
+// stillness.grid_iou: the IoU of two masks counted on the grid of every kStride-th pixel in x
+// and y (frame coordinates).
+double grid_iou(const WindowMask& a, const WindowMask& b);
+
 // stillness.changed_fractions: per mask, of its grid pixels with depth that land in the
 // earlier frame and were not hidden then, the fraction more than kTauM nearer than every
 // depth that frame saw within kNeighbourhoodPx; NaN with fewer than kMinTested tested.

@@ -76,6 +76,8 @@ inline constexpr int kStride = 2;  // occupancy.STRIDE
 inline constexpr int kMotionFeatures = 300;  // occupancy.MOTION_FEATURES
 inline constexpr double kStillFraction = 0.05;  // stillness.STILL_FRACTION
 inline constexpr int kMinTested = 100;  // stillness.MIN_TESTED
+inline constexpr double kStillKeepFraction = 0.3;  // stillness.STILL_KEEP_FRACTION
+inline constexpr double kStillMatchIou = 0.5;  // stillness.STILL_MATCH_IOU
 }  // namespace multi_frame
 
 }  // namespace slimseg::generated
