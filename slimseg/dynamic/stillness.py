@@ -36,8 +36,9 @@ their depth falls inside the model's mask of the standing person and 10-40 % of 
 changes for a few frames. On six held-out sequences, two models (the demo's AMD and Intel
 ones, shipped preset), the memory raised keypoint precision by 0.2-8.3 points (walking_xyz
 s131 58.7 -> 60.6 %, sitting_static 55.8 -> 64.1 % for the Intel model) for at most 1.0
-point of recall (docs/calibrate.md, round 5); with ground-truth identities, none of the
-walkers' or seated persons' mask area was kept still by it.
+point of recall, and left ORB-SLAM3's ATE where it was (docs/standing_person.md); with
+ground-truth identities, none of the walkers' or seated persons' mask area was kept still by
+it.
 """
 
 from __future__ import annotations
