@@ -14,7 +14,7 @@ import pytest
 
 from slimseg.cli.export import END2END_MASK_BYTES, check_end2end_size
 from slimseg.cli.main import main
-from slimseg.cli.predict import open_source
+from slimseg.data.frame_files import open_source
 from slimseg.errors import SlimsegError
 
 

@@ -46,8 +46,7 @@ from slimseg.cli.rerun_args import add_rerun_arg, kept_recording, rerun_path
 from slimseg.cli.settings_args import add_settings_args, settings_from_args
 from slimseg.data.bags.colour_stream import BagColour
 from slimseg.data.bags.reader import is_bag
-from slimseg.data.images import read_rgb
-from slimseg.data.problems import ImageProblem
+from slimseg.data.frame_files import IMAGE_SUFFIXES, open_source
 from slimseg.data.sample import Sample
 from slimseg.data.tum import TumSequence
 from slimseg.data.visualize import draw_class_map, draw_sample
@@ -62,10 +61,8 @@ from slimseg.dynamic.modes import FPS, KEYPOINTS, MAX_KEYPOINTS
 from slimseg.errors import SlimsegError
 from slimseg.ops.nms_numpy import MAX_DET, NMS_IOU, PREDICT_CONF
 from slimseg.utils.atomic import atomic_path, staged_dir, write_json, write_png
-from slimseg.utils.input_files import check_regular
-from slimseg.utils.outputs import claim_folder, refuse_inputs, unique_stems
+from slimseg.utils.outputs import claim_folder, refuse_inputs
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 STAGES = ("preprocess", "inference", "postprocess")
 
 
@@ -127,69 +124,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_settings_args(p, masking=False)
     add_rerun_arg(p, "--track's frames: image, class-coloured mask, boxes, keypoints, timing")
     p.set_defaults(run=run)
-
-
-def _image_frames(paths: list[Path]) -> Iterator[tuple[str, str, np.ndarray | None]]:
-    """``(stem, source path, RGB)`` per image; stems never collide (a.png and a.jpg: ``a_png``,
-    ``a_jpg``; :func:`slimseg.utils.outputs.unique_stems`). An image that cannot be read comes
-    as ``(stem, "<path>: <why>", None)`` (the skip report names both)."""
-    stems = unique_stems([p.stem for p in paths], [p.suffix for p in paths])
-    for path, stem in zip(paths, stems, strict=True):
-        try:
-            image, source = read_rgb(path), str(path)
-        except ImageProblem as e:
-            image, source = None, str(e)
-        yield stem, source, image
-
-
-def _video_frames(path: Path) -> Iterator[tuple[str, str, np.ndarray | None]]:
-    cap = cv2.VideoCapture(str(path))
-    try:
-        index = 0
-        while True:
-            ok, bgr = cap.read()
-            if not ok:
-                break
-            yield f"frame_{index:06d}", str(path), cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-            index += 1
-    finally:
-        cap.release()
-
-
-def open_source(
-    source: str | Path, rgb_topic: str | None = None
-) -> tuple[Iterator[tuple[str, str, np.ndarray | None]], int, bool]:
-    """Frames of ``source`` as ``(stem, path, RGB or None if unreadable)``, their count (0:
-    unknown) and whether they come from a video (a bag's colour topic, ``rgb_topic`` or the
-    only one, gives stems of its stamps)."""
-    path = Path(source)
-    if not path.exists():
-        raise SlimsegError(f"{path}: no such file or folder")
-    if is_bag(path):
-        bag = BagColour(path, rgb_topic)
-        return bag.frames(), len(bag.stamps), False
-    if rgb_topic is not None:
-        raise SlimsegError(f"--rgb-topic applies to a ROS bag --source; {path} is not one")
-    if path.is_dir():
-        images = sorted(
-            p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES
-        )
-        if not images:
-            raise SlimsegError(f"{path}: no {'/'.join(IMAGE_SUFFIXES)} images in this folder")
-        return _image_frames(images), len(images), False
-    check_regular(path, "--source")  # a FIFO named .mp4 or .png would block forever
-    if path.suffix.lower() in IMAGE_SUFFIXES:
-        return _image_frames([path]), 1, False
-    cap = cv2.VideoCapture(str(path))
-    try:
-        if not cap.isOpened():
-            raise SlimsegError(
-                f"{path}: neither an image ({'/'.join(IMAGE_SUFFIXES)}) nor a video OpenCV can open"
-            )
-        count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    finally:
-        cap.release()
-    return _video_frames(path), max(count, 0), True
 
 
 def save_prediction(

@@ -18,13 +18,13 @@ import numpy as np
 
 from slimseg.data.coco import CocoDataset, ImageProblem, read_image_rgb8
 from slimseg.data.config import DataConfig, load_data_config
+from slimseg.data.frame_files import IMAGE_SUFFIXES
 from slimseg.deploy.preprocess import preprocess_frame
 from slimseg.errors import SlimsegError
 
 log = logging.getLogger(__name__)
 
 DEFAULT_CALIB_IMAGES = 300
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 
 
 @dataclass

@@ -16,11 +16,9 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Protocol
 
 import numpy as np
@@ -33,13 +31,15 @@ from slimseg.dynamic.epipolar import OrbFeatures, PreviousFrame, orb_features
 from slimseg.dynamic.familiarity import Familiarity
 from slimseg.dynamic.frame_inputs import FrameInputs
 from slimseg.dynamic.knobs import Rule, Value, unmet
-from slimseg.dynamic.mobility import Decision, MotionBelief
+from slimseg.dynamic.masked_frame import FrameTiming, MaskedFrame, StageClock
+from slimseg.dynamic.mobility import MotionBelief
 from slimseg.dynamic.model_feed import FedDetections, Feed, ModelFeed
 from slimseg.dynamic.occupancy import MotionLayers
-from slimseg.dynamic.pipeline import FrameResult, FrameRules, apply_rules
+from slimseg.dynamic.pipeline import FrameRules, apply_rules
 from slimseg.dynamic.seg_box import T_O
 from slimseg.dynamic.semantic import objects_of
 from slimseg.dynamic.stillness import compared_frames, find_still
+from slimseg.dynamic.track_belief import TrackBeliefs
 from slimseg.dynamic.track_run import TrackedSequence
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
@@ -56,101 +56,6 @@ log = logging.getLogger(__name__)
 
 class FrameError(SlimsegError):
     """A frame the chain cannot take (dtype, shape, a size change, a depth of another size)."""
-
-
-STAGES = ("model", "features", "objects", "stillness", "mobility", "layers", "rules")
-"""The chain's stages in the order :meth:`FrameMasker.step` runs them (docs/architecture.md,
-"The masking chain")."""
-
-
-@dataclass(frozen=True)
-class FrameTiming:
-    """Milliseconds of one frame by stage (:data:`STAGES`), on the caller's thread (``model``:
-    the inline run, or waiting for the worker); ``latency``: from the call to the mask."""
-
-    stages: dict[str, float]
-    latency: float
-
-    @property
-    def model(self) -> float:
-        return self.stages["model"]
-
-    @property
-    def features(self) -> float:
-        """ORB features of the frame."""
-        return self.stages["features"]
-
-    @property
-    def track(self) -> float:
-        """The objects (the track stage, or the priors) and the stillness test."""
-        return self.stages["objects"] + self.stages["stillness"]
-
-    @property
-    def logic(self) -> float:
-        """The mobility decision, the motion layers and the mode's rules (Eq. 1/3/4)."""
-        return self.stages["mobility"] + self.stages["layers"] + self.stages["rules"]
-
-    @property
-    def masking(self) -> float:
-        """Everything but the model: ORB + track stage + the mode's logic."""
-        return self.features + self.track + self.logic
-
-
-@dataclass(frozen=True)
-class MaskedFrame:
-    """One frame's outcome: ``mask uint8 [H, W]`` (255 = dynamic, drop features there) and
-    ``dynamic bool [N]`` per keypoint; ``lag``: a model result arrived this frame, computed
-    that many frames ago (None: none arrived); the mode's ``result`` (Eq. 1's threshold,
-    dropped objects, Eq. 4 decisions); ``inputs``: what the chain saw (the keypoints, the
-    objects with their base mobility, depth, the previous frame) and ``decision``: the
-    mobility the rules used: the trace a report scores other modes on."""
-
-    index: int
-    stamp: float
-    mask: np.ndarray
-    dynamic: np.ndarray
-    lag: int | None
-    timing: FrameTiming
-    result: FrameResult
-    inputs: FrameInputs
-    decision: Decision
-
-    @property
-    def keypoints(self) -> np.ndarray:
-        """``float32 [N, 2]`` (x, y) px: the caller's, or the chain's ORB."""
-        return self.inputs.keypoints
-
-    @property
-    def objects(self) -> Objects:
-        """The objects the rules judged (their ``mobility`` as Eq. 1 used it)."""
-        return self.inputs.objects
-
-    @property
-    def model_ran(self) -> bool:
-        """A model result arrived this frame."""
-        return self.lag is not None
-
-
-class _StageClock:
-    """Milliseconds per named stage of one frame (``with clock("name"): ...``)."""
-
-    def __init__(self) -> None:
-        self.start = time.perf_counter()
-        self.ms: dict[str, float] = {}
-        self._began: dict[str, float] = {}
-
-    @contextmanager
-    def __call__(self, name: str) -> Iterator[None]:
-        t0 = self._began[name] = time.perf_counter()
-        yield
-        self.ms[name] = 1000 * (time.perf_counter() - t0)
-
-    def since(self, name: str) -> float:
-        """Seconds from the start of stage ``name`` to now."""
-        return time.perf_counter() - self._began[name]
-
-    def total_ms(self) -> float:
-        return 1000 * (time.perf_counter() - self.start)
 
 
 class FrameMasker:
@@ -182,7 +87,7 @@ class FrameMasker:
                 mover_prior=self.rules.mover_prior,
                 fps=config.fps,
             )
-            self._belief = self.stage.tracker
+            self._belief = TrackBeliefs(self.stage.tracker)
         degrade = config.masking.rule == Rule.DEGRADE  # the corners: its static support
         self.extract = extractor or (
             lambda rgb, stamp: orb_features(rgb, config.keypoints, corners=degrade)
@@ -244,7 +149,7 @@ class FrameMasker:
             self._told_no_depth = True
             self._unmet({"camera", "history", "track"}, f"frame {i}: no depth image")
         stamp = i / config.fps if stamp is None else float(stamp)
-        clock = _StageClock()
+        clock = StageClock()
         with clock("model"):  # this frame's model result, if one arrived
             got = self.feed.frame(i, rgb, stamp)
         with clock("features"):  # the chain's own ORB

@@ -34,9 +34,9 @@ from slimseg.objects import Objects
 
 
 class MotionBelief(Protocol):
-    """Where the check's decisions go with the track stage on (the
-    :class:`~slimseg.dynamic.track.Tracker`): each returns the frame's ``mobility float32
-    [M]``."""
+    """Where the check's decisions go with the track stage on
+    (:class:`~slimseg.dynamic.track_belief.TrackBeliefs`): each returns the frame's
+    ``mobility float32 [M]``."""
 
     def beliefs(self, frame: Objects) -> np.ndarray: ...
 

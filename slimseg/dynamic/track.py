@@ -22,7 +22,8 @@ Per model frame (docs/tracking.md §2; ByteTrack, BoT-SORT, OC-SORT, CFP-SLAM):
    ``max_coast`` frames, dilated per missed frame and cut to the track's depth band; its
    mobility is ``p · coast_decay^misses``, so Eq. 1 gives coasted masks up first.
 5. **Moving probability.** Where the epipolar check runs, its decision on a tracked object
-   updates the track's ``p`` (:meth:`Tracker.observe_motion`); ``p`` relaxes to the class prior.
+   updates the track's ``p`` (:class:`~slimseg.dynamic.track_belief.TrackBeliefs`); ``p`` relaxes
+   to the class prior.
 
 Every detection the per-frame logic would use (score above the masking threshold) is emitted
 whether or not it matched, so recall can only go up; low-score detections matched to a
@@ -54,7 +55,6 @@ from slimseg.dynamic.mask_patch import (
     whole_pixel_shift,
 )
 from slimseg.dynamic.modes import FPS
-from slimseg.dynamic.motion_evidence import weigh_odds
 from slimseg.dynamic.track_geometry import (
     box_iou,
     box_iou_matrix,
@@ -366,58 +366,6 @@ class Tracker:
                                 source=source, misses=t.misses))  # fmt: skip
         self.parts["coast"] += time.perf_counter() - t0 - (self.parts["warp"] - w0)
         return objs
-
-    # -- moving probability ------------------------------------------------------------------
-
-    def observe_motion(
-        self, frame: Objects, checked: list[int], decided: np.ndarray, moving: np.ndarray
-    ) -> np.ndarray:
-        """Feed the epipolar check's decisions on objects ``checked`` (indices into ``frame``)
-        to their tracks' moving probability; returns the updated ``mobility float32 [M]``
-        (an untracked object the check finds static gets 0, as without tracking)."""
-        by_id = {t.id: t for t in self.tracks}
-        mob = frame.mobility.copy()
-        for k, dec, mov in zip(checked, decided, moving, strict=True):
-            tid = int(frame.track_ids[k])
-            t = by_id.get(tid)
-            if not dec:
-                continue
-            if t is None:
-                mob[k] = mob[k] if mov else 0.0
-                continue
-            t.p = (1 - self.s.p_alpha) * t.p + self.s.p_alpha * float(mov)
-            mob[k] = t.mobility(self.s.coast_decay)
-        return mob
-
-    def beliefs(self, frame: Objects) -> np.ndarray:
-        """``float32 [M]``: what is believed of each object's motion: its track's moving
-        probability ``p`` (its emitted mobility is ``p`` times ``coast_decay`` per miss), the
-        emitted mobility of an untracked one."""
-        by_id = {t.id: t.p for t in self.tracks}
-        ids = frame.track_ids.tolist()
-        return np.array([by_id.get(int(i), m) for i, m in zip(ids, frame.mobility.tolist(),
-                                                           strict=True)], np.float32)  # fmt: skip
-
-    def weigh_motion(
-        self,
-        frame: Objects,
-        checked: list[int],
-        decided: np.ndarray,
-        moving: np.ndarray,
-        odds: float,
-    ) -> np.ndarray:
-        """The motion odds of the seg and fusion modes (:mod:`slimseg.dynamic.motion_evidence`)
-        on the objects ``checked``: a decided check weighs the belief (:meth:`beliefs`), and
-        a coasted mask keeps its decay on top, so a person (``p`` 1) is beyond argument while
-        it coasts as while it is detected. ``p`` itself is not updated (the odds are this
-        frame's evidence, as without the track stage). Returns ``mobility float32 [M]``."""
-        belief = self.beliefs(frame)
-        mob = frame.mobility.copy()
-        for k, dec, mov in zip(checked, decided, moving, strict=True):
-            if dec and 0.0 < belief[k] < 1.0:
-                decay = self.s.coast_decay ** int(frame.misses[k])
-                mob[k] = weigh_odds(float(belief[k]), bool(mov), odds) * decay
-        return mob
 
     def _frame(self, objs: list[Emitted], hw, det_masks) -> Objects:
         n = len(objs)

@@ -38,7 +38,7 @@ import numpy as np
 from slimseg.data.images import decode_file
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import class_color
-from slimseg.dynamic.frame_masker import MaskedFrame
+from slimseg.dynamic.masked_frame import MaskedFrame
 from slimseg.errors import SlimsegError
 from slimseg.sequence.mask_bag import object_labels
 from slimseg.utils.atomic import stage_name

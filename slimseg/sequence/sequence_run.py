@@ -30,7 +30,8 @@ from slimseg.data.sequence_source import opens_sequence
 from slimseg.data.tum import mask_name
 from slimseg.dynamic.annotations import AnnotationInstances
 from slimseg.dynamic.chain_config import DEFAULT_CHAIN, ChainConfig
-from slimseg.dynamic.frame_masker import FrameMasker, MaskedFrame, segmenter_for
+from slimseg.dynamic.frame_masker import FrameMasker, segmenter_for
+from slimseg.dynamic.masked_frame import MaskedFrame
 from slimseg.dynamic.modes import MODES, Mode
 from slimseg.sequence.sequence_report import ModeScore, SequenceReport, track_rows, write_csv
 from slimseg.sequence.trace_analysis import TraceAnalysis

@@ -25,8 +25,8 @@ from slimseg.data.images import decode_file
 from slimseg.data.tum import mask_name
 from slimseg.data.visualize import tile
 from slimseg.dynamic.annotations import AnnotationInstances
-from slimseg.dynamic.frame_masker import MaskedFrame
 from slimseg.dynamic.mask_patch import Patch, pack_masks, unpack_masks
+from slimseg.dynamic.masked_frame import MaskedFrame
 from slimseg.dynamic.modes import BOX_MODES, EPIPOLAR_MODES, Mode
 from slimseg.dynamic.occupancy import MotionLayers
 from slimseg.dynamic.pipeline import FrameResult, FrameRules, apply_rules

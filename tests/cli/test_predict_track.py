@@ -18,7 +18,8 @@ from PIL import Image
 import slimseg
 from slimseg.cli import predict as predict_cli
 from slimseg.cli.main import main
-from slimseg.deploy.track_predict import UNTRACKED_BASE, draw_tracked
+from slimseg.deploy.track_draw import draw_tracked
+from slimseg.deploy.track_predict import UNTRACKED_BASE
 from slimseg.detections import Prediction
 from slimseg.models.checkpoint import WeightsInfo, save_weights
 from slimseg.objects import Objects

@@ -26,6 +26,7 @@ from slimseg.dynamic.mask_patch import (
 )
 from slimseg.dynamic.model_rate import ModelRate
 from slimseg.dynamic.track import Tracker
+from slimseg.dynamic.track_belief import TrackBeliefs
 from slimseg.dynamic.track_settings import COAST, NO_COAST, TrackSettingsError
 from slimseg.errors import SlimsegError
 from slimseg.objects import Objects
@@ -202,7 +203,7 @@ def test_moving_probability_relaxes_and_updates() -> None:
     tr, out = _run(COAST, [_dets([_disc(40, 60)], [0.9])] * 2)
     mob = out[-1].mobility
     for _ in range(5):
-        mob = tr.observe_motion(out[-1], [0], np.array([True]), np.array([False]))
+        mob = TrackBeliefs(tr).observe_motion(out[-1], [0], np.array([True]), np.array([False]))
     assert mob[0] == pytest.approx((1 - COAST.p_alpha) ** 5)
     assert mob[0] < 0.25  # a standing person's points stay static after a few decisions
 
