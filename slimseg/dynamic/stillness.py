@@ -33,12 +33,12 @@ frame before (:data:`STILL_MATCH_IOU` on the test's grid) stays still while at m
 :data:`STILL_KEEP_FRACTION` of its pixels changed, or while it cannot be tested. A person
 standing among walkers is where the test fails: a walker passing beside or behind them at
 their depth falls inside the model's mask of the standing person and 10-40 % of that mask
-changes for a few frames. On six held-out sequences, two models (the demo's AMD and Intel
-ones, shipped preset), the memory raised keypoint precision by 0.2-8.3 points (walking_xyz
-s131 58.7 -> 60.6 %, sitting_static 55.8 -> 64.1 % for the Intel model) for at most 1.0
-point of recall, and left ORB-SLAM3's ATE where it was (docs/standing_person.md); with
-ground-truth identities, none of the walkers' or seated persons' mask area was kept still by
-it.
+changes for a few frames. On six held-out sequences and four models (shipped preset), the
+memory raised keypoint precision on 23 of 24 pairs by up to 8.3 points (walking_xyz s131
+58.7 -> 60.6 % for the demo's AMD model, sitting_static 55.8 -> 64.1 % for its Intel one)
+for at most 1.0 point of recall, and left ORB-SLAM3's ATE where it was
+(docs/standing_person.md); with ground-truth identities, none of the walkers' or seated
+persons' mask area was kept still by it.
 """
 
 from __future__ import annotations
