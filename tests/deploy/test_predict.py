@@ -15,6 +15,7 @@ from conftest import batchnorm_from, open_class_bias
 
 import slimseg
 from slimseg.cli import predict as predict_cli
+from slimseg.data.frame_files import IMAGE_SUFFIXES, open_source
 from slimseg.deploy.metadata import build_metadata, to_metadata_props
 from slimseg.deploy.predictor import Predictor, combined_mask
 from slimseg.detections import Prediction
@@ -290,12 +291,31 @@ def test_cli_video(files, tmp_path):
     assert record["frame"] == 1 and record["size"] == [100, 150]
 
 
+def test_every_image_suffix_is_read(tmp_path) -> None:
+    """A folder of frames in each suffix ``predict`` (and the INT8 calibration) lists: every one
+    decodes to the RGB written, in name order."""
+    rgb = np.zeros((8, 12, 3), np.uint8)
+    rgb[:, :6] = (200, 40, 10)
+    lossless = [cv2.IMWRITE_JPEG_QUALITY, 100, cv2.IMWRITE_WEBP_QUALITY, 101]
+    for k, suffix in enumerate(IMAGE_SUFFIXES):
+        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+        assert cv2.imwrite(str(tmp_path / f"f{k}{suffix}"), bgr, lossless), suffix
+    frames, count, video = open_source(tmp_path)
+    got = list(frames)
+    assert count == len(IMAGE_SUFFIXES) and not video
+    assert [stem for stem, _, _ in got] == [f"f{k}" for k in range(len(IMAGE_SUFFIXES))]
+    for (_, path, image), suffix in zip(got, IMAGE_SUFFIXES, strict=True):
+        assert image is not None and image.shape == rgb.shape, path
+        tol = 40 if suffix in (".jpg", ".jpeg") else 0  # lossy at the red/black edge
+        assert np.abs(image.astype(int) - rgb).max() <= tol, suffix
+
+
 def test_cli_bad_sources(files, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     (empty / "notes.txt").write_text("no images here")
     for source, match in (
-        (empty, "no .png/.jpg/.jpeg/.bmp images"),
+        (empty, "no .png/.jpg/.jpeg/.bmp/.tif/.tiff/.webp images"),
         (tmp_path / "missing", "no such file or folder"),
         (empty / "notes.txt", "nor a video"),
     ):
