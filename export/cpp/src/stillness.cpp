@@ -52,19 +52,19 @@ std::vector<double> changed_fractions(const DepthImage& depth, const DepthImage&
 
 double grid_iou(const WindowMask& a, const WindowMask& b) {
     const int s = mf::kStride;
-    std::int64_t na = 0, nb = 0, both = 0;
-    auto count = [s](const WindowMask& m) {
+    const auto grid = [s](int v) { return v + (s - v % s) % s; };  // first grid line >= v
+    // the grid pixels of one mask, then of both, over the rows and columns [y0, y1) x [x0, x1)
+    const auto count = [&](int y0, int y1, int x0, int x1, const WindowMask* other,
+                           const WindowMask& m) {
         std::int64_t n = 0;
-        for (int y = m.y0 + (s - m.y0 % s) % s; y < m.y0 + m.h; y += s)
-            for (int x = m.x0 + (s - m.x0 % s) % s; x < m.x0 + m.w; x += s) n += m.at(y, x);
+        for (int y = grid(y0); y < y1; y += s)
+            for (int x = grid(x0); x < x1; x += s) n += m.at(y, x) && (!other || other->at(y, x));
         return n;
     };
-    na = count(a);
-    nb = count(b);
-    const int y0 = std::max(a.y0, b.y0), y1 = std::min(a.y0 + a.h, b.y0 + b.h);
-    const int x0 = std::max(a.x0, b.x0), x1 = std::min(a.x0 + a.w, b.x0 + b.w);
-    for (int y = y0 + (s - y0 % s) % s; y < y1; y += s)
-        for (int x = x0 + (s - x0 % s) % s; x < x1; x += s) both += a.at(y, x) && b.at(y, x);
+    const std::int64_t na = count(a.y0, a.y0 + a.h, a.x0, a.x0 + a.w, nullptr, a);
+    const std::int64_t nb = count(b.y0, b.y0 + b.h, b.x0, b.x0 + b.w, nullptr, b);
+    const std::int64_t both = count(std::max(a.y0, b.y0), std::min(a.y0 + a.h, b.y0 + b.h),
+                                    std::max(a.x0, b.x0), std::min(a.x0 + a.w, b.x0 + b.w), &b, a);
     const std::int64_t uni = na + nb - both;
     return uni > 0 ? static_cast<double>(both) / static_cast<double>(uni) : 0.0;
 }
